@@ -1,0 +1,38 @@
+"""Writing and reading the project's images (RGB float in [0, 1] <-> 8/16-bit PNG)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def to_numpy(image) -> np.ndarray:
+    """(H, W, 3) float array from a tensor or array."""
+    if hasattr(image, "detach"):
+        image = image.detach().cpu().numpy()
+    return np.asarray(image, dtype=np.float64)
+
+
+def write_png(path: str | Path, image, bits: int = 16) -> Path:
+    """Writes an RGB image in [0, 1] as an 8- or 16-bit PNG (values are clipped)."""
+    import cv2
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rgb = np.clip(to_numpy(image), 0.0, 1.0)
+    top = 65535 if bits == 16 else 255
+    data = np.round(rgb * top).astype(np.uint16 if bits == 16 else np.uint8)
+    if not cv2.imwrite(str(path), np.ascontiguousarray(data[..., ::-1])):
+        raise OSError(f"{path}: could not write the image")
+    return path
+
+
+def read_png(path: str | Path) -> np.ndarray:
+    """Reads an 8/16-bit PNG written by :func:`write_png` back to float RGB in [0, 1]."""
+    import cv2
+
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None:
+        raise OSError(f"{path}: could not read the image")
+    top = 65535.0 if data.dtype == np.uint16 else 255.0
+    return data[..., :3][..., ::-1].astype(np.float64) / top

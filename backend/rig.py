@@ -1,0 +1,127 @@
+"""The capture rig as data (spec section 1); the defaults are the paper's rig.
+
+Geometry: the fabric is the plane z = 0 (``plane_size`` units square, x in [0, P], y in [-P, 0]);
+a pinhole camera at height ``camera_height`` looks straight down with full field of view
+``fov_deg``, so the visible square has side V = 2 h tan(fov / 2) and spans x in [0, V],
+y in [-V, 0]; the camera sits above its centre. Light positions are given relative to the centre
+of the visible square, (V/2, -V/2, 0); the defaults put the front light 8 units "above" the top
+edge in y and 8 up, the back light 9 below the camera.
+
+Radiance = (cosine-weighted BSDF) * intensity / distance^2. Output transform per image: clamp to
+at most ``clamp``, raise to 1 / gamma, multiply by the vignetting mask exp(-d^2 / sigma^2)
+normalised to a maximum of 1 (d in pixels of the ``film_size`` film, from the film centre).
+The transmission image adds ``glow_strength * exp(-d^2 / glow_sigma_px^2)`` (same normalised
+form) to samples that see no yarn, before the clamp.
+
+``width_cm`` is the real width of the visible square when known (for physical scale).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+
+class RigError(ValueError):
+    """A rig setting is missing or out of range; the message names it."""
+
+
+@dataclass(frozen=True)
+class CaptureRig:
+    film_size: int = 512
+    plane_size: float = 10.0
+    camera_height: float = 8.0
+    fov_deg: float = 53.0
+    front_light: tuple[float, float, float] = (0.0, 8.0, 8.0)
+    back_light: tuple[float, float, float] = (0.0, 0.0, -9.0)
+    front_intensity: float = 300.0
+    back_intensity: float = 300.0
+    vignette_sigma_px: float = 450.0
+    glow_strength: float = 8.0
+    glow_sigma_px: float = 20.0
+    gamma: float = 2.2
+    clamp: float = 1.0
+    width_cm: float | None = None
+
+    def __post_init__(self):
+        def positive(name):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise RigError(f"rig.{name}: must be a positive number, got {value!r}")
+
+        for name in ("film_size", "plane_size", "camera_height", "front_intensity", "back_intensity",
+                     "vignette_sigma_px", "glow_sigma_px", "gamma", "clamp"):
+            positive(name)
+        if self.width_cm is not None:
+            positive("width_cm")
+        if not 0 < self.fov_deg < 170:
+            raise RigError(f"rig.fov_deg: must be in (0, 170), got {self.fov_deg!r}")
+        if self.glow_strength < 0:
+            raise RigError(f"rig.glow_strength: must be >= 0, got {self.glow_strength!r}")
+        for name, side in (("front_light", 1), ("back_light", -1)):
+            value = getattr(self, name)
+            try:
+                value = tuple(float(x) for x in value)
+            except (TypeError, ValueError):
+                raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}") from None
+            if len(value) != 3 or not all(math.isfinite(x) for x in value):
+                raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}")
+            if value[2] * side <= 0:
+                where = "above (z > 0)" if side > 0 else "below (z < 0)"
+                raise RigError(f"rig.{name}: the light must be {where} the fabric, got z = {value[2]}")
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "film_size", int(self.film_size))
+
+    @property
+    def view_size(self) -> float:
+        """Side V of the visible square, in scene units."""
+        return 2.0 * self.camera_height * math.tan(math.radians(self.fov_deg) / 2.0)
+
+    @property
+    def view_centre(self) -> tuple[float, float]:
+        return self.view_size / 2.0, -self.view_size / 2.0
+
+    def camera_position(self) -> tuple[float, float, float]:
+        cx, cy = self.view_centre
+        return cx, cy, self.camera_height
+
+    def light_position(self, which: str) -> tuple[float, float, float]:
+        """World position of the 'front' (reflection) or 'back' (transmission) light."""
+        cx, cy = self.view_centre
+        dx, dy, z = self.front_light if which == "front" else self.back_light
+        return cx + dx, cy + dy, z
+
+    def intensity(self, which: str) -> float:
+        return self.front_intensity if which == "front" else self.back_intensity
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "CaptureRig":
+        if not isinstance(data, dict):
+            raise RigError("rig: expected a JSON object")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise RigError(f"rig: unknown setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
+        return cls(**data)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CaptureRig":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except OSError as exc:
+            raise RigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        except json.JSONDecodeError as exc:
+            raise RigError(f"{path}: not valid JSON ({exc})") from None
+        try:
+            return cls.from_dict(data)
+        except RigError as exc:
+            raise RigError(f"{path}: {exc}") from None
+
+
+DEFAULT_RIG = CaptureRig()
