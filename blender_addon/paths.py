@@ -1,0 +1,59 @@
+"""Where the add-on finds the backend and the shader, and the parameter declaration (no bpy, no torch).
+
+Two layouts are supported:
+- installed extension (built by build.py): ``<extension>/backend/`` and ``<extension>/shaders/``
+  sit inside the add-on folder;
+- the repository: ``blender_addon/``, ``backend/`` and ``shaders/`` are siblings.
+
+The parameter declaration (names, ranges, labels) is read from ``backend/params.py``, which is
+plain Python: the node group's sockets and the OSL inputs therefore come from the same table as the
+backend's clamping and JSON. The backend package is loaded under a private module name so that no
+top-level ``backend`` module is added to Blender's Python.
+"""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+_ALIAS = "_woven_fabric_backend"
+
+
+def backend_root() -> Path:
+    """The folder that contains the ``backend`` package (put it on PYTHONPATH for the subprocess)."""
+    for root in (_HERE, _HERE.parent):
+        if (root / "backend" / "__init__.py").is_file():
+            return root
+    raise FileNotFoundError(f"the fabric backend was not found next to {_HERE}; reinstall the add-on")
+
+
+def shader_path() -> Path:
+    """The OSL source of the Woven Fabric shader."""
+    for root in (_HERE, _HERE.parent):
+        path = root / "shaders" / "woven_fabric.osl"
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_HERE}; reinstall the add-on")
+
+
+def backend_module(name: str):
+    """Imports ``backend.<name>`` (a torch-free module such as params or weave) under a private alias."""
+    if _ALIAS not in sys.modules:
+        package = backend_root() / "backend"
+        spec = importlib.util.spec_from_file_location(_ALIAS, package / "__init__.py",
+                                                      submodule_search_locations=[str(package)])
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[_ALIAS] = module
+        spec.loader.exec_module(module)
+    return importlib.import_module(f"{_ALIAS}.{name}")
+
+
+def parameter_declaration():
+    """The backend's ``PARAMETERS`` tuple of ParamSpec (name, lo, hi, per_yarn, rgb, label, doc, unit)."""
+    return backend_module("params").PARAMETERS
+
+
+def weave_presets() -> dict:
+    """The backend's preset weaves (name -> Weave with matrix, bands, umax_deg, s_min)."""
+    return backend_module("weave").PRESETS
