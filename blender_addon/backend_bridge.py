@@ -1,0 +1,585 @@
+"""The backend as a subprocess, read through the JSON-lines progress protocol (no bpy, no torch).
+
+A fit is ``<python> -m backend fit REFLECTION TRANSMISSION --out DIR --json-progress ...`` run with
+``PYTHONPATH`` pointing at the folder that holds the ``backend`` package (see paths.py). Blender
+must never wait on it, so :class:`FitProcess` reads stdout and stderr on two daemon threads into a
+queue and a bounded buffer; the caller (a modal operator's timer, or the batch loop) calls
+:meth:`FitProcess.poll` as often as it likes and gets the new events without blocking.
+
+Outcomes, each with a message a person can read:
+
+- ``succeeded``: a ``result`` event and exit code 0;
+- ``failed``: an ``error`` event (its message, and the file it names), or a crash (a non-zero exit
+  without an error event: the exit code or signal and the last lines of stderr), or an exit
+  without a result, or a process that could not be started at all;
+- ``cancelled``: :meth:`FitProcess.request_cancel` sends SIGTERM (the backend then writes a
+  ``cancelled`` error and keeps its partial results) and, if the process is still alive after a
+  grace period, SIGKILL. The process runs in its own session so that the signal reaches any worker
+  it started, and it is always reaped (no zombie).
+
+A stdout line that is not a protocol event (a library printing on stdout) does not end the fit: it
+becomes a ``warning`` event saying so, and is quoted in the error if the run then ends badly.
+
+Which backend runs is a :class:`Backend`: an interpreter plus, optionally, a script that replaces
+``-m backend`` (the tests' fake backend). :func:`resolve_backend` applies the precedence
+explicit setting > add-on preference > environment (``WOVEN_FABRIC_PYTHON``,
+``WOVEN_FABRIC_BACKEND_SCRIPT``) > auto-detection (:func:`find_interpreter`).
+"""
+from __future__ import annotations
+
+import atexit
+import collections
+import json
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+import weakref
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import paths
+
+ENV_PYTHON = "WOVEN_FABRIC_PYTHON"
+ENV_BACKEND_SCRIPT = "WOVEN_FABRIC_BACKEND_SCRIPT"
+
+PATTERNS = ("auto", "plain", "twill0", "twill1", "satin0", "satin1")
+DEVICES = ("cpu", "cuda")
+
+# Share of the progress bar per stage, in the protocol's stage order; optimisation dominates a fit.
+STAGE_WEIGHTS = {"load": 0.02, "init": 0.05, "search": 0.15, "optimise": 0.68, "render": 0.05, "report": 0.05}
+STAGE_NAMES = {"load": "Loading photos", "init": "Initial guess", "search": "Searching the weave",
+               "optimise": "Optimising", "render": "Rendering", "report": "Writing the report"}
+
+CANCEL_GRACE_S = 3.0       # SIGTERM, then SIGKILL after this long
+EXIT_WITHOUT_EOF_S = 2.0   # a grandchild may hold stdout open after the backend exited
+STDERR_LINES = 200
+
+
+def protocol():
+    """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
+    return paths.backend_module("protocol")
+
+
+class BackendError(RuntimeError):
+    """The backend cannot be used (interpreter missing, wrong settings); the message says why."""
+
+
+# -- which backend ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Backend:
+    """How to start the backend: an interpreter and, optionally, a script replacing ``-m backend``."""
+
+    python: str
+    script: str = ""
+
+    def command(self, arguments: list[str]) -> list[str]:
+        entry = [self.script] if self.script else ["-m", "backend"]
+        return [self.python, *entry, *arguments]
+
+    def environment(self) -> dict[str, str]:
+        """The caller's environment with the backend package first on PYTHONPATH, unbuffered output."""
+        env = dict(os.environ)
+        root = str(paths.backend_root())
+        env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+        env["PYTHONUNBUFFERED"] = "1"
+        # Blender's own Python must not pick up Blender's site settings in a child process.
+        env.pop("PYTHONHOME", None)
+        return env
+
+
+def interpreter_candidates() -> list[str]:
+    """Interpreters worth trying, best first: the project's environment, then the running Python."""
+    candidates = []
+    try:
+        root = paths.backend_root()
+    except FileNotFoundError:
+        root = None
+    if root is not None:
+        for folder in (root, root.parent):
+            for rel in (".venv/bin/python", ".venv/Scripts/python.exe", "venv/bin/python"):
+                if (folder / rel).is_file():
+                    candidates.append(str(folder / rel))
+    if os.environ.get("VIRTUAL_ENV"):
+        candidates.append(str(Path(os.environ["VIRTUAL_ENV"]) / "bin" / "python"))
+    candidates.append(sys.executable)  # Blender's own Python (or the bpy module's interpreter)
+    unique = []
+    for path in candidates:
+        if path and path not in unique and Path(path).is_file():
+            unique.append(path)
+    return unique
+
+
+_detected: dict[tuple[str, ...], str] = {}
+
+
+def find_interpreter(timeout: float = 60.0) -> str | None:
+    """The first candidate in which ``import torch`` works, or None (a success is remembered)."""
+    candidates = tuple(interpreter_candidates())
+    if candidates in _detected:
+        return _detected[candidates]
+    for python in candidates:
+        try:
+            done = subprocess.run([python, "-c", "import torch"], capture_output=True, timeout=timeout,
+                                  env=Backend(python).environment())
+        except (OSError, subprocess.TimeoutExpired):
+            continue
+        if done.returncode == 0:
+            _detected[candidates] = python
+            return python
+    return None
+
+
+def resolve_backend(python: str = "", script: str = "", detect: bool = True) -> Backend:
+    """The backend to run: explicit values, else the environment, else auto-detection.
+
+    Raises BackendError when no interpreter can be found.
+    """
+    script = script or os.environ.get(ENV_BACKEND_SCRIPT, "")
+    python = python or os.environ.get(ENV_PYTHON, "")
+    if not python and detect:
+        python = find_interpreter() or ""
+    if not python:
+        raise BackendError("No Python with PyTorch was found for the fabric backend. Set the backend's "
+                           "Python interpreter in the add-on preferences (Edit > Preferences > Add-ons > "
+                           "Woven Fabric Capture) and press Check Backend.")
+    return Backend(python=python, script=script)
+
+
+# -- the fit command --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FitRequest:
+    """The arguments of one ``fit`` run. None means: the backend's default."""
+
+    reflection: Path
+    transmission: Path
+    out_dir: Path
+    pattern: str = "auto"
+    iterations: int | None = None
+    size: int | None = None
+    device: str | None = None
+    rig_json: Path | None = None
+
+    def arguments(self) -> list[str]:
+        if self.pattern not in PATTERNS:
+            raise BackendError(f"Unknown weave pattern {self.pattern!r}; expected one of {', '.join(PATTERNS)}")
+        if self.device is not None and self.device not in DEVICES:
+            raise BackendError(f"Unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
+        args = ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir),
+                "--pattern", self.pattern, "--json-progress"]
+        for flag, value in (("--iterations", self.iterations), ("--size", self.size),
+                            ("--device", self.device), ("--rig", self.rig_json)):
+            if value is not None:
+                args += [flag, str(value)]
+        return args
+
+
+def progress_fraction(stage: str, iteration: int, total: int) -> float:
+    """Overall progress in [0, 1] for an iteration of a stage."""
+    done = 0.0
+    for name, weight in STAGE_WEIGHTS.items():
+        if name == stage:
+            within = min(max(iteration / total, 0.0), 1.0) if total and total > 0 else 0.0
+            return min(done + weight * within, 1.0)
+        done += weight
+    return 0.0
+
+
+def describe_progress(event: dict) -> str:
+    """One line for the UI: 'Optimising 120/300, loss 0.0312, about 41 s left'."""
+    text = f"{STAGE_NAMES.get(event.get('stage'), str(event.get('stage', 'Working')))}"
+    if event.get("total"):
+        text += f" {event.get('iteration', 0)}/{event['total']}"
+    if isinstance(event.get("loss"), (int, float)):
+        text += f", loss {event['loss']:.4g}"
+    if isinstance(event.get("eta_s"), (int, float)):
+        text += f", about {event['eta_s']:.0f} s left"
+    return text
+
+
+def describe_exit(code: int) -> str:
+    if code < 0:
+        try:
+            return f"killed by signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+RUNNING, SUCCEEDED, FAILED, CANCELLED = "running", "succeeded", "failed", "cancelled"
+
+
+@dataclass(eq=False)  # identity semantics: a run is hashable (kept in a WeakSet)
+class FitProcess:
+    """One backend run. Call start(), then poll() until ``done``; request_cancel() at any time."""
+
+    backend: Backend
+    arguments: list[str]
+    log_path: Path | None = None  # the whole stderr is written here when the run ends
+    request: FitRequest | None = None  # what was asked, when started through fit()
+    state: str = "new"
+    progress: float = 0.0
+    status: str = "Not started"
+    result: dict | None = None
+    error: str = ""
+    details: str = ""             # stderr tail or the malformed lines, for the console and the log
+    warnings: list[str] = field(default_factory=list)
+    returncode: int | None = None
+
+    def __post_init__(self):
+        self._process: subprocess.Popen | None = None
+        self._lines: queue.Queue = queue.Queue()
+        self._stderr: collections.deque = collections.deque(maxlen=STDERR_LINES)
+        self._stderr_all: list[str] = []
+        self._threads: list[threading.Thread] = []
+        self._eof = False
+        self._exited_at: float | None = None
+        self._cancel_deadline: float | None = None
+        self._error_event: dict | None = None
+        self._malformed: list[str] = []
+
+    @classmethod
+    def fit(cls, backend: Backend, request: FitRequest, log_path: Path | None = None) -> "FitProcess":
+        return cls(backend, request.arguments(), log_path=log_path, request=request)
+
+    # -- life cycle ---------------------------------------------------------------------------
+    @property
+    def done(self) -> bool:
+        return self.state in (SUCCEEDED, FAILED, CANCELLED)
+
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid if self._process else None
+
+    def start(self) -> "FitProcess":
+        """Starts the process; a failure to start is a ``failed`` state, not an exception."""
+        command = self.backend.command(self.arguments)
+        kwargs = {"start_new_session": True} if os.name == "posix" else {
+            "creationflags": getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0)}
+        try:
+            self._process = subprocess.Popen(
+                command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                env=self.backend.environment(), text=True, encoding="utf-8", errors="replace", bufsize=1,
+                **kwargs)
+        except FileNotFoundError:
+            return self._finish(FAILED, f"Could not start the backend: {self.backend.python} does not exist. "
+                                        "Check the Python interpreter in the add-on preferences.")
+        except OSError as exc:
+            return self._finish(FAILED, f"Could not start the backend with {self.backend.python}: "
+                                        f"{exc.strerror or exc}.")
+        self.state, self.status = RUNNING, "Starting the backend"
+        _live.add(self)
+        for target, stream in ((self._read_stdout, self._process.stdout), (self._read_stderr, self._process.stderr)):
+            thread = threading.Thread(target=target, args=(stream,), daemon=True, name="fabric-backend-reader")
+            thread.start()
+            self._threads.append(thread)
+        return self
+
+    def _read_stdout(self, stream):
+        try:
+            for line in stream:
+                self._lines.put(line)
+        except (OSError, ValueError):
+            pass
+        finally:
+            self._lines.put(None)
+
+    def _read_stderr(self, stream):
+        try:
+            for line in stream:
+                self._stderr.append(line.rstrip("\n"))
+                self._stderr_all.append(line)
+        except (OSError, ValueError):
+            pass
+
+    def poll(self) -> list[dict]:
+        """The events read since the last call (never blocks); finishes the run once the process ended."""
+        if self.state != RUNNING:
+            return []
+        events = []
+        while True:
+            try:
+                line = self._lines.get_nowait()
+            except queue.Empty:
+                break
+            if line is None:
+                self._eof = True
+                continue
+            event = self._parse(line)
+            if event is not None:
+                self._apply(event)
+                events.append(event)
+        self._escalate_cancel()
+        self._check_exit()
+        return events
+
+    def _parse(self, line: str) -> dict | None:
+        line = line.strip()
+        if not line:
+            return None
+        proto = protocol()
+        try:
+            return proto.decode(line)
+        except proto.ProtocolError:
+            self._malformed.append(line[:300])
+            return {"event": "warning", "file": None,
+                    "message": f"The backend wrote a line that is not part of its progress protocol: {line[:200]!r}"}
+
+    def _apply(self, event: dict):
+        kind = event["event"]
+        if kind == "start":
+            self.status = f"Backend started ({event.get('device') or 'default device'})"
+        elif kind == "progress":
+            fraction = progress_fraction(event.get("stage", ""), event.get("iteration") or 0, event.get("total") or 0)
+            self.progress = max(self.progress, fraction)
+            self.status = describe_progress(event)
+        elif kind == "warning":
+            message = str(event.get("message", ""))
+            if event.get("file"):
+                message += f" ({event['file']})"
+            self.warnings.append(message)
+        elif kind == "result":
+            self.result = event
+            self.progress, self.status = 1.0, "Fit finished, reading the result"
+        elif kind == "error":
+            self._error_event = event
+
+    def _check_exit(self):
+        code = self._process.poll()
+        if code is None:
+            return
+        now = time.monotonic()
+        if self._exited_at is None:
+            self._exited_at = now
+        if not self._eof and now - self._exited_at < EXIT_WITHOUT_EOF_S:
+            return  # the reader thread has not reached the end of stdout yet
+        self.returncode = code
+        self._finish(*self._outcome(code))
+
+    def _outcome(self, code: int) -> tuple[str, str]:
+        proto = protocol()
+        event = self._error_event
+        if self._cancel_deadline is not None or (event and event.get("kind") == "cancelled"):
+            return CANCELLED, "Fit cancelled; the partial results stay in the output folder."
+        if event is not None:
+            kind = {"input": "Bad input", "internal": "Internal backend error"}.get(event.get("kind"), "Backend error")
+            message = f"{kind}: {event.get('message', 'no message')}"
+            if event.get("file") and str(event["file"]) not in message:
+                message += f" (file: {event['file']})"
+            if event.get("kind") != "input" and self._stderr:
+                self.details = self.stderr_tail()
+            return FAILED, message
+        if code == proto.EXIT_OK and self.result is not None:
+            return SUCCEEDED, ""
+        self.details = self.stderr_tail()
+        if self._malformed:
+            self.details += "\nLines that were not protocol events:\n" + "\n".join(self._malformed[-5:])
+        if code != proto.EXIT_OK:
+            last = self._last_stderr_line()
+            return FAILED, (f"The backend stopped unexpectedly ({describe_exit(code)})"
+                            + (f": {last}" if last else "") + ". See the console for its log.")
+        return FAILED, "The backend ended without reporting a result" + (
+            f" (it wrote {len(self._malformed)} line(s) that were not progress events)" if self._malformed else "") + "."
+
+    def _last_stderr_line(self) -> str:
+        for line in reversed(self._stderr):
+            if line.strip():
+                return line.strip()[:300]
+        return ""
+
+    def stderr_tail(self, lines: int = 30) -> str:
+        return "\n".join(list(self._stderr)[-lines:])
+
+    def _finish(self, state: str, error: str) -> "FitProcess":
+        self.state, self.error = state, error
+        self.status = {SUCCEEDED: "Fit finished", CANCELLED: "Fit cancelled"}.get(state, error)
+        for thread in self._threads:
+            thread.join(timeout=1.0)
+        if self._process is not None and not any(thread.is_alive() for thread in self._threads):
+            # Closing a pipe that a reader thread still blocks on could hang; a grandchild holding
+            # stdout open only delays the closing until that thread ends on its own.
+            for stream in (self._process.stdout, self._process.stderr):
+                try:
+                    stream.close()
+                except OSError:
+                    pass
+        if self.log_path is not None and self._stderr_all:
+            try:
+                self.log_path.parent.mkdir(parents=True, exist_ok=True)
+                self.log_path.write_text("".join(self._stderr_all), encoding="utf-8")
+            except OSError:
+                pass  # the log is a convenience; the error message already says what happened
+        return self
+
+    # -- cancelling ---------------------------------------------------------------------------
+    def _signal(self, sig: int):
+        if self._process is None or self._process.poll() is not None:
+            return
+        try:
+            if os.name == "posix":
+                os.killpg(self._process.pid, sig)  # the process leads its own session
+            elif sig == getattr(signal, "SIGKILL", None):
+                self._process.kill()
+            else:
+                self._process.terminate()
+        except (ProcessLookupError, PermissionError):
+            pass
+
+    def request_cancel(self, grace: float = CANCEL_GRACE_S):
+        """Asks the backend to stop (SIGTERM) and returns at once; poll() kills it after ``grace`` s."""
+        if self.state != RUNNING or self._cancel_deadline is not None:
+            return
+        self._cancel_deadline = time.monotonic() + grace
+        self.status = "Cancelling"
+        self._signal(signal.SIGTERM)
+
+    def _escalate_cancel(self):
+        if self._cancel_deadline is not None and time.monotonic() > self._cancel_deadline:
+            self._signal(getattr(signal, "SIGKILL", signal.SIGTERM))
+
+    def wait(self, timeout: float | None = None, interval: float = 0.05, on_event=None) -> str:
+        """Blocks until the run ends (batch mode); past ``timeout`` seconds the run is cancelled."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self.done:
+            for event in self.poll():
+                if on_event is not None:
+                    on_event(event)
+            if deadline is not None and time.monotonic() > deadline and self._cancel_deadline is None:
+                self.request_cancel()
+            if not self.done:
+                time.sleep(interval)
+        return self.state
+
+    def cancel(self, grace: float = CANCEL_GRACE_S) -> str:
+        """Cancels and waits until the process is gone (at most about ``grace`` + 2 s)."""
+        self.request_cancel(grace)
+        return self.wait()
+
+
+# Runs still going when Python exits (Blender quits) are stopped: the backend runs in its own
+# session, so nothing else would end it.
+_live: "weakref.WeakSet[FitProcess]" = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_all_runs():
+    for fit in list(_live):
+        if not fit.done:
+            fit.cancel(grace=1.0)
+
+
+# -- checking an interpreter ------------------------------------------------------------------
+
+# Runs inside the candidate interpreter; prints one JSON object.
+_PROBE = r"""
+import importlib, json, sys
+out = {"python": list(sys.version_info[:3]), "modules": {}, "errors": {}}
+for name in ("numpy", "torch", "cv2", "rawpy"):
+    try:
+        out["modules"][name] = getattr(importlib.import_module(name), "__version__", "?")
+    except Exception as exc:
+        out["errors"][name] = f"{type(exc).__name__}: {exc}"
+try:
+    import backend
+    out["backend"] = getattr(backend, "__version__", "?")
+except Exception as exc:
+    out["errors"]["backend"] = f"{type(exc).__name__}: {exc}"
+if "torch" in out["modules"]:
+    import torch
+    out["cuda"] = bool(torch.cuda.is_available())
+    out["cuda_name"] = torch.cuda.get_device_name(0) if out["cuda"] else ""
+print(json.dumps(out))
+"""
+
+_REQUIRED = {
+    "torch": ("PyTorch", "torch"),
+    "numpy": ("NumPy", "'numpy<2'"),
+    "cv2": ("OpenCV", "opencv-python-headless"),
+}
+
+
+@dataclass
+class BackendCheck:
+    """What a check of an interpreter found: problems (the backend cannot run) and notes."""
+
+    python: str
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def summary(self) -> str:
+        head = "The backend is ready." if self.ok else "The backend cannot run yet:"
+        return "\n".join([head, *(f"- {p}" for p in self.problems), *(f"- {n}" for n in self.notes)])
+
+
+def check_backend(backend: Backend, device: str | None = None, timeout: float = 120.0) -> BackendCheck:
+    """Runs the interpreter and reports, in words, what is missing for the fit command."""
+    check = BackendCheck(backend.python)
+    python = backend.python
+    if not python:
+        check.problems.append("No Python interpreter is set for the backend.")
+        return check
+    if not Path(python).exists():
+        check.problems.append(f"The Python interpreter {python} does not exist.")
+        return check
+    try:
+        done = subprocess.run([python, "-c", _PROBE], capture_output=True, text=True, timeout=timeout,
+                              env=backend.environment())
+    except subprocess.TimeoutExpired:
+        check.problems.append(f"{python} did not answer within {timeout:.0f} s.")
+        return check
+    except OSError as exc:
+        check.problems.append(f"{python} could not be started: {exc.strerror or exc}.")
+        return check
+    try:
+        found = json.loads(done.stdout.strip().splitlines()[-1])
+    except (json.JSONDecodeError, IndexError):
+        tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
+        check.problems.append(f"{python} is not a working Python interpreter ({tail[0]}).")
+        return check
+
+    version = tuple(found["python"])
+    if version[:2] != (3, 11):
+        check.problems.append(f"{python} is Python {'.'.join(map(str, version))}; the backend needs Python 3.11.")
+    for module, (label, package) in _REQUIRED.items():
+        if module not in found["modules"]:
+            reason = found["errors"].get(module, "")
+            hint = "not installed" if "No module named" in reason else f"cannot be imported ({reason})"
+            check.problems.append(f"{label} ({module}) is {hint} for {python}: install it with "
+                                  f"\"{python}\" -m pip install {package}")
+    if "rawpy" not in found["modules"]:
+        check.notes.append("rawpy is not installed: RAW photos (.dng, .cr2, ...) cannot be read; "
+                           "PNG, JPEG, TIFF and EXR work.")
+    if "backend" in found:
+        check.notes.append(f"Backend {found['backend']} from {paths.backend_root()}, Python "
+                           f"{'.'.join(map(str, version))}, PyTorch {found['modules'].get('torch', '-')}.")
+    elif "torch" in found["modules"]:
+        check.problems.append(f"The backend package cannot be imported: {found['errors'].get('backend')}.")
+    if found.get("cuda"):
+        check.notes.append(f"CUDA is available ({found.get('cuda_name')}).")
+    elif device == "cuda" and "torch" in found["modules"]:
+        check.problems.append("The CUDA device is selected but PyTorch sees no CUDA GPU here; choose CPU.")
+    if check.ok or backend.script:
+        _check_fit_command(backend, check, timeout)
+    return check
+
+
+def _check_fit_command(backend: Backend, check: BackendCheck, timeout: float):
+    """The backend must know the fit command (an older backend has only render)."""
+    try:
+        done = subprocess.run(backend.command(["fit", "--help"]), capture_output=True, text=True,
+                              timeout=timeout, env=backend.environment())
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        check.problems.append(f"The backend's fit command could not be run: {exc}.")
+        return
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        check.problems.append(f"The backend has no working fit command ({last}).")

@@ -1,0 +1,266 @@
+"""Headless batch: fit every ``<name>_R.* / <name>_T.*`` pair of a folder into a material library.
+
+Each good pair is fitted in a new result folder; its material (marked as an asset, with the fit's
+rendering as preview) goes into one .blend written with ``bpy.data.libraries.write``, which holds
+only those materials and what they use, so the running session is never saved over. A pair with a
+missing partner (or two candidates for one side), or whose fit fails, is reported and skipped.
+The exit code is the number of failed pairs (0: all good; capped at 125). A problem that stops
+the batch before any fit (bad arguments, no folder, no pairs at all, an unusable rig or backend)
+exits with 1; when the library cannot be written, every fitted pair counts as failed.
+
+Three ways to run it::
+
+    blender --background --command fabric_fit PHOTOS/ [--out LIBRARY.blend] [options]
+    blender --background --python-expr "import sys; from bl_ext.user_default.woven_fabric import batch; \\
+        sys.exit(batch.main(['PHOTOS/', '--out', 'LIBRARY.blend']))"
+    python -m blender_addon.batch PHOTOS/ [options]     # the bpy module, from a checkout
+
+(``bpy.ops.fabric.batch_fit(directory=..., filepath=...)`` does the same from a script.) Options:
+see ``--help``. The backend is chosen as for the panel: ``--python`` / ``--backend-script``, else
+the add-on preferences, else ``WOVEN_FABRIC_PYTHON`` / ``WOVEN_FABRIC_BACKEND_SCRIPT``, else
+auto-detection.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import bpy
+
+from . import backend_bridge, captures, materials
+
+CLI_COMMAND = "fabric_fit"
+MAX_EXIT = 125
+
+
+@dataclass
+class BatchReport:
+    fitted: list[tuple[str, str, str]] = field(default_factory=list)   # (pair, material, result folder)
+    failed: list[tuple[str, str]] = field(default_factory=list)        # (pair, reason)
+    library: Path | None = None
+
+    @property
+    def exit_code(self) -> int:
+        return min(len(self.failed), MAX_EXIT)
+
+
+@dataclass
+class BatchOptions:
+    pattern: str = "auto"
+    iterations: int | None = None
+    size: int | None = None
+    device: str | None = None
+    rig_json: Path | None = None
+    width_cm: float | None = None
+    timeout_s: float | None = None
+    overwrite: bool = False
+
+
+def run_batch(folder: str | Path, library: str | Path | None = None, *, backend: backend_bridge.Backend,
+              options: BatchOptions | None = None, fits_parent: str | Path | None = None, log=print) -> BatchReport:
+    """Fits every pair of ``folder`` and writes the materials to ``library``; never raises for a pair."""
+    options = options or BatchOptions()
+    folder = Path(folder).resolve()
+    report = BatchReport()
+    pairs, problems = captures.find_pairs(folder)
+    for problem in problems:
+        log(f"SKIP {problem.name}: {problem.message}")
+        report.failed.append((problem.name, problem.message))
+    if not pairs:
+        if not problems:
+            report.failed.append(("", f"{folder}: no <name>_R.* / <name>_T.* photo pairs"))
+            log(f"ERROR {report.failed[-1][1]}")
+        return report
+
+    fits_parent = Path(fits_parent) if fits_parent else folder / "fabric_fits"
+    rig_values = _rig_file(options.rig_json)
+    if options.width_cm:
+        rig_values["width_cm"] = options.width_cm
+    rig = captures.rig_dict(rig_values)
+    made = []
+    for number, pair in enumerate(pairs, 1):
+        prefix = f"[{number}/{len(pairs)}] {pair.name}"
+        try:
+            material, out_dir = _fit_pair(pair, backend, options, rig, fits_parent, prefix, log)
+        except Exception as exc:  # one pair's trouble never stops the batch
+            reason = str(exc) or type(exc).__name__
+            log(f"FAIL {prefix}: {reason}")
+            report.failed.append((pair.name, reason))
+            continue
+        made.append(material)
+        report.fitted.append((pair.name, material.name, str(out_dir)))
+        log(f"OK   {prefix}: material {material.name} ({out_dir})")
+
+    if made:
+        target = Path(library) if library else folder / "fabric_materials.blend"
+        target = target if options.overwrite else captures.unused_path(target)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            bpy.data.libraries.write(str(target), set(made), fake_user=True, path_remap="ABSOLUTE")
+        except (OSError, RuntimeError) as exc:
+            log(f"ERROR cannot write {target}: {exc}")
+            report.failed.extend((name, f"not saved: {exc}") for name, _, _ in report.fitted)
+            report.fitted.clear()
+            return report
+        report.library = target
+        log(f"Wrote {len(made)} material(s) to {target}")
+    return report
+
+
+def _rig_file(path: Path | None) -> dict:
+    if not path:
+        return {f.name: f.default for f in captures.rig_fields()}
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"--rig {path}: cannot read ({exc})") from None
+    return {**{f.name: f.default for f in captures.rig_fields()}, **data}
+
+
+def _fit_pair(pair, backend, options, rig, fits_parent, prefix, log):
+    out_dir = captures.new_run_folder(fits_parent, pair.name)
+    request = backend_bridge.FitRequest(pair.reflection, pair.transmission, out_dir, pattern=options.pattern,
+                                        iterations=options.iterations, size=options.size, device=options.device,
+                                        rig_json=captures.write_rig_json(out_dir, rig))
+    fit = backend_bridge.FitProcess.fit(backend, request, log_path=out_dir / "backend.log").start()
+    last_stage = [None]
+
+    def show(event):
+        if event["event"] == "progress" and event.get("stage") != last_stage[0]:
+            last_stage[0] = event.get("stage")
+            log(f"     {prefix}: {backend_bridge.describe_progress(event)}")
+        elif event["event"] == "warning":
+            log(f"WARN {prefix}: {event.get('message')}")
+
+    fit.wait(timeout=options.timeout_s, on_event=show)
+    if fit.state != backend_bridge.SUCCEEDED:
+        if fit.details:
+            log(fit.details)
+        raise RuntimeError(fit.error or f"fit {fit.state}")
+    params = captures.read_fit_params(fit.result)
+    material = materials.new_fit_material(pair.name, params, rig.get("width_cm"), out_dir)
+    preview = (fit.result.get("files") or {}).get("reflection") or pair.reflection
+    materials.mark_as_asset(material, params, f"Woven fabric fitted from {pair.reflection.name} and "
+                                              f"{pair.transmission.name} ({out_dir})", preview)
+    return material, out_dir
+
+
+# -- command line -------------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=f"blender --command {CLI_COMMAND}",
+        description="Fit every <name>_R.* / <name>_T.* photo pair of a folder and save one asset material "
+                    "per pair in a .blend. Exit code: the number of failed pairs.")
+    parser.add_argument("folder", help="folder with the photo pairs")
+    parser.add_argument("--out", help="the .blend to write (default: FOLDER/fabric_materials.blend; an "
+                                      "existing file is kept and a new name chosen unless --overwrite)")
+    parser.add_argument("--fits", help="parent of the per-pair result folders (default: FOLDER/fabric_fits)")
+    parser.add_argument("--pattern", choices=backend_bridge.PATTERNS, default="auto")
+    parser.add_argument("--iterations", type=int)
+    parser.add_argument("--size", type=int)
+    parser.add_argument("--device", choices=backend_bridge.DEVICES)
+    parser.add_argument("--rig", type=Path, help="RIG.json (CaptureRig settings; default: the spec's rig)")
+    parser.add_argument("--width-cm", type=float, help="real width of the photographed square in centimetres")
+    parser.add_argument("--timeout", type=float, help="seconds allowed per pair (default: no limit)")
+    parser.add_argument("--python", default="", help="interpreter for the backend (default: preferences, "
+                                                     "$WOVEN_FABRIC_PYTHON, auto-detection)")
+    parser.add_argument("--backend-script", default="", help="script run instead of 'python -m backend'")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs the batch from command-line arguments; returns the exit code (see the module docstring)."""
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a usage error (1); argparse already printed why
+        return 0 if not exc.code else 1
+    started = time.monotonic()
+    try:
+        backend = _backend(args)
+        options = BatchOptions(args.pattern, args.iterations, args.size, args.device, args.rig, args.width_cm,
+                               args.timeout, args.overwrite)
+        if not Path(args.folder).is_dir():
+            raise ValueError(f"{args.folder}: not a folder")
+        report = run_batch(args.folder, args.out, backend=backend, options=options, fits_parent=args.fits)
+    except (backend_bridge.BackendError, ValueError, OSError) as exc:
+        print(f"ERROR {exc}", file=sys.stderr)
+        return 1
+    print(f"{len(report.fitted)} fitted, {len(report.failed)} failed in {time.monotonic() - started:.1f} s"
+          + (f"; library {report.library}" if report.library else ""))
+    for name, reason in report.failed:
+        print(f"  failed {name or '(folder)'}: {reason}")
+    return report.exit_code
+
+
+def _backend(args) -> backend_bridge.Backend:
+    from . import preferences
+
+    python, script = args.python, args.backend_script
+    try:
+        chosen = preferences.selected_backend(detect=False)
+    except backend_bridge.BackendError:
+        chosen = None
+    if chosen is not None:
+        python, script = python or chosen.python, script or chosen.script
+    return backend_bridge.resolve_backend(python, script)
+
+
+class FABRIC_OT_batch_fit(bpy.types.Operator):
+    """Fit every photo pair of a folder into a .blend of asset materials (blocks until done: for scripts)"""
+
+    bl_idname = "fabric.batch_fit"
+    bl_label = "Batch Fit Folder"
+
+    directory: bpy.props.StringProperty(subtype="DIR_PATH", name="Photos")
+    filepath: bpy.props.StringProperty(subtype="FILE_PATH", name="Library",
+                                       description="The .blend to write (default: in the photo folder)")
+    pattern: bpy.props.StringProperty(default="auto")
+    iterations: bpy.props.IntProperty(default=0, min=0)
+    width_cm: bpy.props.FloatProperty(default=0.0, min=0.0)
+
+    def execute(self, context):
+        argv = [bpy.path.abspath(self.directory), "--pattern", self.pattern]
+        if self.filepath:
+            argv += ["--out", bpy.path.abspath(self.filepath)]
+        if self.iterations:
+            argv += ["--iterations", str(self.iterations)]
+        if self.width_cm:
+            argv += ["--width-cm", str(self.width_cm)]
+        failed = main(argv)
+        if failed:
+            self.report({"WARNING"}, f"{failed} pair(s) failed; see the console")
+        return {"FINISHED"}
+
+
+_cli_handle = None
+
+
+def register():
+    global _cli_handle
+    bpy.utils.register_class(FABRIC_OT_batch_fit)
+    _cli_handle = bpy.utils.register_cli_command(CLI_COMMAND, main)
+
+
+def unregister():
+    global _cli_handle
+    if _cli_handle is not None:
+        bpy.utils.unregister_cli_command(_cli_handle)
+        _cli_handle = None
+    bpy.utils.unregister_class(FABRIC_OT_batch_fit)
+
+
+def _standalone(argv: list[str]) -> int:
+    """``python -m blender_addon.batch``: the bpy module with the add-on from a checkout."""
+    from blender_addon import batch
+
+    return batch.main(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(_standalone(sys.argv[1:]))

@@ -1,0 +1,428 @@
+"""Operators: fit (modal, never blocking), cancel, check/detect the backend, results and preview.
+
+The fit operator starts a backend_bridge.FitProcess and polls it from a window-manager timer, so
+Blender stays responsive; ESC or the Cancel button asks the backend to stop (SIGTERM, then SIGKILL
+after a grace period). Loading another file or disabling the add-on cancels a running fit too, so
+no backend is left running without a reader. A finished fit becomes a new material (a new
+version if the name is taken) unless "Update Active Material" is on.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import bpy
+
+from . import backend_bridge, captures, materials, preferences, properties
+
+TIMER_INTERVAL_S = 0.1
+
+
+class ActiveFit:
+    """The one fit that may run at a time, reachable from the Cancel button and the handlers."""
+
+    process: backend_bridge.FitProcess | None = None
+
+    @classmethod
+    def running(cls) -> bool:
+        return cls.process is not None and not cls.process.done
+
+    @classmethod
+    def cancel(cls, wait: bool = False):
+        if cls.running():
+            cls.process.cancel() if wait else cls.process.request_cancel()
+
+
+def active_fit() -> backend_bridge.FitProcess | None:
+    return ActiveFit.process if ActiveFit.running() else None
+
+
+def _redraw_sidebars(context):
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+def _abspath(path: str) -> Path:
+    return Path(bpy.path.abspath(path)).resolve() if path else Path()
+
+
+def _width_cm(settings) -> float | None:
+    return settings.rig.width_cm or None
+
+
+class FABRIC_OT_fit(bpy.types.Operator):
+    """Fit the woven-fabric parameters to the photo pair with the backend (ESC cancels)"""
+
+    bl_idname = "fabric.fit"
+    bl_label = "Fit Fabric"
+    bl_options = {"REGISTER"}
+
+    _timer = None
+    _scene_name = ""
+    _warned = 0
+
+    @classmethod
+    def poll(cls, context):
+        return not ActiveFit.running() and context.scene is not None
+
+    def execute(self, context):
+        return self.invoke(context, None)
+
+    def invoke(self, context, event):
+        settings = context.scene.woven_fabric
+        try:
+            fit = self._prepare(context, settings)
+        except (backend_bridge.BackendError, ValueError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        fit.start()
+        if fit.done:  # could not even start
+            self.report({"ERROR"}, fit.error)
+            settings.fit_status = fit.error
+            return {"CANCELLED"}
+        ActiveFit.process = fit
+        self._scene_name = context.scene.name
+        self._warned = 0
+        settings.fit_progress, settings.fit_status = 0.0, fit.status
+        settings.last_result_folder = str(fit.request.out_dir)
+        if bpy.app.background or context.window is None:
+            # No event loop runs timers here (background mode): wait; the batch is the headless tool.
+            fit.wait()
+            return self._finish(context, fit, settings)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(TIMER_INTERVAL_S, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _prepare(self, context, settings) -> backend_bridge.FitProcess:
+        reflection, transmission = _abspath(settings.reflection_path), _abspath(settings.transmission_path)
+        for label, chosen, path in (("reflection", settings.reflection_path, reflection),
+                                    ("transmission", settings.transmission_path, transmission)):
+            if not chosen:
+                raise ValueError(f"Choose the {label} photo first.")
+            if not path.is_file():
+                raise ValueError(f"The {label} photo {path} does not exist.")
+        rig = captures.rig_dict(properties.rig_values(settings.rig))
+        backend = preferences.selected_backend(context)
+        out_dir = captures.new_run_folder(preferences.results_parent(context), _fit_name(settings, reflection))
+        request = backend_bridge.FitRequest(
+            reflection, transmission, out_dir, pattern=settings.pattern,
+            iterations=settings.iterations or None, size=settings.size or None,
+            device=preferences.selected_device(context), rig_json=captures.write_rig_json(out_dir, rig))
+        return backend_bridge.FitProcess.fit(backend, request, log_path=out_dir / "backend.log")
+
+    def modal(self, context, event):
+        fit = ActiveFit.process
+        if fit is None:
+            return self._end(context, {"CANCELLED"})
+        if event.type == "ESC" and event.value == "PRESS":
+            fit.request_cancel()
+            return {"RUNNING_MODAL"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        fit.poll()
+        settings = self._settings()
+        for warning in fit.warnings[self._warned:]:
+            self.report({"WARNING"}, warning)
+        self._warned = len(fit.warnings)
+        if settings is not None:
+            settings.fit_progress, settings.fit_status = fit.progress, fit.status
+        _redraw_sidebars(context)
+        if not fit.done:
+            return {"PASS_THROUGH"}
+        return self._end(context, self._finish(context, fit, settings))
+
+    def _settings(self):
+        scene = bpy.data.scenes.get(self._scene_name)
+        return scene.woven_fabric if scene is not None else None
+
+    def _finish(self, context, fit, settings) -> set:
+        if fit.state == backend_bridge.CANCELLED:
+            self.report({"WARNING"}, fit.error)
+            return {"CANCELLED"}
+        if fit.state == backend_bridge.FAILED:
+            self.report({"ERROR"}, fit.error)
+            if fit.details:
+                print(f"Woven Fabric: backend log of the failed fit:\n{fit.details}")
+            return {"CANCELLED"}
+        try:
+            material = self._material(context, fit, settings)
+        except Exception as exc:  # the fit is on disk; say why it did not become a material
+            self.report({"ERROR"}, f"The fit finished in {fit.result.get('out_dir')} but could not become "
+                                   f"a material: {exc}")
+            return {"CANCELLED"}
+        if settings is not None:
+            settings.last_material = material.name
+            settings.fit_status = f"Fit finished: material {material.name}"
+        self.report({"INFO"}, f"Fitted material {material.name} (results in {fit.result.get('out_dir')})")
+        return {"FINISHED"}
+
+    def _material(self, context, fit, settings):
+        params = captures.read_fit_params(fit.result)
+        width = _width_cm(settings) if settings is not None else None
+        folder = fit.result.get("out_dir", "")
+        target = getattr(context.object, "active_material", None) if context.object else None
+        if settings is not None and settings.update_active_material and materials.is_fabric_material(target):
+            return materials.update_fit_material(target, params, width, folder)
+        return materials.new_fit_material(_fit_name(settings, fit.request.reflection), params, width, folder)
+
+    def _end(self, context, result):
+        if self._timer is not None:
+            context.window_manager.event_timer_remove(self._timer)
+            self._timer = None
+        _redraw_sidebars(context)
+        return result
+
+    def cancel(self, context):
+        # Blender ends modal operators without asking when a file is loaded or the window closes.
+        ActiveFit.cancel(wait=True)
+        self._end(context, {"CANCELLED"})
+
+
+def _fit_name(settings, reflection: Path) -> str:
+    """The material and folder name: the chosen name, else the photo's name without ``_R``."""
+    if settings is not None and settings.material_name:
+        return settings.material_name
+    stem = reflection.stem
+    return stem[:-2] if stem[-2:] in ("_R", "_r") else (stem or "Fabric")
+
+
+class FABRIC_OT_cancel_fit(bpy.types.Operator):
+    """Stop the running fit; its partial results stay in its folder"""
+
+    bl_idname = "fabric.cancel_fit"
+    bl_label = "Cancel Fit"
+
+    @classmethod
+    def poll(cls, context):
+        return ActiveFit.running()
+
+    def execute(self, context):
+        ActiveFit.cancel()
+        return {"FINISHED"}
+
+
+class FABRIC_OT_check_backend(bpy.types.Operator):
+    """Run the backend's interpreter and report, in words, what is missing to fit"""
+
+    bl_idname = "fabric.check_backend"
+    bl_label = "Check Backend"
+
+    python: bpy.props.StringProperty(name="Python", options={"SKIP_SAVE"},
+                                     description="Interpreter to check; empty: the one the preferences select")
+
+    _thread = None
+
+    @classmethod
+    def poll(cls, context):
+        return cls._thread is None or not cls._thread.is_alive()
+
+    def execute(self, context):
+        try:
+            backend = preferences.selected_backend(context)
+            if self.python:
+                backend = backend_bridge.Backend(self.python, backend.script)
+        except backend_bridge.BackendError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        device = preferences.selected_device(context)
+        if bpy.app.background:
+            return self._report(_run_check(backend, device))
+        # Importing PyTorch takes seconds: check on a thread, show the outcome in the preferences.
+        import threading
+
+        cls = type(self)
+        cls._thread = threading.Thread(target=_run_check, args=(backend, device), daemon=True)
+        cls._thread.start()
+        bpy.app.timers.register(_redraw_preferences_when_checked, first_interval=0.5)
+        self.report({"INFO"}, f"Checking {backend.python} ...")
+        return {"FINISHED"}
+
+    def _report(self, check):
+        self.report({"INFO"} if check.ok else {"ERROR"}, check.summary())
+        return {"FINISHED"} if check.ok else {"CANCELLED"}
+
+
+def _run_check(backend, device):
+    check = backend_bridge.check_backend(backend, device=device)
+    preferences.last_check[:] = [check]
+    print(f"Woven Fabric: {check.python}: {check.summary()}")
+    return check
+
+
+def _redraw_preferences_when_checked():
+    thread = FABRIC_OT_check_backend._thread
+    for window in bpy.context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "PREFERENCES":
+                area.tag_redraw()
+    return 0.5 if thread is not None and thread.is_alive() else None
+
+
+class FABRIC_OT_detect_python(bpy.types.Operator):
+    """Look for a Python with PyTorch (the project's environment, then Blender's own) and select it"""
+
+    bl_idname = "fabric.detect_python"
+    bl_label = "Detect Python"
+
+    def execute(self, context):
+        found = backend_bridge.find_interpreter()
+        prefs = preferences.preferences(context)
+        if not found:
+            self.report({"ERROR"}, "No Python with PyTorch was found; set the Backend Python by hand "
+                                   f"(tried: {', '.join(backend_bridge.interpreter_candidates())})")
+            return {"CANCELLED"}
+        if prefs is not None:
+            prefs.python_path = found
+        self.report({"INFO"}, f"Backend Python: {found}")
+        return {"FINISHED"}
+
+
+class FABRIC_OT_reset_rig(bpy.types.Operator):
+    """Set every rig setting back to the spec's defaults (the paper's rig)"""
+
+    bl_idname = "fabric.reset_rig"
+    bl_label = "Reset Rig"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        rig = context.scene.woven_fabric.rig
+        for field in captures.rig_fields():
+            rig.property_unset(field.name)
+        return {"FINISHED"}
+
+
+class FABRIC_OT_load_fit(bpy.types.Operator):
+    """Make a new material from an earlier fit's params.json"""
+
+    bl_idname = "fabric.load_fit"
+    bl_label = "Load Fit"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: bpy.props.StringProperty(subtype="FILE_PATH")
+    filter_glob: bpy.props.StringProperty(default="*.json", options={"HIDDEN"})
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        path = _abspath(self.filepath)
+        try:
+            params = captures.read_fit_params({"params": str(path)})
+            settings = context.scene.woven_fabric
+            material = materials.new_fit_material(path.parent.name or "Fabric", params, _width_cm(settings),
+                                                  path.parent)
+        except Exception as exc:
+            self.report({"ERROR"}, f"{path}: {exc}")
+            return {"CANCELLED"}
+        settings.last_material, settings.last_result_folder = material.name, str(path.parent)
+        self.report({"INFO"}, f"Material {material.name} from {path}")
+        return {"FINISHED"}
+
+
+def _last_material(context):
+    return bpy.data.materials.get(context.scene.woven_fabric.last_material)
+
+
+class FABRIC_OT_assign_material(bpy.types.Operator):
+    """Give the selected meshes the fitted material in a new material slot (existing slots stay)"""
+
+    bl_idname = "fabric.assign_material"
+    bl_label = "Assign to Selected"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _last_material(context) is not None and any(o.type == "MESH" for o in context.selected_objects)
+
+    def execute(self, context):
+        material = _last_material(context)
+        for obj in context.selected_objects:
+            if obj.type == "MESH":
+                obj.data.materials.append(material)
+                obj.active_material_index = len(obj.material_slots) - 1
+                for polygon in obj.data.polygons:
+                    polygon.material_index = obj.active_material_index
+        return {"FINISHED"}
+
+
+class FABRIC_OT_add_drape_preview(bpy.types.Operator):
+    """Add a new scene with the fitted material on a cloth draped over a sphere, camera and lights"""
+
+    bl_idname = "fabric.add_drape_preview"
+    bl_label = "Add Draped Cloth Preview"
+    bl_options = {"REGISTER", "UNDO"}
+
+    material: bpy.props.StringProperty(name="Material", description="Empty: the last fitted material")
+    cloth_size_cm: bpy.props.FloatProperty(name="Cloth Size", default=100.0, min=5.0, max=1000.0,
+                                           description="Side of the cloth square in centimetres")
+    resolution: bpy.props.IntProperty(name="Resolution", default=40, min=4, max=200,
+                                      description="Cloth grid divisions per side")
+    frames: bpy.props.IntProperty(name="Frames", default=40, min=1, max=500,
+                                  description="Simulated frames before the drape is kept")
+    freeze: bpy.props.BoolProperty(name="Freeze Drape", default=True,
+                                   description="Keep the draped shape and drop the simulation")
+
+    def execute(self, context):
+        from . import drape
+
+        material = bpy.data.materials.get(self.material) if self.material else _last_material(context)
+        if material is None:
+            self.report({"ERROR"}, "Fit a fabric (or load a fit) first: there is no fitted material.")
+            return {"CANCELLED"}
+        try:
+            scene = drape.add_drape_preview(material, cloth_size_cm=self.cloth_size_cm, resolution=self.resolution,
+                                            frames=self.frames, freeze=self.freeze,
+                                            engine=context.scene.render.engine if context.scene else None)
+        except Exception as exc:
+            self.report({"ERROR"}, f"The draped preview could not be built: {exc}")
+            return {"CANCELLED"}
+        scene.woven_fabric.last_material = material.name
+        if context.window is not None:
+            context.window.scene = scene
+        self.report({"INFO"}, f"Scene {scene.name}: {material.name} draped over a sphere")
+        return {"FINISHED"}
+
+
+class FABRIC_OT_open_results(bpy.types.Operator):
+    """Open the folder of the last fit (params.json, report.png, renders, backend.log)"""
+
+    bl_idname = "fabric.open_results"
+    bl_label = "Open Results Folder"
+
+    @classmethod
+    def poll(cls, context):
+        folder = context.scene.woven_fabric.last_result_folder
+        return bool(folder) and os.path.isdir(folder)
+
+    def execute(self, context):
+        bpy.ops.wm.path_open(filepath=context.scene.woven_fabric.last_result_folder)
+        return {"FINISHED"}
+
+
+@bpy.app.handlers.persistent
+def _cancel_on_load(*_args):
+    """A fit reads into the old file's scene: stop it before another file replaces that scene."""
+    ActiveFit.cancel(wait=True)
+
+
+CLASSES = (FABRIC_OT_fit, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_OT_detect_python,
+           FABRIC_OT_reset_rig, FABRIC_OT_load_fit, FABRIC_OT_assign_material, FABRIC_OT_add_drape_preview,
+           FABRIC_OT_open_results)
+
+
+def register():
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.app.handlers.load_pre.append(_cancel_on_load)
+
+
+def unregister():
+    ActiveFit.cancel(wait=True)
+    if _cancel_on_load in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_cancel_on_load)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

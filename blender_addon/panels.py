@@ -1,0 +1,134 @@
+"""The Fabric tab of the 3D Viewport's sidebar: capture setup, rig, fit with progress, result.
+
+Photo previews come from a ``bpy.utils.previews`` collection (loaded from the file, keyed by path
+and modification time), so looking at a photo adds no image to the user's file.
+"""
+from __future__ import annotations
+
+import os
+
+import bpy
+
+from . import captures, operators
+
+_previews = None
+
+
+def photo_icon(path: str) -> int:
+    """Icon id of a photo's preview, 0 when there is none (missing file, RAW photo)."""
+    if _previews is None or not path:
+        return 0
+    filepath = bpy.path.abspath(path)
+    if not os.path.isfile(filepath) or os.path.splitext(filepath)[1].lower() in captures.RAW_EXTENSIONS:
+        return 0
+    key = f"{filepath}:{os.path.getmtime(filepath)}"
+    if key not in _previews:
+        _previews.load(key, filepath, "IMAGE")
+    return _previews[key].icon_id
+
+
+class FabricPanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "Fabric"
+
+
+class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
+    bl_label = "Woven Fabric"
+
+    def draw(self, context):
+        settings = context.scene.woven_fabric
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        for prop in ("reflection_path", "transmission_path"):
+            layout.prop(settings, prop)
+            icon = photo_icon(getattr(settings, prop))
+            if icon:
+                layout.template_icon(icon_value=icon, scale=5.0)
+        layout.prop(settings.rig, "width_cm")
+        layout.prop(settings, "pattern")
+
+
+class VIEW3D_PT_woven_fabric_rig(FabricPanel, bpy.types.Panel):
+    bl_label = "Capture Rig"
+    bl_parent_id = "VIEW3D_PT_woven_fabric"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        rig = context.scene.woven_fabric.rig
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        for field in captures.rig_fields():
+            if field.name != "width_cm":
+                layout.prop(rig, field.name)
+        layout.operator("fabric.reset_rig", icon="LOOP_BACK")
+
+
+class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
+    bl_label = "Fit"
+    bl_parent_id = "VIEW3D_PT_woven_fabric"
+
+    def draw(self, context):
+        settings = context.scene.woven_fabric
+        layout = self.layout
+        fit = operators.active_fit()
+        column = layout.column()
+        column.use_property_split = True
+        column.use_property_decorate = False
+        column.enabled = fit is None
+        column.prop(settings, "iterations")
+        column.prop(settings, "size")
+        column.prop(settings, "material_name")
+        column.prop(settings, "update_active_material")
+        if fit is None:
+            layout.operator("fabric.fit", icon="PLAY")
+            if settings.fit_status:
+                layout.label(text=settings.fit_status)
+        else:
+            row = layout.row(align=True)
+            row.progress(factor=fit.progress, text=fit.status, type="BAR")
+            row.operator("fabric.cancel_fit", text="", icon="CANCEL")
+            layout.label(text="ESC or the button cancels", icon="INFO")
+
+
+class VIEW3D_PT_woven_fabric_result(FabricPanel, bpy.types.Panel):
+    bl_label = "Result"
+    bl_parent_id = "VIEW3D_PT_woven_fabric"
+
+    def draw(self, context):
+        settings = context.scene.woven_fabric
+        layout = self.layout
+        material = bpy.data.materials.get(settings.last_material)
+        if material is not None:
+            layout.label(text=material.name, icon="MATERIAL")
+        else:
+            layout.label(text="No fitted material yet")
+        layout.operator("fabric.assign_material", icon="MATERIAL_DATA")
+        layout.operator("fabric.add_drape_preview", icon="MOD_CLOTH")
+        row = layout.row(align=True)
+        row.operator("fabric.open_results", icon="FILE_FOLDER")
+        row.operator("fabric.load_fit", icon="IMPORT")
+
+
+CLASSES = (VIEW3D_PT_woven_fabric, VIEW3D_PT_woven_fabric_rig, VIEW3D_PT_woven_fabric_fit,
+           VIEW3D_PT_woven_fabric_result)
+
+
+def register():
+    global _previews
+    import bpy.utils.previews
+
+    _previews = bpy.utils.previews.new()
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    global _previews
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
+    if _previews is not None:
+        bpy.utils.previews.remove(_previews)
+        _previews = None

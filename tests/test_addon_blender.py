@@ -1,0 +1,376 @@
+"""The extension inside Blender (the bpy module): build, install, register, fit, batch, drape.
+
+Each bpy check runs in its own Python process with a temporary ``BLENDER_USER_RESOURCES`` (so the
+extension is installed there, never into the user's Blender) and speaks to pytest through its exit
+code and output. The backend is tests/fake_backend.py, selected through the environment the
+add-on reads (``WOVEN_FABRIC_PYTHON``, ``WOVEN_FABRIC_BACKEND_SCRIPT``); set BACKEND_SCRIPT to ""
+to run the real ``python -m backend fit`` instead (slower: give it --iterations/--size then).
+
+``WOVEN_FABRIC_TEST_ZIP`` may name an already built extension zip to test instead of building one.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import struct
+import subprocess
+import sys
+import textwrap
+import zipfile
+import zlib
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("bpy")
+pytestmark = pytest.mark.blender
+
+ROOT = Path(__file__).resolve().parents[1]
+FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
+BACKEND_SCRIPT = str(FAKE_BACKEND)  # "" runs the real backend (python -m backend)
+EXTENSION = "bl_ext.user_default.woven_fabric"
+TIMEOUT_S = 120
+
+
+def write_png(path: Path, rgb: tuple[int, int, int], size: int = 16):
+    """A small solid-colour 8-bit RGB PNG with a darker grid (no image library needed)."""
+    rows = b"".join(b"\x00" + b"".join(bytes(rgb if (x % 4 and y % 4) else (rgb[0] // 2, rgb[1] // 2, rgb[2] // 2))
+                                       for x in range(size)) for y in range(size))
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", size, size, 8, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+@pytest.fixture(scope="module")
+def extension_zip(tmp_path_factory) -> Path:
+    if os.environ.get("WOVEN_FABRIC_TEST_ZIP"):
+        return Path(os.environ["WOVEN_FABRIC_TEST_ZIP"])
+    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    return build.build(tmp_path_factory.mktemp("dist"))
+
+
+@pytest.fixture
+def photos(tmp_path) -> Path:
+    """Two good pairs, one with a corrupt transmission photo, one reflection without its partner."""
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    write_png(folder / "linen_R.png", (200, 190, 170))
+    write_png(folder / "linen_T.png", (90, 80, 60))
+    write_png(folder / "wool_R.png", (120, 30, 40))
+    write_png(folder / "wool_T.png", (50, 10, 15))
+    write_png(folder / "torn_R.png", (10, 10, 10))
+    (folder / "torn_T.png").write_text("not an image")
+    write_png(folder / "solo_R.png", (10, 200, 10))
+    return folder
+
+
+PRELUDE = """
+import json, os, sys
+from pathlib import Path
+import bpy
+
+registered_commands = {}
+_register_cli_command = bpy.utils.register_cli_command
+def _record_cli_command(name, execute):
+    registered_commands[name] = execute
+    return _register_cli_command(name, execute)
+bpy.utils.register_cli_command = _record_cli_command
+
+assert bpy.ops.extensions.package_install_files(
+    filepath=os.environ["FABRIC_TEST_ZIP"], repo="user_default", enable_on_install=True) == {"FINISHED"}
+import importlib
+ext = importlib.import_module("%s")
+""" % EXTENSION
+
+
+def run_bpy(tmp_path: Path, extension_zip: Path, body: str, **env) -> str:
+    """Runs PRELUDE + body in a fresh Python with bpy; returns its output, fails the test on error."""
+    script = tmp_path / "check.py"
+    script.write_text(PRELUDE + textwrap.dedent(body))
+    resources = tmp_path / "blender_user"
+    resources.mkdir(exist_ok=True)
+    environment = {**os.environ, "BLENDER_USER_RESOURCES": str(resources), "FABRIC_TEST_ZIP": str(extension_zip),
+                   "WOVEN_FABRIC_PYTHON": sys.executable, "WOVEN_FABRIC_BACKEND_SCRIPT": BACKEND_SCRIPT,
+                   **{k: str(v) for k, v in env.items()}}
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=TIMEOUT_S,
+                          env=environment, cwd=tmp_path)
+    output = done.stdout + done.stderr
+    assert done.returncode == 0, f"bpy check failed (exit {done.returncode}):\n{output[-6000:]}"
+    return output
+
+
+# -- the zip ----------------------------------------------------------------------------------------
+
+def test_build_makes_an_extension_zip_with_backend_and_shaders(tmp_path):
+    done = subprocess.run([sys.executable, str(ROOT / "build.py"), "--out", str(tmp_path)], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    path = Path(done.stdout.strip())
+    assert path.parent == tmp_path and path.name == "woven_fabric-0.1.0.zip"
+    names = zipfile.ZipFile(path).namelist()
+    for required in ("blender_manifest.toml", "__init__.py", "backend_bridge.py", "operators.py", "batch.py",
+                     "paths.py", "backend/__init__.py", "backend/protocol.py", "backend/params.py"):
+        assert required in names, required
+    assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
+    # Two builds of the same tree are byte-identical.
+    again = subprocess.run([sys.executable, str(ROOT / "build.py"), "--out", str(tmp_path / "again")],
+                           capture_output=True, text=True, timeout=60)
+    assert Path(again.stdout.strip()).read_bytes() == path.read_bytes()
+
+
+def test_build_bundles_the_shader(extension_zip):
+    names = zipfile.ZipFile(extension_zip).namelist()
+    assert "shaders/woven_fabric.osl" in names, "shaders/woven_fabric.osl is not written yet"
+    assert "node_group.py" in names, "blender_addon/node_group.py is not written yet"
+
+
+# -- registration -----------------------------------------------------------------------------------
+
+def test_extension_registers_panel_operators_preferences_and_command(tmp_path, extension_zip, photos):
+    output = run_bpy(tmp_path, extension_zip, """
+        prefs = bpy.context.preferences.addons[ext.__name__].preferences
+        assert {"python_path", "backend_script", "device", "results_folder"} <= set(prefs.bl_rna.properties.keys())
+        assert prefs.device == "AUTO" and prefs.python_path == ""
+        for panel in ("VIEW3D_PT_woven_fabric", "VIEW3D_PT_woven_fabric_rig", "VIEW3D_PT_woven_fabric_fit",
+                      "VIEW3D_PT_woven_fabric_result"):
+            cls = getattr(bpy.types, panel)
+            assert cls.bl_category == "Fabric" and cls.bl_region_type == "UI", panel
+        for op in ("fit", "cancel_fit", "check_backend", "detect_python", "reset_rig", "load_fit",
+                   "assign_material", "add_drape_preview", "open_results", "batch_fit"):
+            assert hasattr(bpy.ops.fabric, op), op
+        settings = bpy.context.scene.woven_fabric
+        assert settings.rig.fov_deg == 53.0 and settings.rig.camera_height == 8.0
+        assert tuple(settings.rig.front_light) == (0.0, 8.0, 8.0) and settings.rig.width_cm == 0.0
+        settings.rig.fov_deg = 60.0
+        bpy.ops.fabric.reset_rig()
+        assert settings.rig.fov_deg == 53.0
+        assert registered_commands["fabric_fit"] is ext.batch.main
+        backend = ext.preferences.selected_backend(detect=False)
+        assert backend.python == sys.executable and backend.script == os.environ["WOVEN_FABRIC_BACKEND_SCRIPT"]
+        # A fit without photos is refused with a readable message, nothing started.
+        try:
+            bpy.ops.fabric.fit()
+        except RuntimeError as exc:
+            assert "Choose the reflection photo first" in str(exc), exc
+        else:
+            raise AssertionError("fit without photos was accepted")
+
+        # Draw every panel and the preferences into a layout that checks each property and operator.
+        drawn = []
+        class Layout:
+            def __getattr__(self, name):
+                def call(*args, **kw):
+                    if name == "prop":
+                        assert args[1] in args[0].bl_rna.properties, args[1]
+                    elif name == "operator":
+                        group, op = args[0].split(".")
+                        assert hasattr(getattr(bpy.ops, group), op), args[0]
+                    drawn.append((name, args[1] if name == "prop" else args[0] if args else kw))
+                    return Layout()
+                return call
+        from types import SimpleNamespace
+        settings.reflection_path = os.environ["FABRIC_TEST_PHOTO"]
+        panels = [getattr(bpy.types, p) for p in ("VIEW3D_PT_woven_fabric", "VIEW3D_PT_woven_fabric_rig",
+                                                    "VIEW3D_PT_woven_fabric_fit", "VIEW3D_PT_woven_fabric_result")]
+        for panel in panels:
+            panel.draw(SimpleNamespace(layout=Layout()), bpy.context)
+        class PreferencesView:  # the preferences, drawn into the checking layout
+            layout = Layout()
+            def __getattr__(self, name):
+                return getattr(prefs, name)
+        type(prefs).draw(PreferencesView(), bpy.context)
+        assert ("prop", "camera_height") in drawn and ("operator", "fabric.fit") in drawn
+        # (Background mode has no icons: icon_id stays 0, but the preview image must load.)
+        previews = list(ext.panels._previews.values())
+        assert len(previews) == 1 and tuple(previews[0].image_size) == (16, 16), previews
+
+        # While a fit runs the Fit panel shows a progress bar and the Cancel button.
+        os.environ["FAKE_BACKEND_MODE"] = "slow"
+        fit = ext.backend_bridge.FitProcess.fit(ext.preferences.selected_backend(), ext.backend_bridge.FitRequest(
+            Path(settings.reflection_path), Path(settings.reflection_path), Path("run"))).start()
+        ext.operators.ActiveFit.process = fit
+        drawn.clear()
+        panels[2].draw(SimpleNamespace(layout=Layout()), bpy.context)
+        assert ("operator", "fabric.cancel_fit") in drawn and "progress" in [d[0] for d in drawn], drawn
+        assert bpy.ops.fabric.cancel_fit() == {"FINISHED"}
+        assert fit.wait(timeout=10) == "cancelled"
+
+        bpy.ops.preferences.addon_disable(module=ext.__name__)
+        assert not hasattr(bpy.types.Scene, "woven_fabric")
+        assert not hasattr(bpy.types, "VIEW3D_PT_woven_fabric")
+        print("REGISTRATION OK")
+    """, FABRIC_TEST_PHOTO=photos / "linen_R.png")
+    assert "REGISTRATION OK" in output
+
+
+def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
+    candidates = [p for p in ("/usr/bin/python3", "/usr/local/bin/python3") if Path(p).exists()]
+    python = next((p for p in candidates if subprocess.run([p, "-c", "import torch"], capture_output=True)
+                   .returncode != 0), None)
+    if python is None:
+        pytest.skip("no Python without torch on this machine")
+    output = run_bpy(tmp_path, extension_zip, f"""
+        try:
+            bpy.ops.fabric.check_backend(python={python!r})
+        except RuntimeError as exc:
+            message = str(exc)
+        else:
+            raise AssertionError("the check passed for a Python without torch")
+        assert "The backend cannot run yet" in message, message
+        assert "PyTorch (torch) is not installed for {python}" in message, message
+        assert ext.preferences.last_check[-1].problems
+        print("CHECK OK")
+    """)
+    assert "CHECK OK" in output
+
+
+# -- fitting, batch, drape (need node_group.py) ------------------------------------------------------
+
+def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_zip, photos):
+    output = run_bpy(tmp_path, extension_zip, f"""
+        photos = Path({str(photos)!r})
+        results = Path({str(tmp_path / 'results')!r})
+        bpy.context.preferences.addons[ext.__name__].preferences.results_folder = str(results)
+        users = bpy.data.materials.new("linen")  # the user's own material of the same name
+        settings = bpy.context.scene.woven_fabric
+        settings.reflection_path = str(photos / "linen_R.png")
+        settings.transmission_path = str(photos / "linen_T.png")
+        settings.rig.width_cm = 5.0
+        assert bpy.ops.fabric.fit() == {{"FINISHED"}}
+        assert bpy.ops.fabric.fit() == {{"FINISHED"}}
+        assert settings.last_material == "linen.002", settings.last_material
+        assert "Woven Fabric" not in [n.name for n in (users.node_tree.nodes if users.node_tree else [])]
+        folders = sorted(p.name for p in results.iterdir())
+        assert folders == ["linen_001", "linen_002"], folders
+        for folder in folders:
+            assert (results / folder / "params.json").is_file() and (results / folder / "rig.json").is_file()
+        assert json.loads((results / "linen_002" / "rig.json").read_text())["width_cm"] == 5.0
+        fitted = bpy.data.materials["linen.001"]
+        assert fitted.use_fake_user and ext.materials.is_fabric_material(fitted)
+        values = ext.node_group.read_params(fitted)
+        assert values["pattern"] == "twill1" and abs(values["roughness"][1] - 0.66) < 1e-4, values
+
+        os.environ["FAKE_BACKEND_MODE"] = "error"
+        try:
+            bpy.ops.fabric.fit()
+        except RuntimeError as exc:
+            assert "Internal backend error: the optimiser diverged" in str(exc), exc
+        else:
+            raise AssertionError("a backend error was not reported")
+        assert "linen.003" not in bpy.data.materials
+        print("FIT OK")
+    """)
+    assert "FIT OK" in output
+
+
+def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zip, photos):
+    output = run_bpy(tmp_path, extension_zip, f"""
+        import time
+        from types import SimpleNamespace
+        photos = Path({str(photos)!r})
+        settings = bpy.context.scene.woven_fabric
+        settings.reflection_path = str(photos / "wool_R.png")
+        settings.transmission_path = str(photos / "wool_T.png")
+        operator_class = ext.operators.FABRIC_OT_fit
+
+        class Operator:  # the modal operator's state; Blender cannot make one without an event loop
+            _timer, _scene_name, _warned, reports = None, bpy.context.scene.name, 0, []
+            def report(self, kind, message):
+                self.reports.append((kind, message))
+        for name in ("modal", "_settings", "_finish", "_material", "_end"):
+            setattr(Operator, name, getattr(operator_class, name))
+        timer, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+
+        def run(mode, cancel_after=None):
+            os.environ["FAKE_BACKEND_MODE"] = mode
+            op = Operator()
+            fit = operator_class._prepare(op, bpy.context, settings).start()
+            ext.operators.ActiveFit.process = fit
+            started, slowest, ticks = time.monotonic(), 0.0, 0
+            while True:
+                t = time.monotonic()
+                result = operator_class.modal(op, bpy.context, timer)
+                slowest, ticks = max(slowest, time.monotonic() - t), ticks + 1
+                if result != {{"PASS_THROUGH"}}:
+                    return result, op, fit, slowest
+                if cancel_after is not None and ticks == cancel_after:
+                    assert operator_class.modal(op, bpy.context, esc) == {{"RUNNING_MODAL"}}
+                assert time.monotonic() - started < 20, "the fit did not end"
+                time.sleep(0.05)
+
+        result, op, fit, slowest = run("ok")
+        assert result == {{"FINISHED"}}, op.reports
+        assert slowest < 0.5, slowest
+        assert settings.fit_progress == 1.0 and settings.last_material == "wool", settings.last_material
+        assert settings.fit_status == "Fit finished: material wool"
+
+        result, op, fit, slowest = run("slow", cancel_after=5)
+        assert result == {{"CANCELLED"}} and fit.state == "cancelled", (result, fit.state)
+        assert not Path(f"/proc/{{fit.pid}}").exists(), "the cancelled backend is still there"
+        assert op.reports[-1][0] == {{"WARNING"}} and "cancelled" in op.reports[-1][1]
+        assert "wool.001" not in bpy.data.materials
+        print("MODAL OK")
+    """)
+    assert "MODAL OK" in output
+
+
+def test_batch_command_fits_good_pairs_and_counts_bad_ones(tmp_path, extension_zip, photos):
+    library = tmp_path / "library.blend"
+    output = run_bpy(tmp_path, extension_zip, f"""
+        # What `blender --command fabric_fit ARGS` does: call the registered callback with ARGS.
+        code = registered_commands["fabric_fit"]([{str(photos)!r}, "--out", {str(library)!r}, "--iterations", "3"])
+        print("EXIT", code)
+        assert code == 2, code
+        bpy.ops.wm.open_mainfile(filepath={str(library)!r})
+        assets = sorted(m.name for m in bpy.data.materials if m.asset_data is not None)
+        assert assets == ["linen", "wool"], assets
+        for name in assets:
+            material = bpy.data.materials[name]
+            assert "fabric" in [t.name for t in material.asset_data.tags]
+            assert tuple(material.preview.image_size) == (128, 128)
+        print("BATCH OK")
+    """)
+    assert "BATCH OK" in output
+    assert "SKIP solo: no transmission photo (solo_T.*) beside solo_R.png" in output
+    assert "FAIL [2/3] torn" in output and "Bad input" in output
+    assert sorted(p.name for p in (photos / "fabric_fits").iterdir()) == ["linen_001", "torn_001", "wool_001"]
+
+
+def test_batch_runs_from_the_bpy_module_in_a_checkout(tmp_path, photos):
+    (photos / "torn_T.png").unlink()
+    (photos / "solo_R.png").unlink()
+    (photos / "torn_R.png").unlink()
+    environment = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "blender_user"),
+                   "WOVEN_FABRIC_PYTHON": sys.executable, "WOVEN_FABRIC_BACKEND_SCRIPT": BACKEND_SCRIPT}
+    done = subprocess.run([sys.executable, "-m", "blender_addon.batch", str(photos), "--out",
+                           str(tmp_path / "lib.blend")], capture_output=True, text=True, timeout=TIMEOUT_S,
+                          env=environment, cwd=ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "2 fitted, 0 failed" in done.stdout and (tmp_path / "lib.blend").is_file()
+
+
+def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
+    output = run_bpy(tmp_path, extension_zip, f"""
+        import importlib.util
+        spec = importlib.util.spec_from_file_location("fake", {str(FAKE_BACKEND)!r})
+        fake = importlib.util.module_from_spec(spec); spec.loader.exec_module(fake)
+        material = ext.materials.new_fit_material("denim", fake.fake_params("denim"), 5.0)
+        before = set(bpy.context.scene.objects.keys())
+        bpy.context.scene.woven_fabric.last_material = material.name
+        assert bpy.ops.fabric.add_drape_preview(resolution=10, frames=12) == {{"FINISHED"}}
+        preview = bpy.data.scenes["Fabric Preview"]
+        assert set(bpy.data.scenes["Scene"].objects.keys()) == before  # the user's scene is untouched
+        cloth = preview.objects["Fabric Cloth"]
+        assert cloth.data.materials[0].name == "denim Drape" and material.name == "denim"
+        zs = [(cloth.matrix_world @ v.co).z for v in cloth.data.vertices]
+        assert max(zs) - min(zs) > 0.1, "the cloth did not drape"
+        assert preview.camera is not None and len([o for o in preview.objects if o.type == "LIGHT"]) == 2
+        assert any(m.type == "COLLISION" for m in preview.objects["Preview Collider"].modifiers)
+        print("DRAPE OK")
+    """)
+    assert "DRAPE OK" in output
