@@ -31,7 +31,7 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_bridge, captures, materials
+from . import backend_bridge, backend_setup, captures, materials
 
 CLI_COMMAND = "fabric_fit"
 MAX_EXIT = 125
@@ -208,7 +208,7 @@ def _backend(args) -> backend_bridge.Backend:
         chosen = None
     if chosen is not None:
         python, script = python or chosen.python, script or chosen.script
-    return backend_bridge.resolve_backend(python, script)
+    return backend_setup.resolve_backend(python, script)
 
 
 class FABRIC_OT_batch_fit(bpy.types.Operator):

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_bridge, captures, materials, preferences, properties
+from . import backend_bridge, backend_setup, captures, materials, preferences, properties
 
 TIMER_INTERVAL_S = 0.1
 
@@ -57,7 +57,8 @@ class FABRIC_OT_fit(bpy.types.Operator):
 
     bl_idname = "fabric.fit"
     bl_label = "Fit Fabric"
-    bl_options = {"REGISTER"}
+    # UNDO: the new material gets its own undo step when the fit finishes.
+    bl_options = {"REGISTER", "UNDO"}
 
     _timer = None
     _scene_name = ""
@@ -127,9 +128,9 @@ class FABRIC_OT_fit(bpy.types.Operator):
         for warning in fit.warnings[self._warned:]:
             self.report({"WARNING"}, warning)
         self._warned = len(fit.warnings)
-        if settings is not None:
+        if settings is not None and (settings.fit_progress, settings.fit_status) != (fit.progress, fit.status):
             settings.fit_progress, settings.fit_status = fit.progress, fit.status
-        _redraw_sidebars(context)
+            _redraw_sidebars(context)
         if not fit.done:
             return {"PASS_THROUGH"}
         return self._end(context, self._finish(context, fit, settings))
@@ -163,9 +164,12 @@ class FABRIC_OT_fit(bpy.types.Operator):
         params = captures.read_fit_params(fit.result)
         width = _width_cm(settings) if settings is not None else None
         folder = fit.result.get("out_dir", "")
-        target = getattr(context.object, "active_material", None) if context.object else None
-        if settings is not None and settings.update_active_material and materials.is_fabric_material(target):
-            return materials.update_fit_material(target, params, width, folder)
+        if settings is not None and settings.update_active_material:
+            target = getattr(context.object, "active_material", None) if context.object else None
+            if materials.is_fabric_material(target):
+                return materials.update_fit_material(target, params, width, folder)
+            self.report({"WARNING"}, "The active object has no Woven Fabric material to update; "
+                                     "the fit becomes a new material")
         return materials.new_fit_material(_fit_name(settings, fit.request.reflection), params, width, folder)
 
     def _end(self, context, result):
@@ -246,7 +250,7 @@ class FABRIC_OT_check_backend(bpy.types.Operator):
 
 
 def _run_check(backend, device):
-    check = backend_bridge.check_backend(backend, device=device)
+    check = backend_setup.check_backend(backend, device=device)
     preferences.last_check[:] = [check]
     print(f"Woven Fabric: {check.python}: {check.summary()}")
     return check
@@ -268,11 +272,11 @@ class FABRIC_OT_detect_python(bpy.types.Operator):
     bl_label = "Detect Python"
 
     def execute(self, context):
-        found = backend_bridge.find_interpreter()
+        found = backend_setup.find_interpreter()
         prefs = preferences.preferences(context)
         if not found:
             self.report({"ERROR"}, "No Python with PyTorch was found; set the Backend Python by hand "
-                                   f"(tried: {', '.join(backend_bridge.interpreter_candidates())})")
+                                   f"(tried: {', '.join(backend_setup.interpreter_candidates())})")
             return {"CANCELLED"}
         if prefs is not None:
             prefs.python_path = found

@@ -88,7 +88,7 @@ class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
                 layout.label(text=settings.fit_status)
         else:
             row = layout.row(align=True)
-            row.progress(factor=fit.progress, text=fit.status, type="BAR")
+            row.progress(factor=settings.fit_progress, text=settings.fit_status, type="BAR")
             row.operator("fabric.cancel_fit", text="", icon="CANCEL")
             layout.label(text="ESC or the button cancels", icon="INFO")
 

@@ -2,13 +2,13 @@
 
 Empty settings fall back to the environment (``WOVEN_FABRIC_PYTHON``,
 ``WOVEN_FABRIC_BACKEND_SCRIPT``) and then to auto-detection: the project's ``.venv`` beside the
-backend, else Blender's own Python if PyTorch imports there (see backend_bridge.resolve_backend).
+backend, else Blender's own Python if PyTorch imports there (see backend_setup.resolve_backend).
 """
 from __future__ import annotations
 
 import bpy
 
-from . import backend_bridge
+from . import backend_bridge, backend_setup
 
 # The outcome of the last "Check Backend" (a BackendCheck), shown under the button; not saved.
 last_check: list = []
@@ -71,7 +71,7 @@ def selected_backend(context=None, detect: bool = True) -> backend_bridge.Backen
     prefs = preferences(context)
     python = bpy.path.abspath(prefs.python_path) if prefs and prefs.python_path else ""
     script = bpy.path.abspath(prefs.backend_script) if prefs and prefs.backend_script else ""
-    return backend_bridge.resolve_backend(python, script, detect=detect)
+    return backend_setup.resolve_backend(python, script, detect=detect)
 
 
 def selected_device(context=None) -> str | None:

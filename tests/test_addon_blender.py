@@ -255,6 +255,16 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
         values = ext.node_group.read_params(fitted)
         assert values["pattern"] == "twill1" and abs(values["roughness"][1] - 0.66) < 1e-4, values
 
+        # Asked to, a fit updates the active object's fabric material in place.
+        cube = bpy.data.objects["Cube"]
+        cube.data.materials.append(fitted)
+        cube.active_material_index = len(cube.material_slots) - 1
+        bpy.context.view_layer.objects.active = cube
+        settings.update_active_material = True
+        assert bpy.ops.fabric.fit() == {{"FINISHED"}}
+        assert settings.last_material == "linen.001" and "linen.003" not in bpy.data.materials
+        settings.update_active_material = False
+
         os.environ["FAKE_BACKEND_MODE"] = "error"
         try:
             bpy.ops.fabric.fit()

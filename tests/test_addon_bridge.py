@@ -20,6 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from blender_addon import backend_bridge as bridge  # noqa: E402
+from blender_addon import backend_setup as setup  # noqa: E402
 from blender_addon import captures  # noqa: E402
 
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
@@ -72,17 +73,17 @@ def test_backend_environment_puts_the_backend_first_on_pythonpath(monkeypatch):
 
 
 def test_resolve_backend_precedence(monkeypatch):
-    monkeypatch.setenv(bridge.ENV_PYTHON, "/env/python")
-    monkeypatch.setenv(bridge.ENV_BACKEND_SCRIPT, "/env/fake.py")
-    assert bridge.resolve_backend("/explicit/python") == bridge.Backend("/explicit/python", "/env/fake.py")
-    assert bridge.resolve_backend() == bridge.Backend("/env/python", "/env/fake.py")
-    monkeypatch.delenv(bridge.ENV_PYTHON)
+    monkeypatch.setenv(setup.ENV_PYTHON, "/env/python")
+    monkeypatch.setenv(setup.ENV_BACKEND_SCRIPT, "/env/fake.py")
+    assert setup.resolve_backend("/explicit/python") == bridge.Backend("/explicit/python", "/env/fake.py")
+    assert setup.resolve_backend() == bridge.Backend("/env/python", "/env/fake.py")
+    monkeypatch.delenv(setup.ENV_PYTHON)
     with pytest.raises(bridge.BackendError, match="add-on preferences"):
-        bridge.resolve_backend(detect=False)
+        setup.resolve_backend(detect=False)
 
 
 def test_interpreter_candidates_include_the_project_environment():
-    candidates = bridge.interpreter_candidates()
+    candidates = setup.interpreter_candidates()
     assert str(ROOT / ".venv" / "bin" / "python") in candidates
     assert candidates[-1] == sys.executable or sys.executable in candidates
 
@@ -223,7 +224,7 @@ def _python_without_torch():
 
 def test_check_backend_says_in_words_that_torch_is_missing():
     python = _python_without_torch()
-    check = bridge.check_backend(bridge.Backend(python))
+    check = setup.check_backend(bridge.Backend(python))
     assert not check.ok
     assert any(p.startswith("PyTorch (torch) is not installed for") and "pip install torch" in p
                for p in check.problems), check.problems
@@ -231,12 +232,12 @@ def test_check_backend_says_in_words_that_torch_is_missing():
 
 
 def test_check_backend_missing_interpreter():
-    check = bridge.check_backend(bridge.Backend("/no/such/python"))
+    check = setup.check_backend(bridge.Backend("/no/such/python"))
     assert check.problems == ["The Python interpreter /no/such/python does not exist."]
 
 
 def test_check_backend_accepts_the_project_environment():
-    check = bridge.check_backend(bridge.Backend(sys.executable, BACKEND_SCRIPT))
+    check = setup.check_backend(bridge.Backend(sys.executable, BACKEND_SCRIPT))
     assert check.ok, check.summary()
     assert any(note.startswith("Backend 0.1.0") for note in check.notes)
 
