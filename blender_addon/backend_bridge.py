@@ -81,7 +81,7 @@ class Backend:
         root = str(paths.backend_root())
         env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
         env["PYTHONUNBUFFERED"] = "1"
-        # Blender's own Python must not pick up Blender's site settings in a child process.
+        # A PYTHONHOME meant for Blender's bundled Python would break any other interpreter.
         env.pop("PYTHONHOME", None)
         return env
 
@@ -178,6 +178,7 @@ class FitProcess:
         self._cancel_deadline: float | None = None
         self._error_event: dict | None = None
         self._malformed: list[str] = []
+        self._timed_out: float | None = None
 
     @classmethod
     def fit(cls, backend: Backend, request: FitRequest, log_path: Path | None = None) -> "FitProcess":
@@ -300,6 +301,8 @@ class FitProcess:
     def _outcome(self, code: int) -> tuple[str, str]:
         proto = protocol()
         event = self._error_event
+        if self._timed_out is not None:
+            return FAILED, f"The fit took longer than {self._timed_out:g} s and was stopped."
         if self._cancel_deadline is not None or (event and event.get("kind") == "cancelled"):
             return CANCELLED, "Fit cancelled; the partial results stay in the output folder."
         if event is not None:
@@ -335,7 +338,7 @@ class FitProcess:
         self.state, self.error = state, error
         self.status = {SUCCEEDED: "Fit finished", CANCELLED: "Fit cancelled"}.get(state, error)
         for thread in self._threads:
-            thread.join(timeout=1.0)
+            thread.join(timeout=0.2)  # they are at the end of their streams; never hang the UI on them
         if self._process is not None and not any(thread.is_alive() for thread in self._threads):
             # Closing a pipe that a reader thread still blocks on could hang; a grandchild holding
             # stdout open only delays the closing until that thread ends on its own.
@@ -386,6 +389,7 @@ class FitProcess:
                 if on_event is not None:
                     on_event(event)
             if deadline is not None and time.monotonic() > deadline and self._cancel_deadline is None:
+                self._timed_out = timeout
                 self.request_cancel()
             if not self.done:
                 time.sleep(interval)

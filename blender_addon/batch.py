@@ -136,7 +136,11 @@ def _fit_pair(pair, backend, options, rig, fits_parent, prefix, log):
         elif event["event"] == "warning":
             log(f"WARN {prefix}: {event.get('message')}")
 
-    fit.wait(timeout=options.timeout_s, on_event=show)
+    try:
+        fit.wait(timeout=options.timeout_s, on_event=show)
+    except KeyboardInterrupt:  # Ctrl+C: the backend runs in its own session and must be stopped here
+        fit.cancel()
+        raise
     if fit.state != backend_bridge.SUCCEEDED:
         if fit.details:
             log(fit.details)

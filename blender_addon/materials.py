@@ -18,8 +18,10 @@ PREVIEW_SIZE = 128
 
 def node_group():
     """The node-group module, imported on first use so that a missing shader side reads as an error."""
-    from . import node_group as module
-
+    try:
+        from . import node_group as module
+    except ImportError as exc:
+        raise RuntimeError(f"the add-on's node_group.py cannot be loaded ({exc}); reinstall the add-on") from None
     return module
 
 

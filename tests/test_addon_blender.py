@@ -22,8 +22,9 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("bpy")
 pytestmark = pytest.mark.blender
+needs_bpy = pytest.mark.skipif(importlib.util.find_spec("bpy") is None,
+                               reason="the bpy module is not installed (pip install -e '.[test,blender]')")
 
 ROOT = Path(__file__).resolve().parents[1]
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
@@ -131,6 +132,7 @@ def test_build_bundles_the_shader(extension_zip):
 
 # -- registration -----------------------------------------------------------------------------------
 
+@needs_bpy
 def test_extension_registers_panel_operators_preferences_and_command(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, """
         prefs = bpy.context.preferences.addons[ext.__name__].preferences
@@ -208,6 +210,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
     assert "REGISTRATION OK" in output
 
 
+@needs_bpy
 def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
     candidates = [p for p in ("/usr/bin/python3", "/usr/local/bin/python3") if Path(p).exists()]
     python = next((p for p in candidates if subprocess.run([p, "-c", "import torch"], capture_output=True)
@@ -231,6 +234,7 @@ def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
 
 # -- fitting, batch, drape (need node_group.py) ------------------------------------------------------
 
+@needs_bpy
 def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, f"""
         photos = Path({str(photos)!r})
@@ -278,6 +282,7 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
     assert "FIT OK" in output
 
 
+@needs_bpy
 def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, f"""
         import time
@@ -329,6 +334,7 @@ def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zi
     assert "MODAL OK" in output
 
 
+@needs_bpy
 def test_batch_command_fits_good_pairs_and_counts_bad_ones(tmp_path, extension_zip, photos):
     library = tmp_path / "library.blend"
     output = run_bpy(tmp_path, extension_zip, f"""
@@ -351,6 +357,7 @@ def test_batch_command_fits_good_pairs_and_counts_bad_ones(tmp_path, extension_z
     assert sorted(p.name for p in (photos / "fabric_fits").iterdir()) == ["linen_001", "torn_001", "wool_001"]
 
 
+@needs_bpy
 def test_batch_runs_from_the_bpy_module_in_a_checkout(tmp_path, photos):
     (photos / "torn_T.png").unlink()
     (photos / "solo_R.png").unlink()
@@ -364,6 +371,7 @@ def test_batch_runs_from_the_bpy_module_in_a_checkout(tmp_path, photos):
     assert "2 fitted, 0 failed" in done.stdout and (tmp_path / "lib.blend").is_file()
 
 
+@needs_bpy
 def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, f"""
         import importlib.util

@@ -89,6 +89,8 @@ def test_interpreter_candidates_include_the_project_environment():
 
 
 def test_progress_fraction_is_monotonic_over_the_stages():
+    assert tuple(bridge.STAGE_WEIGHTS) == bridge.protocol().STAGES == tuple(bridge.STAGE_NAMES)
+    assert sum(bridge.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
     fractions = [bridge.progress_fraction(stage, i, 4) for stage in bridge.STAGE_WEIGHTS for i in range(5)]
     assert fractions == sorted(fractions)
     assert fractions[0] == 0.0 and fractions[-1] == pytest.approx(1.0)
@@ -196,6 +198,16 @@ def test_cancel_ends_the_process_cleanly_and_quickly(tmp_path, photos, monkeypat
     assert max(polls) < 0.1, "poll() must never block"
     assert fit.state == bridge.CANCELLED and fit.returncode == 130
     assert "cancelled" in fit.status.lower()
+    _assert_reaped(fit.pid)
+
+
+@fake_only
+def test_a_run_past_its_time_limit_is_stopped_and_fails(tmp_path, photos, monkeypatch):
+    fit = run_fit(tmp_path, photos, "slow", monkeypatch)
+    started = time.monotonic()
+    assert fit.wait(timeout=0.5) == bridge.FAILED
+    assert time.monotonic() - started < 4.0
+    assert fit.error == "The fit took longer than 0.5 s and was stopped."
     _assert_reaped(fit.pid)
 
 
