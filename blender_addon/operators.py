@@ -9,6 +9,7 @@ version if the name is taken) unless "Update Active Material" is on.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import bpy
@@ -317,8 +318,8 @@ class FABRIC_OT_load_fit(bpy.types.Operator):
         try:
             params = captures.read_fit_params({"params": str(path)})
             settings = context.scene.woven_fabric
-            material = materials.new_fit_material(path.parent.name or "Fabric", params, _width_cm(settings),
-                                                  path.parent)
+            name = re.sub(r"_\d{3}$", "", path.parent.name) or "Fabric"  # a run folder is <name>_NNN
+            material = materials.new_fit_material(name, params, _width_cm(settings), path.parent)
         except Exception as exc:
             self.report({"ERROR"}, f"{path}: {exc}")
             return {"CANCELLED"}
