@@ -23,13 +23,13 @@ from dataclasses import dataclass
 
 import torch
 
-from . import asggx, sggx
+from . import sggx, spongecake
 from .camera import LightSamples, SampleChunk
 from .frames import dot
 from .geometry import LayerGeometry, SampleGeometry
 from .options import RenderOptions
 from .param_tensors import ParamTensors
-from .spongecake import attenuation, safe_cos, slab_g
+from .spongecake import safe_cos
 from .yarn import scale_height
 
 
@@ -44,7 +44,8 @@ def multiple_albedo(specular_albedo: torch.Tensor, multiple_weight: torch.Tensor
 class LayerLobes:
     """What the composition needs from one layer, for one light."""
 
-    specular: torch.Tensor    # (3, S) f_s + f_m
+    single: torch.Tensor      # (S,) f_s / k_s
+    multiple: torch.Tensor    # (S,) f_m / k_m
     att_out: torch.Tensor     # (S,) att(wo)
     cos_normal: torch.Tensor  # (S,) wo . n
 
@@ -58,8 +59,6 @@ class LayerState:
     alpha_multiple: torch.Tensor
     thickness: torch.Tensor
     thickness_multiple: torch.Tensor
-    specular_albedo: torch.Tensor   # (3, S)
-    multiple_albedo: torch.Tensor   # (3, S)
     normal: torch.Tensor            # (3, S) after height scaling
     fiber: torch.Tensor             # (3, S) after height scaling
     cos_in: torch.Tensor            # wi . o
@@ -67,16 +66,12 @@ class LayerState:
     att_in: torch.Tensor            # att(wi)
 
 
-def layer_state(geo: LayerGeometry, fabric: ParamTensors, k_multiple: torch.Tensor, wi: torch.Tensor) -> LayerState:
+def layer_state(geo: LayerGeometry, fabric: ParamTensors, wi: torch.Tensor) -> LayerState:
     warp, weft = geo.warp, geo.weft
     gap = 1.0 - warp - weft
 
     def pick(values: torch.Tensor, fill: float = 0.0) -> torch.Tensor:
         return warp * values[0] + weft * values[1] + (gap * fill if fill else 0.0)
-
-    def pick_rgb(values: torch.Tensor) -> torch.Tensor:
-        out = warp[None] * values[0][:, None] + weft[None] * values[1][:, None]
-        return out * geo.albedo_scale[None] if geo.albedo_scale is not None else out
 
     alpha = pick(fabric.roughness, 1.0)
     beta = pick(fabric.height_scale, 1.0)
@@ -89,9 +84,8 @@ def layer_state(geo: LayerGeometry, fabric: ParamTensors, k_multiple: torch.Tens
     return LayerState(
         geometry=geo, alpha=alpha, alpha_multiple=pick(fabric.roughness_multiple, 1.0),
         thickness=thickness, thickness_multiple=pick(fabric.thickness_multiple) * geo.thickness_scale,
-        specular_albedo=pick_rgb(fabric.specular_albedo), multiple_albedo=pick_rgb(k_multiple),
         normal=normal, fiber=fiber, cos_in=cos_in, area_in=area_in,
-        att_in=torch.exp(-thickness * area_in))
+        att_in=spongecake.attenuation(thickness, area_in))
 
 
 def layer_lobes(state: LayerState, wi: torch.Tensor, light: LightSamples, options: RenderOptions) -> LayerLobes:
@@ -99,59 +93,92 @@ def layer_lobes(state: LayerState, wi: torch.Tensor, light: LightSamples, option
     wo, fiber = light.wo, state.fiber
     cos_out = dot(wo, fiber)
     cos_half = dot(light.half, fiber)
+    cos2_half = cos_half * cos_half
     wo_z = safe_cos(wo[2])
     inv_wi_z = 1.0 / safe_cos(wi[2])
     area_out = sggx.projected_area(cos_out, state.alpha) / wo_z
-    single = sggx.ndf(cos_half * cos_half, state.alpha) * slab_g(state.thickness, state.area_in, area_out) * 0.25
+    single = spongecake.single_scattering(cos2_half, state.area_in, area_out, state.alpha, state.thickness, inv_wi_z)
     if options.multiple_lobe == "asggx":
-        g_multiple = slab_g(state.thickness_multiple, state.area_in, area_out)
-        multiple = asggx.lobe(state.cos_in, cos_out, state.alpha_multiple) * g_multiple * 0.5
-    else:  # the ablation: plain SGGX with alpha_m, T_m, k_m (spec 4.3, last paragraph)
-        area_in_m = sggx.projected_area(state.cos_in, state.alpha_multiple) * inv_wi_z
-        area_out_m = sggx.projected_area(cos_out, state.alpha_multiple) / wo_z
-        g_multiple = slab_g(state.thickness_multiple, area_in_m, area_out_m)
-        multiple = sggx.ndf(cos_half * cos_half, state.alpha_multiple) * g_multiple * 0.25
-    specular = (state.specular_albedo * (single * inv_wi_z)[None]
-                + state.multiple_albedo * (multiple * inv_wi_z)[None])
-    att_out = torch.exp(-state.thickness * area_out.abs())
-    return LayerLobes(specular, att_out, dot(wo, state.normal))
+        multiple = spongecake.multiple_scattering_asggx(state.cos_in, cos_out, state.area_in, area_out,
+                                                        state.alpha_multiple, state.thickness_multiple, inv_wi_z)
+    else:
+        multiple = spongecake.multiple_scattering_sggx(state.cos_in, cos_out, cos2_half, wo_z, state.alpha_multiple,
+                                                       state.thickness_multiple, inv_wi_z)
+    att_out = spongecake.attenuation(state.thickness, area_out)
+    return LayerLobes(single, multiple, att_out, dot(wo, state.normal))
 
 
-def diffuse(fabric_albedo: torch.Tensor, weight: torch.Tensor, wo_z: torch.Tensor, c: torch.Tensor,
-            any_yarn: torch.Tensor) -> torch.Tensor:
-    """((1 - w) k_d |wo_z| + w k_d c) / pi where some layer is a yarn; (3, S)."""
-    mix = ((1.0 - weight) * wo_z.abs() + weight * c) * any_yarn * (1.0 / math.pi)
-    return fabric_albedo[:, None] * mix[None]
+@dataclass
+class ColourTerms:
+    """Radiance as a sum of colour x scalar terms: ``radiance (3, S) = colours (3, K) @ weights (K, S)``.
+
+    Every albedo is a per-yarn constant, so the renderer averages the K scalar weights over each
+    pixel's samples first and mixes colours per pixel: far less work than (3, S) arithmetic.
+    """
+
+    colours: torch.Tensor   # (3, K)
+    weights: torch.Tensor   # (K, S)
+
+    def radiance(self) -> torch.Tensor:
+        return self.colours @ self.weights
+
+
+def _specular_terms(fabric_albedos, state: LayerState, lobes: LayerLobes, factor: torch.Tensor):
+    """(colour, weight) pairs of one layer's specular lobes, scaled by `factor` (S,)."""
+    geo = state.geometry
+    if geo.albedo_scale is not None:
+        factor = factor * geo.albedo_scale
+    single, multiple = lobes.single * factor, lobes.multiple * factor
+    specular, k_multiple = fabric_albedos
+    return [(specular[0], geo.warp * single), (specular[1], geo.weft * single),
+            (k_multiple[0], geo.warp * multiple), (k_multiple[1], geo.weft * multiple)]
 
 
 def eval_pair(chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors,
-              options: RenderOptions) -> tuple[torch.Tensor, torch.Tensor]:
-    """Cosine-weighted BSDF values (3, S) for the front light (reflection) and back light (transmission)."""
-    wi = chunk.wi
-    k_multiple = multiple_albedo(fabric.specular_albedo, fabric.multiple_weight)
-    states = [layer_state(geo, fabric, k_multiple, wi) for geo in geometry.layers]
-    any_yarn = 1.0 - geometry.no_yarn
-    front_light = [layer_lobes(s, wi, chunk.front, options) for s in states]
-    back_light = [layer_lobes(s, wi, chunk.back, options) for s in states]
+              options: RenderOptions) -> tuple[ColourTerms, ColourTerms]:
+    """Radiance terms of the front-lit (reflection) and back-lit (transmission) captures.
 
-    reflection = front_light[0].specular
-    transmission = back_light[0].specular
+    Radiance = cosine-weighted BSDF * intensity / distance^2 (glow excluded: it is per pixel).
+    """
+    wi = chunk.wi
+    albedos = (fabric.specular_albedo, multiple_albedo(fabric.specular_albedo, fabric.multiple_weight))
+    states = [layer_state(geo, fabric, wi) for geo in geometry.layers]
+    lobes_front = [layer_lobes(s, wi, chunk.front, options) for s in states]
+    lobes_back = [layer_lobes(s, wi, chunk.back, options) for s in states]
+    irr_front, irr_back = chunk.front.irradiance, chunk.back.irradiance
+
+    terms_r = _specular_terms(albedos, states[0], lobes_front[0], irr_front)
+    terms_t = []
     if len(states) == 2:
         att0_in = states[0].att_in
-        reflection = reflection + front_light[1].specular * (front_light[0].att_out * att0_in)[None]
-        transmission = (transmission * back_light[1].att_out[None]
-                        + back_light[1].specular * att0_in[None])
+        terms_r += _specular_terms(albedos, states[1], lobes_front[1], irr_front * lobes_front[0].att_out * att0_in)
+        terms_t += _specular_terms(albedos, states[0], lobes_back[0], irr_back * lobes_back[1].att_out)
+        terms_t += _specular_terms(albedos, states[1], lobes_back[1], irr_back * att0_in)
+    else:
+        terms_t += _specular_terms(albedos, states[0], lobes_back[0], irr_back)
 
     if options.diffuse:
-        w = fabric.diffuse_normal_weight
+        any_yarn = 1.0 - geometry.no_yarn
         front_yarn = geometry.layers[0].is_yarn
-        c_front = front_yarn * front_light[0].cos_normal.clamp_min(0)
+        c_front = front_yarn * lobes_front[0].cos_normal.clamp_min(0)
         if len(states) == 2:
-            c_front = c_front + (1.0 - front_yarn) * front_light[1].cos_normal.clamp_min(0)
-        c_trans = torch.ones_like(c_front)
-        for state, lobes in zip(states, back_light):
+            c_front = c_front + (1.0 - front_yarn) * lobes_front[1].cos_normal.clamp_min(0)
+        c_back = torch.ones_like(c_front)
+        for state, lobes in zip(states, lobes_back):
             yarn = state.geometry.is_yarn
-            c_trans = c_trans * (yarn * (-lobes.cos_normal).clamp_min(0) + (1.0 - yarn))
-        reflection = reflection + diffuse(fabric.diffuse_reflection, w, chunk.front.wo[2], c_front, any_yarn)
-        transmission = transmission + diffuse(fabric.diffuse_transmission, w, chunk.back.wo[2], c_trans, any_yarn)
-    return reflection, transmission
+            c_back = c_back * (yarn * (-lobes.cos_normal).clamp_min(0) + (1.0 - yarn))
+        w = fabric.diffuse_normal_weight
+        terms_r.append((fabric.diffuse_reflection,
+                        diffuse_weight(w, chunk.front.wo[2], c_front, any_yarn) * irr_front))
+        terms_t.append((fabric.diffuse_transmission,
+                        diffuse_weight(w, chunk.back.wo[2], c_back, any_yarn) * irr_back))
+    return _pack(terms_r), _pack(terms_t)
+
+
+def diffuse_weight(weight: torch.Tensor, wo_z: torch.Tensor, c: torch.Tensor, any_yarn: torch.Tensor) -> torch.Tensor:
+    """((1 - w) |wo_z| + w c) / pi where some layer is a yarn; multiplies k_d."""
+    return ((1.0 - weight) * wo_z.abs() + weight * c) * any_yarn * (1.0 / math.pi)
+
+
+def _pack(terms) -> ColourTerms:
+    return ColourTerms(torch.stack([c for c, _ in terms], 1), torch.stack([w for _, w in terms]))

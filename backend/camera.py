@@ -53,31 +53,35 @@ class CameraSamples:
         self.device, self.dtype = torch.device(device), dtype
 
     def jitter(self, row0: int, row1: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """(jx, jy) in [0, 1) of every sample of rows [row0, row1), float64, shape (rows, size, spp)."""
-        d = self.device
-        rows = torch.arange(row0, row1, device=d, dtype=torch.int64)[:, None, None]
-        cols = torch.arange(self.size, device=d, dtype=torch.int64)[None, :, None]
-        sample = torch.arange(self.spp, device=d, dtype=torch.int64)[None, None, :]
-        pixel = rows * self.size + cols
-        ux = rng.uniform(pixel, sample, 0, seed=self.seed)
-        uy = rng.uniform(pixel, sample, 1, seed=self.seed)
+        """(jx, jy) in [0, 1) of every sample of rows [row0, row1), float64, shape (rows, size, spp).
+
+        Each film row draws from its own generator, seeded by a hash of (seed, row), so a chunk's
+        pattern does not depend on how the film was split into chunks.
+        """
+        draws = []
+        for row in range(row0, row1):
+            gen = torch.Generator().manual_seed(rng.hash32_int(self.seed * 1_000_003 + row))
+            draws.append(torch.rand((2, self.size, self.spp), generator=gen, dtype=torch.float64))
+        u = torch.stack(draws, 1).to(self.device)  # (2, rows, size, spp)
         k = math.isqrt(self.spp)
+        sample = torch.arange(self.spp, dtype=torch.int64, device=self.device)
         stratified = sample < k * k
-        sx = (sample % k).to(torch.float64)
-        sy = (sample // k).to(torch.float64)
-        jx = torch.where(stratified, (sx + ux) / k, ux)
-        jy = torch.where(stratified, (sy + uy) / k, uy)
-        return jx, jy
+        strata = torch.stack(((sample % k).double(), (sample // k).double()))[:, None, None, :]
+        jitter = torch.where(stratified, (strata + u) / k, u)
+        return jitter[0], jitter[1]
 
     def chunk(self, row0: int, row1: int) -> SampleChunk:
-        rig, n = self.rig, self.size
         jx, jy = self.jitter(row0, row1)
         d = self.device
         rows = torch.arange(row0, row1, device=d, dtype=torch.float64)[:, None, None]
-        cols = torch.arange(n, device=d, dtype=torch.float64)[None, :, None]
-        scale = rig.view_size / n
-        x = ((cols + jx) * scale).reshape(-1)
-        y = (-(rows + jy) * scale).reshape(-1)
+        cols = torch.arange(self.size, device=d, dtype=torch.float64)[None, :, None]
+        scale = self.rig.view_size / self.size
+        return self.at_points(((cols + jx) * scale).reshape(-1), (-(rows + jy) * scale).reshape(-1), row0, row1)
+
+    def at_points(self, x: torch.Tensor, y: torch.Tensor, row0: int = 0, row1: int = 0) -> SampleChunk:
+        """Samples at given world positions on the fabric plane (float64 x, y of shape (S,))."""
+        rig, d = self.rig, self.device
+        x, y = x.to(device=d, dtype=torch.float64), y.to(device=d, dtype=torch.float64)
         p = torch.stack((x, y, torch.zeros_like(x)))
         cam = torch.tensor(rig.camera_position(), dtype=torch.float64, device=d)[:, None]
         wi = normalize(cam - p)

@@ -52,40 +52,46 @@ class Layer:
 
 
 class WeaveLookup:
-    """Tensor form of a weave's interval tables, on one device, for per-sample evaluation."""
+    """Tensor form of a weave's interval tables, on one device, for per-sample evaluation.
 
-    def __init__(self, weave: Weave, device="cpu", dtype=torch.float64):
+    Each table column is a flat tensor indexed by ``yarn_index * intervals + interval`` so a lookup
+    is one ``take`` per column. Positions arrive in float64 (tile units are computed from large
+    world products) and are reduced to float32 once they are wrapped into the tile.
+    """
+
+    COLUMNS = ("centre", "length", "layer", "mu", "dist_prev", "mu_prev", "dist_next", "mu_next", "segment", "flat")
+
+    def __init__(self, weave: Weave, device="cpu", dtype=torch.float32):
         self.weave = weave
         self.device, self.dtype = torch.device(device), dtype
-        self.matrix = torch.tensor(weave.matrix, dtype=torch.bool, device=self.device)
+        self.matrix = torch.tensor(weave.matrix, dtype=torch.bool, device=self.device).flatten()
         self.umax = [math.radians(a) for a in weave.umax_deg]
         self.tables = [self._pack(weave, WARP), self._pack(weave, WEFT)]
 
-    def _pack(self, weave: Weave, yarn: int) -> torch.Tensor:
+    def _pack(self, weave: Weave, yarn: int) -> dict[str, torch.Tensor]:
         width = weave.band(yarn)[0]
         umax = math.radians(weave.umax_deg[yarn])
-        rows = []
-        for entries in weave.interval_table(yarn):
-            rows.append([[e.centre, e.length, e.layer, e.tension, e.dist_prev, e.tension_prev,
-                          e.dist_next, e.tension_next, e.segment,
-                          float(width * math.sin(umax) >= e.length)] for e in entries])
-        return torch.tensor(rows, dtype=self.dtype, device=self.device)
+        rows = [[e.centre, e.length, e.layer, e.tension, e.dist_prev, e.tension_prev, e.dist_next,
+                 e.tension_next, e.segment, float(width * math.sin(umax) >= e.length)]
+                for entries in weave.interval_table(yarn) for e in entries]
+        table = torch.tensor(rows, dtype=self.dtype, device=self.device)
+        columns = {name: table[:, k].contiguous() for k, name in enumerate(self.COLUMNS)}
+        columns["intervals"] = 2 * (weave.rows if yarn == WARP else weave.cols)
+        return columns
 
     def layers(self, X: torch.Tensor, Y: torch.Tensor, gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
         """Front and back layers at tile coordinates (X, Y) (any shape, tile units, wrapped here)."""
         w = self.weave
-        X = X.to(self.dtype)
-        Y = Y.to(self.dtype)
         # Position across the bands, from the first band's leading edge (wraps the tile).
-        xr = torch.remainder(X - w.warp_offset, w.tile_width)
-        yr = torch.remainder(Y - w.weft_offset, w.tile_height)
-        col = torch.floor(xr / w.warp_pitch).long().clamp_(0, w.cols - 1)
-        row = torch.floor(yr / w.weft_pitch).long().clamp_(0, w.rows - 1)
+        xr = torch.remainder(X - w.warp_offset, w.tile_width).to(self.dtype)
+        yr = torch.remainder(Y - w.weft_offset, w.tile_height).to(self.dtype)
+        col = torch.floor(xr * (1.0 / w.warp_pitch)).long().clamp_(0, w.cols - 1)
+        row = torch.floor(yr * (1.0 / w.weft_pitch)).long().clamp_(0, w.rows - 1)
         x_in = xr - col * w.warp_pitch
         y_in = yr - row * w.weft_pitch
         in_warp = x_in < w.warp_width
         in_weft = y_in < w.weft_width
-        warp_over = self.matrix[row, col]
+        warp_over = self.matrix.take(row * w.cols + col)
 
         warp = self._yarn(WARP, col, row, in_weft, yr, x_in - w.warp_width / 2, gap_scale[WARP], w.tile_height)
         weft = self._yarn(WEFT, row, col, in_warp, xr, y_in - w.weft_width / 2, gap_scale[WEFT], w.tile_width)
@@ -93,45 +99,46 @@ class WeaveLookup:
         crossing = in_warp & in_weft
         front_is_warp = in_warp & (~in_weft | warp_over)
         front_is_weft = in_weft & (~in_warp | ~warp_over)
-        back_is_warp = crossing & ~warp_over
-        back_is_weft = crossing & warp_over
         front = self._compose(warp, weft, front_is_warp, front_is_weft)
-        back = self._compose(warp, weft, back_is_warp, back_is_weft)
+        back = self._compose(warp, weft, crossing & ~warp_over, crossing & warp_over)
         return front, back
 
     def _yarn(self, yarn, index, cross_index, in_crossing, along, across, xi, period):
         """Segment coordinates of the yarn of direction `yarn` through every point (present or not)."""
         table = self.tables[yarn]
-        interval = 2 * cross_index + (~in_crossing).long()
-        entry = table[index, interval]  # (..., 10)
-        centre, length = entry[..., _CENTRE], entry[..., _LENGTH]
+        flat_index = index * table["intervals"] + 2 * cross_index + (~in_crossing).long()
+
+        def column(name):
+            return table[name].take(flat_index)
+
+        centre, length = column("centre"), column("length")
         # Signed offset from the segment centre along the increasing coordinate, wrapped to the period.
         offset = torch.remainder(along - centre + period / 2, period) - period / 2
         # Tension: linear between this segment's centre and the neighbour's on the point's side.
-        mu_here = entry[..., _MU]
-        mu = torch.where(offset < 0,
-                         mu_here + (entry[..., _MUPREV] - mu_here) * (-offset) / entry[..., _DPREV],
-                         mu_here + (entry[..., _MUNEXT] - mu_here) * offset / entry[..., _DNEXT])
+        mu_here = column("mu")
+        before = offset < 0
+        mu_there = torch.where(before, column("mu_prev"), column("mu_next"))
+        dist_there = torch.where(before, column("dist_prev"), column("dist_next"))
+        mu = mu_here + (mu_there - mu_here) * offset.abs() / dist_there
         width = self.weave.band(yarn)[0]
         # Along-yarn offset l: up the image for a warp (the along-coordinate runs down), right for a weft.
-        l = -offset if yarn == WARP else offset
-        u = l / (length / 2) * self.umax[yarn]
-        u = torch.where(entry[..., _LAYER] == BACK, -u, u)
-        v = across * math.pi / (width * xi)
+        # u = l / (length / 2) * umax, negated on the back layer.
+        sign = (1.0 - 2.0 * column("layer")) * (-1.0 if yarn == WARP else 1.0)
+        u = offset * sign * (2.0 * self.umax[yarn]) / length
+        v = across * (math.pi / (width * xi))
         gap = across.abs() >= width * xi / 2
-        return dict(u=u, v=v, mu=mu, gap=gap, flat=entry[..., _FLAT] > 0,
-                    segment=entry[..., _SEGMENT].long(), index=index)
+        return dict(u=u, v=v, mu=mu, gap=gap, flat=column("flat") > 0,
+                    segment=column("segment").long(), index=index)
 
     @staticmethod
     def _compose(warp: dict, weft: dict, is_warp, is_weft) -> Layer:
         is_warp = is_warp & ~warp["gap"]
-        is_weft = is_weft & ~weft["gap"]
+        is_weft = is_weft & ~weft["gap"] & ~is_warp
         yarn = torch.full_like(is_warp, GAP, dtype=torch.int8)
-        yarn = torch.where(is_warp, WARP, torch.where(is_weft, WEFT, yarn)).to(torch.int8)
+        yarn.masked_fill_(is_warp, WARP).masked_fill_(is_weft, WEFT)
 
-        def pick(key, fill):
-            a, b = warp[key], weft[key]
-            return torch.where(is_warp, a, torch.where(is_weft, b, torch.full_like(a, fill)))
+        def pick(key):
+            return torch.where(is_warp, warp[key], torch.where(is_weft, weft[key], torch.zeros_like(weft[key])))
 
-        return Layer(yarn=yarn, u=pick("u", 0), v=pick("v", 0), mu=pick("mu", 0),
-                     flat=pick("flat", False), segment=pick("segment", -1), yarn_index=pick("index", -1))
+        return Layer(yarn=yarn, u=pick("u"), v=pick("v"), mu=pick("mu"), flat=pick("flat"),
+                     segment=pick("segment"), yarn_index=pick("index"))

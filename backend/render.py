@@ -10,10 +10,17 @@ chunk is checkpointed (recomputed in the backward pass) instead of keeping its i
 
 For optimisation, a :class:`Renderer` keeps its camera samples (the fixed jitter) and the
 geometry of the last few discrete states (pattern, tiles, gap scale, twist), so an iteration
-only evaluates the differentiable BSDF.
+only evaluates the differentiable BSDF. With ``compile=True`` that evaluation is fused by
+``torch.compile`` (about 5x faster on the CPU, once a compile of seconds to a minute is paid; it is
+cached on disk across runs); ``compile=None`` compiles only where a C++ compiler is found, and
+any compile failure falls back to the eager path with a warning. ``WFC_COMPILE=0`` or ``1`` in
+the environment overrides the automatic choice.
 """
 from __future__ import annotations
 
+import os
+import shutil
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -40,6 +47,14 @@ class RenderedPair:
     transmission_radiance: torch.Tensor
 
 
+def compile_available() -> bool:
+    """Whether torch.compile can build CPU kernels here (it needs a C++ compiler)."""
+    forced = os.environ.get("WFC_COMPILE")
+    if forced in ("0", "1"):
+        return forced == "1"
+    return any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "c++", "clang++"))
+
+
 def display_transform(radiance: torch.Tensor, gamma: float, clamp: float, vignette: torch.Tensor | None) -> torch.Tensor:
     """min(radiance, clamp) ** (1 / gamma) * vignette, with a finite gradient at 0.
 
@@ -58,7 +73,8 @@ class Renderer:
 
     def __init__(self, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4, seed: int = 0,
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
-                 max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4):
+                 max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
+                 compile: bool | None = False):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
         self.size, self.spp = size, spp
@@ -71,6 +87,9 @@ class Renderer:
         self.vignette = self.camera.pixel_falloff(rig.vignette_sigma_px) if options.vignette else None
         self.glow = (self.camera.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
                      if options.glow and rig.glow_strength > 0 else None)
+        if compile is None:
+            compile = compile_available()
+        self._compiled = torch.compile(self._pixels, dynamic=False) if compile else None
 
     # -- cached stages -----------------------------------------------------------------------
     def _chunk(self, rows: tuple[int, int]) -> SampleChunk:
@@ -120,22 +139,41 @@ class Renderer:
                 tensors = tuple(fabric.values.values())
                 r, t = checkpoint(self._pixels_from_tensors, chunk, geometry, fabric, *tensors, use_reentrant=False)
             else:
-                r, t = self._pixels(chunk, geometry, fabric)
+                r, t = self._evaluate(chunk, geometry, fabric)
             pieces_r.append(r)
             pieces_t.append(t)
         return torch.cat(pieces_r, 0), torch.cat(pieces_t, 0)
 
+    @property
+    def compiled(self) -> bool:
+        return self._compiled is not None
+
+    def _evaluate(self, chunk, geometry, fabric):
+        if self._compiled is None:
+            return self._pixels(chunk, geometry, fabric)
+        try:
+            return self._compiled(chunk, geometry, fabric)
+        except Exception as exc:  # a missing or broken compiler must not stop a render
+            warnings.warn(f"torch.compile failed ({type(exc).__name__}: {str(exc)[:200]}); "
+                          "continuing with the slower eager renderer", RuntimeWarning, stacklevel=2)
+            self._compiled = None
+            return self._pixels(chunk, geometry, fabric)
+
     def _pixels_from_tensors(self, chunk, geometry, fabric: ParamTensors, *tensors):
-        return self._pixels(chunk, geometry, ParamTensors(fabric.pattern, fabric.weave,
-                                                          dict(zip(fabric.values, tensors))))
+        return self._evaluate(chunk, geometry, ParamTensors(fabric.pattern, fabric.weave,
+                                                            dict(zip(fabric.values, tensors))))
 
     def _pixels(self, chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors):
         """Per-pixel mean radiance (rows, size, 3) of one chunk, glow included."""
         reflection, transmission = eval_pair(chunk, geometry, fabric, self.options)
         rows = chunk.row1 - chunk.row0
-        shape = (3, rows, self.size, self.spp)
-        r = (reflection * chunk.front.irradiance[None]).reshape(shape).mean(-1)
-        t = (transmission * chunk.back.irradiance[None]).reshape(shape).mean(-1)
+        pixels = rows * self.size
+
+        def mean_radiance(terms):
+            weights = terms.weights.reshape(terms.weights.shape[0], pixels, self.spp).mean(-1)
+            return (terms.colours @ weights).reshape(3, rows, self.size)
+
+        r, t = mean_radiance(reflection), mean_radiance(transmission)
         if self.glow is not None:
             open_fraction = geometry.no_yarn.reshape(rows, self.size, self.spp).mean(-1)
             t = t + (self.glow[chunk.row0:chunk.row1] * open_fraction)[None]

@@ -25,6 +25,16 @@ def hash32(x: torch.Tensor) -> torch.Tensor:
     return x ^ (x >> 16)
 
 
+def hash32_int(x: int) -> int:
+    """:func:`hash32` of one Python integer (for seeding generators)."""
+    x &= _MASK
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & _MASK
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & _MASK
+    return x ^ (x >> 16)
+
+
 def uniform(*keys, seed: int = 0, dtype=torch.float64) -> torch.Tensor:
     """A uniform number in [0, 1) for each combination of integer keys (broadcast together)."""
     tensors = [k if isinstance(k, torch.Tensor) else torch.tensor(k, dtype=torch.int64) for k in keys]

@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import torch
 
+from . import asggx, sggx
+from .frames import dot, normalize
+
 
 def one_minus_exp_over(y: torch.Tensor) -> torch.Tensor:
     """phi(y) = (1 - exp(-y)) / y for y >= 0, with phi(0) = 1 and a smooth gradient near 0."""
@@ -40,6 +43,52 @@ def safe_cos(cos_z: torch.Tensor) -> torch.Tensor:
     return torch.where(cos_z == 0, torch.ones_like(cos_z), cos_z)
 
 
-def attenuation(thickness: torch.Tensor, sigma: torch.Tensor, cos_z: torch.Tensor) -> torch.Tensor:
-    """att(w) = exp(-T sigma(w) / |w_z|)."""
-    return torch.exp(-thickness * sigma / safe_cos(cos_z).abs())
+def attenuation(thickness: torch.Tensor, area: torch.Tensor) -> torch.Tensor:
+    """att(w) = exp(-T sigma(w) / |w_z|) from the signed A = sigma(w) / w_z."""
+    return torch.exp(-thickness * area.abs())
+
+
+def single_scattering(cos2_half: torch.Tensor, area_in: torch.Tensor, area_out: torch.Tensor,
+                      alpha: torch.Tensor, thickness: torch.Tensor, inv_wi_z: torch.Tensor) -> torch.Tensor:
+    """f_s / k_s = D(h) G / (4 |wi_z|), from the fiber projection of h and A_i, A_o."""
+    return sggx.ndf(cos2_half, alpha) * slab_g(thickness, area_in, area_out) * (0.25 * inv_wi_z)
+
+
+def multiple_scattering_asggx(cos_in: torch.Tensor, cos_out: torch.Tensor, area_in: torch.Tensor,
+                              area_out: torch.Tensor, alpha_m: torch.Tensor, thickness_m: torch.Tensor,
+                              inv_wi_z: torch.Tensor) -> torch.Tensor:
+    """f_m / k_m = D_{alpha_m}(h') G_m / (2 |wi_z|); A_i, A_o use the single-scattering alpha."""
+    return asggx.lobe(cos_in, cos_out, alpha_m) * slab_g(thickness_m, area_in, area_out) * (0.5 * inv_wi_z)
+
+
+def multiple_scattering_sggx(cos_in: torch.Tensor, cos_out: torch.Tensor, cos2_half: torch.Tensor,
+                             wo_z: torch.Tensor, alpha_m: torch.Tensor, thickness_m: torch.Tensor,
+                             inv_wi_z: torch.Tensor) -> torch.Tensor:
+    """The ablation: the single-scattering formula with alpha_m, T_m (and k_m)."""
+    area_in = sggx.projected_area(cos_in, alpha_m) * inv_wi_z
+    area_out = sggx.projected_area(cos_out, alpha_m) / wo_z
+    return single_scattering(cos2_half, area_in, area_out, alpha_m, thickness_m, inv_wi_z)
+
+
+def eval_layer(wi: torch.Tensor, wo: torch.Tensor, fiber: torch.Tensor, alpha, thickness, alpha_m, thickness_m,
+               lobe: str = "asggx"):
+    """One layer from directions (each (3, *batch), unit): (f_s / k_s, f_m / k_m, att(wi), att(wo)).
+
+    The renderer evaluates the same functions from cached projections; this form is for tests and
+    tools that start from directions.
+    """
+    cos_in, cos_out = dot(wi, fiber), dot(wo, fiber)
+    up = torch.zeros_like(wi)
+    up[2] = 1.0
+    half = torch.where(dot(wi + wo, wi + wo) > 1e-24, normalize(wi + wo), up)
+    cos_half = dot(half, fiber)
+    wi_z, wo_z = safe_cos(wi[2]), safe_cos(wo[2])
+    inv_wi_z = 1.0 / wi_z.abs()
+    area_in = sggx.projected_area(cos_in, alpha) / wi_z
+    area_out = sggx.projected_area(cos_out, alpha) / wo_z
+    single = single_scattering(cos_half * cos_half, area_in, area_out, alpha, thickness, inv_wi_z)
+    if lobe == "asggx":
+        multiple = multiple_scattering_asggx(cos_in, cos_out, area_in, area_out, alpha_m, thickness_m, inv_wi_z)
+    else:
+        multiple = multiple_scattering_sggx(cos_in, cos_out, cos_half * cos_half, wo_z, alpha_m, thickness_m, inv_wi_z)
+    return single, multiple, attenuation(thickness, area_in), attenuation(thickness, area_out)

@@ -1,0 +1,46 @@
+"""Shared fixtures. ``../shared`` (beside the checkout) holds the golden renders and checkers; CI has
+it. Tests that need it fail with a clear message when it is missing, unless WFC_ALLOW_NO_SHARED=1
+is set, in which case they are skipped with that reason (never silently)."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+def _require_shared(*parts: str) -> Path:
+    path = SHARED.joinpath(*parts)
+    if not path.exists():
+        message = f"{path} is missing: the shared data must sit beside the checkout (../shared)"
+        if os.environ.get("WFC_ALLOW_NO_SHARED") == "1":
+            pytest.skip(message)
+        pytest.fail(message)
+    return path
+
+
+@pytest.fixture(scope="session")
+def golden_dir() -> Path:
+    return _require_shared("data", "golden")
+
+
+@pytest.fixture(scope="session")
+def golden_cases(golden_dir) -> list[dict]:
+    return json.loads((golden_dir / "cases.json").read_text())
+
+
+@pytest.fixture(scope="session")
+def shared_tools() -> Path:
+    return _require_shared("tools")
+
+
+@pytest.fixture(scope="session")
+def real_dir() -> Path:
+    return _require_shared("data", "real")

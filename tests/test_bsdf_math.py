@@ -1,0 +1,149 @@
+"""The math of the lobes: normalisation, reciprocity, energy, and the fast forms vs the literal ones."""
+import math
+
+import pytest
+import torch
+
+from backend import asggx, reference, sggx
+from backend.spongecake import eval_layer, slab_g
+from backend.yarn import scale_height
+
+DT = torch.float64
+
+
+def sphere(n: int) -> torch.Tensor:
+    """Fibonacci lattice: n quasi-uniform unit vectors (3, n), each standing for 4 pi / n sr."""
+    i = torch.arange(n, dtype=DT) + 0.5
+    z = 1 - 2 * i / n
+    r = torch.sqrt(1 - z * z)
+    phi = math.pi * (1 + 5 ** 0.5) * i
+    return torch.stack((r * torch.cos(phi), r * torch.sin(phi), z))
+
+
+def random_unit(gen, n=1):
+    v = torch.randn(3, n, generator=gen, dtype=DT)
+    return v / v.norm(dim=0, keepdim=True)
+
+
+WO = sphere(1_000_000)
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.3, 0.7, 1.0])
+@pytest.mark.parametrize("theta", [0.0, 0.6, 1.2, 1.5])
+def test_sggx_phase_function_integrates_to_one(alpha, theta):
+    # Fiber along z; wi at angle theta to the fiber.
+    wi = torch.tensor([math.sin(theta), 0.0, math.cos(theta)], dtype=DT)[:, None]
+    half = wi + WO
+    half = half / half.norm(dim=0, keepdim=True)
+    p = sggx.phase(wi[2].expand(WO.shape[1]), half[2] ** 2, torch.tensor(alpha, dtype=DT))
+    assert p.mean().item() * 4 * math.pi == pytest.approx(1.0, abs=5e-3)
+
+
+@pytest.mark.parametrize("theta", [0.0, 0.5, 1.2])
+def test_asggx_lobe_normalisation(theta):
+    """The ASGGX lobe integrates to 4 at alpha = 1 and tends to 2 pi sigma(wi) for small alpha:
+    its implied phase D(h') / (2 sigma(wi)) is therefore not unit-integral (pi for sharp lobes)."""
+    ci = torch.tensor(math.sin(theta), dtype=DT).expand(WO.shape[1])  # wi . o with the fiber along z
+    rough = asggx.lobe(ci, WO[2], torch.tensor(1.0, dtype=DT)).mean().item() * 4 * math.pi
+    assert rough == pytest.approx(4.0, rel=1e-6)
+    sharp = asggx.lobe(ci, WO[2], torch.tensor(0.03, dtype=DT)).mean().item() * 4 * math.pi
+    sigma_in = sggx.projected_area(ci[:1], torch.tensor(0.03, dtype=DT)).item()
+    assert sharp == pytest.approx(2 * math.pi * sigma_in, rel=0.04)
+
+
+def test_asggx_lobe_is_invariant_under_rotation_about_the_fiber():
+    gen = torch.Generator().manual_seed(3)
+    wi, wo = random_unit(gen, 500), random_unit(gen, 500)
+    alpha = torch.tensor(0.4, dtype=DT)
+    base = asggx.lobe(wi[2], wo[2], alpha)  # fiber along z
+    for angle in (0.3, 1.7, 3.0):
+        c, s = math.cos(angle), math.sin(angle)
+        rotated = torch.stack((c * wo[0] - s * wo[1], s * wo[0] + c * wo[1], wo[2]))
+        assert torch.allclose(asggx.lobe(wi[2], rotated[2], alpha), base)
+    # ... and symmetric in wi, wo.
+    assert torch.allclose(asggx.lobe(wo[2], wi[2], alpha), base)
+
+
+@pytest.mark.parametrize("opposite", [False, True], ids=["reflection", "transmission"])
+def test_single_scattering_is_reciprocal(opposite):
+    gen = torch.Generator().manual_seed(5)
+    n = 2000
+    wi, wo, fiber = random_unit(gen, n), random_unit(gen, n), random_unit(gen, n)
+    wi[2] = wi[2].abs() + 1e-3
+    wo[2] = -(wo[2].abs() + 1e-3) if opposite else wo[2].abs() + 1e-3
+    wi, wo = wi / wi.norm(dim=0), wo / wo.norm(dim=0)
+    alpha = 0.05 + torch.rand(n, generator=gen, dtype=DT)
+    T = 0.01 + 5 * torch.rand(n, generator=gen, dtype=DT)
+    f, _, _, _ = eval_layer(wi, wo, fiber, alpha.clamp(max=1), T, alpha, T)
+    g, _, _, _ = eval_layer(wo, wi, fiber, alpha.clamp(max=1), T, alpha, T)
+    # f includes the light-side cosine: the BSDF is f / |wo_z|.
+    assert torch.allclose(f / wo[2].abs(), g / wi[2].abs(), rtol=1e-9, atol=1e-12)
+
+
+def test_single_scattering_of_one_layer_never_exceeds_the_light_it_intercepts():
+    """Albedo 1: reflection + transmission <= 1 - att(wi) (what is not attenuated never scattered)."""
+    gen = torch.Generator().manual_seed(7)
+    worst = 0.0
+    for _ in range(24):
+        theta = 1.5 * torch.rand(1, generator=gen).item()
+        wi = torch.tensor([math.sin(theta), 0.0, math.cos(theta)], dtype=DT)[:, None].expand(3, WO.shape[1])
+        fiber = random_unit(gen)
+        alpha = torch.tensor(0.1 + 0.9 * torch.rand(1, generator=gen).item(), dtype=DT)
+        T = torch.tensor(0.01 + 4.99 * torch.rand(1, generator=gen).item(), dtype=DT)
+        single, _, att_in, _ = eval_layer(wi, WO, fiber, alpha, T, alpha, T)
+        energy = single.mean().item() * 4 * math.pi
+        assert 0.0 < energy <= 1.0 - att_in[0].item() + 1e-3
+        worst = max(worst, energy + att_in[0].item())
+    assert worst <= 1.0 + 1e-3
+
+
+def test_stable_g_equals_the_literal_formula():
+    gen = torch.Generator().manual_seed(11)
+    n = 5000
+    T = 0.01 + 5 * torch.rand(n, generator=gen, dtype=DT)
+    a_in = 0.05 + 20 * torch.rand(n, generator=gen, dtype=DT)
+    a_out = (torch.rand(n, generator=gen, dtype=DT) - 0.5) * 40
+    a_out = torch.where(a_out.abs() < 0.05, torch.full_like(a_out, 0.05), a_out)
+    literal = reference._g_literal(T, a_in, a_out)
+    assert torch.allclose(slab_g(T, a_in, a_out), literal, rtol=1e-8, atol=1e-12)
+    # Where A_i + A_o = 0 the stable form gives the continuous limit T exp(-T A_i), with a finite gradient.
+    a = torch.tensor([1.3], dtype=DT, requires_grad=True)
+    g = slab_g(torch.tensor([2.0], dtype=DT), a, -a)
+    assert g.item() == pytest.approx(2.0 * math.exp(-2.0 * 1.3))
+    g.backward()
+    assert torch.isfinite(a.grad).all()
+
+
+def test_projected_forms_equal_the_fiber_frame_forms():
+    gen = torch.Generator().manual_seed(13)
+    n = 3000
+    w, fiber, normal = random_unit(gen, n), random_unit(gen, n), random_unit(gen, n)
+    normal = normal - (normal * fiber).sum(0) * fiber
+    normal = normal / normal.norm(dim=0)
+    b = torch.linalg.cross(fiber, normal, dim=0)
+    w1, w2, w3 = (w * normal).sum(0), (w * b).sum(0), (w * fiber).sum(0)
+    alpha = 0.01 + 0.99 * torch.rand(n, generator=gen, dtype=DT)
+    assert torch.allclose(sggx.projected_area(w3, alpha), reference._sigma(w1, w2, w3, alpha))
+    assert torch.allclose(sggx.ndf(w3 * w3, alpha), reference._ndf(w1, w2, w3, alpha), rtol=1e-9)
+    # ASGGX: the trig-free sin^2 of the half angle equals the atan2 construction.
+    v = random_unit(gen, n)
+    th = (torch.asin(w3) + torch.asin((v * fiber).sum(0))) / 2
+    assert torch.allclose(asggx.half_sin2(w3, (v * fiber).sum(0)), torch.sin(th) ** 2, atol=1e-12)
+
+
+def test_height_scaling_matches_the_literal_k_rule():
+    gen = torch.Generator().manual_seed(17)
+    n = 4000
+    u = (torch.rand(n, generator=gen, dtype=DT) - 0.5) * 1.2
+    v = (torch.rand(n, generator=gen, dtype=DT) - 0.5) * 3.0
+    psi = (torch.rand(n, generator=gen, dtype=DT) - 0.5) * 1.5
+    normal = torch.stack((torch.sin(v), torch.sin(u) * torch.cos(v), torch.cos(u) * torch.cos(v)))
+    fiber = torch.stack((-torch.cos(v) * torch.sin(psi),
+                         torch.cos(u) * torch.cos(psi) + torch.sin(u) * torch.sin(v) * torch.sin(psi),
+                         -torch.sin(u) * torch.cos(psi) + torch.cos(u) * torch.sin(v) * torch.sin(psi)))
+    beta = 0.01 + 1.99 * torch.rand(n, generator=gen, dtype=DT)
+    n_fast, o_fast = scale_height(normal, fiber, beta)
+    n_ref, o_ref = reference.height_scaled(normal, fiber, beta)
+    assert torch.allclose(n_fast, n_ref, atol=1e-12)
+    assert torch.allclose(o_fast, o_ref, atol=1e-7)
+    assert (n_fast * o_fast).sum(0).abs().max() < 1e-12
