@@ -1,0 +1,484 @@
+"""The "Woven Fabric" shader node group and materials that use it (bpy layer).
+
+The group's inputs are the fabric parameters (names from the spec, ranges from
+``backend/params.py``; see :mod:`shader_params` for the socket list and the UV-scale rule) plus
+colour maps multiplying the diffuse albedos. Inside:
+
+- a Script node running ``shaders/woven_fabric.osl`` (stored as an internal text, compiled here
+  so the .blend carries its bytecode), fed by the UV map and its tangent;
+- the standard-node fallback (nested group "Woven Fabric fallback"): the same weave geometry from
+  Math / Vector Math / Image Texture nodes (:mod:`shader_fallback`, float atlases packed into the
+  .blend) shaded with Diffuse, Translucent, anisotropic Glossy and Transparent BSDFs;
+- a Mix Shader whose factor is the Script node's ``OSLActive`` output (1 when OSL runs). Where OSL
+  is not available the Script node is dropped from the shader graph and the factor keeps its own
+  value, 0: the fallback renders. So Cycles CPU with Open Shading Language enabled (and OptiX with
+  OSL) renders the OSL shader, Cycles without OSL (CUDA, HIP, Metal, oneAPI, CPU with OSL off)
+  renders the fallback, with no driver or script involved.
+
+Group outputs: ``BSDF`` (the switch above) and ``Fallback`` (standard nodes only). A material made
+by :func:`create_material` has two Material Output nodes: target Cycles <- BSDF, target EEVEE <-
+Fallback (EEVEE never runs OSL).
+
+API (used by the add-on's operators): :data:`NODE_GROUP_NAME`, :func:`ensure_node_group`,
+:func:`create_material`, :func:`apply_params`, :func:`read_params`.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+
+import bpy
+
+from . import paths, shader_fallback, shader_params, shader_weave
+
+NODE_GROUP_NAME = "Woven Fabric"
+FALLBACK_GROUP_NAME = "Woven Fabric fallback"
+TEXT_NAME = "woven_fabric.osl"
+ATLAS_PREFIX = "Woven Fabric "
+_MARK = "woven_fabric_group"
+_HASH = "woven_fabric_hash"
+_BUILD = 1  # bump when the node layout changes
+
+_SOCKET_TYPES = {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}
+# The fallback's shading weights (same expression language; the geometry program comes first).
+# Glossy: Blender's anisotropic GGX (positive anisotropy) has alpha = roughness^2 * aspect along its
+# Tangent and roughness^2 / aspect across, aspect = sqrt(1 - 0.9 anisotropy) (checked: with the
+# tangent across the fiber the highlights collapse onto mirror lines). With the tangent along the
+# fiber, roughness = a^(1/4) and anisotropy = (1 - a) / 0.9 give alpha a along the fiber and 1
+# across, i.e. the SGGX fiber distribution, as far as the aspect limit allows (a >= 0.1). Weights are the
+# single-scattering slab albedo at normal incidence, (1 - exp(-2 T)) / 2 (twice that for the
+# multiple lobe, as in spec 4.3); the transmission lobes become a translucent term. Diffuse
+# transmission: (1 - w) k_d^t translucent(N) + w k_d^t / 2 translucent(n) (the product over two
+# layers of spec 4.5 taken as 1/2).
+_SHADING = """
+alpha = vis_warp * roughness_warp + vis_weft * roughness_weft + 1 - coverage
+alpha_m = vis_warp * roughness_multiple_warp + vis_weft * roughness_multiple_weft + 1 - coverage
+T = vis_warp * thickness_warp + vis_weft * thickness_weft
+Tm = vis_warp * thickness_multiple_warp + vis_weft * thickness_multiple_weft
+ks = vadd(scale(specular_albedo_warp, vis_warp), scale(specular_albedo_weft, vis_weft))
+inv_wm = 1 / max(multiple_weight, 0.01)
+km = vpow(ks, vec(inv_wm, inv_wm, inv_wm))
+gloss_s_color = scale(ks, (1 - exp(-2 * T)) / 2)
+gloss_m_color = scale(km, 1 - exp(-2 * Tm))
+alpha_c = max(alpha, 0.1)
+alpha_mc = max(alpha_m, 0.1)
+gloss_s_rough = sqrt(sqrt(alpha_c))
+gloss_m_rough = sqrt(sqrt(alpha_mc))
+gloss_s_aniso = min((1 - alpha_c) / 0.9, 1)
+gloss_m_aniso = min((1 - alpha_mc) / 0.9, 1)
+tt_color = vadd(scale(km, 0.5 * exp(-0.4 * Tm)), scale(ks, 0.08 * exp(-0.4 * T)))
+kd_r = vmul(diffuse_reflection, diffuse_reflection_map)
+kd_t = vmul(diffuse_transmission, diffuse_transmission_map)
+diffuse_flat = scale(kd_r, 1 - diffuse_normal_weight)
+diffuse_yarn = scale(kd_r, diffuse_normal_weight)
+translucent_flat = scale(kd_t, 1 - diffuse_normal_weight)
+translucent_yarn = scale(kd_t, 0.5 * diffuse_normal_weight)
+"""
+
+
+# -- small helpers ---------------------------------------------------------------------------
+def _ensure_oslquery_path() -> None:
+    """Blender's bundled site-packages (oslquery) on sys.path: the pip bpy module lacks it."""
+    path = os.path.join(bpy.utils.resource_path("LOCAL"), "python", "lib",
+                        f"python{sys.version_info.major}.{sys.version_info.minor}", "site-packages")
+    if os.path.isdir(path) and path not in sys.path:
+        sys.path.append(path)
+
+
+def _source_hash() -> str:
+    md5 = hashlib.md5(usedforsecurity=False)
+    md5.update(paths.shader_path().read_bytes())
+    md5.update(repr(shader_params.socket_specs()).encode())
+    md5.update(repr(shader_fallback.program()).encode())
+    md5.update(_SHADING.encode())
+    md5.update(str(_BUILD).encode())
+    return md5.hexdigest()
+
+
+def _socket_by_identifier(sockets, identifier):
+    for sock in sockets:
+        if sock.identifier == identifier:
+            return sock
+    raise KeyError(identifier)
+
+
+def _rgba(value) -> tuple:
+    v = tuple(float(c) for c in value)
+    return v[:3] + (1.0,) if len(v) >= 3 else (v[0], v[0], v[0], 1.0)
+
+
+def _sync_interface(tree, outputs: tuple[str, ...]) -> None:
+    """Makes the tree's interface exactly the socket list (keeps sockets that already match)."""
+    specs = shader_params.socket_specs()
+    wanted = [(s.name, "INPUT", _SOCKET_TYPES[s.kind]) for s in specs] + \
+             [(name, "OUTPUT", "NodeSocketShader") for name in outputs]
+    items = [item for item in tree.interface.items_tree if item.item_type == "SOCKET"]
+    current = [(i.name, i.in_out, i.socket_type) for i in items]
+    if current != wanted:
+        tree.interface.clear()
+        for name, in_out, socket_type in wanted:
+            tree.interface.new_socket(name=name, in_out=in_out, socket_type=socket_type)
+    by_name = {i.name: i for i in tree.interface.items_tree
+               if i.item_type == "SOCKET" and i.in_out == "INPUT"}
+    for s in specs:
+        item = by_name[s.name]
+        item.description = s.description
+        if s.kind == "COLOR":
+            item.default_value = _rgba(s.default)
+        else:
+            item.min_value = int(s.lo) if s.kind == "INT" else s.lo
+            item.max_value = int(s.hi) if s.kind == "INT" else s.hi
+            item.default_value = int(s.default) if s.kind == "INT" else float(s.default)
+
+
+def _atlas_images() -> dict:
+    """The fallback's float atlases as packed, non-colour images (created afresh each build).
+
+    Order matters: a generated image is regenerated (its pixels lost) when its colour space
+    changes, and only an image with edited pixels gets packed, so the pixels are written last
+    and packed at once (as OpenEXR, float).
+    """
+    images = {}
+    for name, (w, h, px) in shader_weave.fallback_atlases().items():
+        full = ATLAS_PREFIX + name
+        old = bpy.data.images.get(full)
+        if old is not None:
+            bpy.data.images.remove(old)
+        image = bpy.data.images.new(full, w, h, alpha=False, float_buffer=True, is_data=True)
+        image.alpha_mode = "CHANNEL_PACKED"
+        image.use_fake_user = True
+        rgba = []
+        for i in range(0, len(px), 3):
+            rgba += [px[i], px[i + 1], px[i + 2], 1.0]
+        image.pixels.foreach_set(rgba)
+        image.pack()
+        if image.packed_file is None:  # pragma: no cover - depends on Blender's packing rules
+            raise RuntimeError(f"could not pack the fallback atlas {full!r}")
+        images[name] = image
+    return images
+
+
+class _NodeBuilder:
+    """Builds the fallback program's expressions as shader nodes (see shader_fallback.run)."""
+
+    def __init__(self, tree, images: dict):
+        self.tree, self.images = tree, images
+        self.depth: dict = {}
+        self.column_rows: dict = {}
+        self.separated: dict = {}
+
+    def _place(self, node, args):
+        depth = 1 + max([self.depth.get(a.as_pointer(), 0) for a in args if hasattr(a, "as_pointer")] + [0])
+        row = self.column_rows.get(depth, 0)
+        self.column_rows[depth] = row + 1
+        node.location = (depth * 180.0, -row * 60.0)
+        node.hide = True
+        for out in node.outputs:
+            self.depth[out.as_pointer()] = depth
+
+    def _feed(self, socket, value):
+        if isinstance(value, (int, float)):
+            socket.default_value = float(value)
+        elif isinstance(value, tuple):
+            socket.default_value = value
+        else:
+            self.tree.links.new(value, socket)
+
+    def const(self, x):
+        return float(x)
+
+    def math(self, op, *args):
+        if all(isinstance(a, float) for a in args):  # fold constants
+            import numpy as np
+
+            return float(shader_fallback.NumpyBuilder.math(_NP, op, *[np.float64(a) for a in args]))
+        node = self.tree.nodes.new("ShaderNodeMath")
+        node.operation = op
+        node.use_clamp = False
+        for i, a in enumerate(args):
+            self._feed(node.inputs[i], a)
+        self._place(node, args)
+        return node.outputs[0]
+
+    def vec(self, op, *args):
+        node = self.tree.nodes.new("ShaderNodeVectorMath")
+        node.operation = op
+        if op == "SCALE":
+            self._feed(node.inputs[0], args[0])
+            self._feed(node.inputs["Scale"], args[1])
+        else:
+            for i, a in enumerate(args):
+                self._feed(node.inputs[i], a)
+        self._place(node, args)
+        return node.outputs["Value"] if op == "DOT_PRODUCT" else node.outputs["Vector"]
+
+    def combine(self, x, y, z):
+        node = self.tree.nodes.new("ShaderNodeCombineXYZ")
+        for i, a in enumerate((x, y, z)):
+            self._feed(node.inputs[i], a)
+        self._place(node, (x, y, z))
+        return node.outputs[0]
+
+    def separate(self, v, i):
+        key = v.as_pointer()
+        node = self.separated.get(key)
+        if node is None:
+            node = self.tree.nodes.new("ShaderNodeSeparateXYZ")
+            self.tree.links.new(v, node.inputs[0])
+            self._place(node, (v,))
+            self.separated[key] = node
+        return node.outputs[i]
+
+    def lookup(self, name, u, v):
+        coord = self.combine(u, v, 0.0)
+        node = self.tree.nodes.new("ShaderNodeTexImage")
+        node.image = self.images[name]
+        node.interpolation = "Closest"
+        node.extension = "EXTEND"
+        self.tree.links.new(coord, node.inputs["Vector"])
+        self._place(node, (coord,))
+        return node.outputs["Color"]
+
+
+class _NpStatic:
+    """numpy math for constant folding (NumpyBuilder.math without the atlases)."""
+
+    def __init__(self):
+        import numpy as np
+
+        self.np = np
+
+
+_NP = _NpStatic()
+
+
+def _program(text: str) -> list[tuple[str, str]]:
+    out = []
+    for line in text.strip().splitlines():
+        name, expr = line.split("=", 1)
+        out.append((name.strip(), expr.strip()))
+    return out
+
+
+def _build_fallback_group():
+    tree = bpy.data.node_groups.get(FALLBACK_GROUP_NAME)
+    if tree is None:
+        tree = bpy.data.node_groups.new(FALLBACK_GROUP_NAME, "ShaderNodeTree")
+    tree[_MARK] = "fallback"
+    _sync_interface(tree, ("BSDF",))
+    tree.nodes.clear()
+    nodes, links = tree.nodes, tree.links
+    group_in = nodes.new("NodeGroupInput")
+    group_in.location = (-400, 0)
+    group_out = nodes.new("NodeGroupOutput")
+    uvmap = nodes.new("ShaderNodeUVMap")
+    uvmap.location = (-400, 300)
+    tangent = nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-400, 400)
+    geometry = nodes.new("ShaderNodeNewGeometry")
+    geometry.location = (-400, 500)
+
+    builder = _NodeBuilder(tree, _atlas_images())
+    env = {s.osl: group_in.outputs[s.name] for s in shader_params.socket_specs()}
+    env.update(UV=uvmap.outputs["UV"], Tangent=tangent.outputs["Tangent"], Normal=geometry.outputs["Normal"])
+    env = shader_fallback.run(builder, env)
+    env = shader_fallback.run(builder, env, _program(_SHADING))
+    x0 = 180.0 * (max(builder.column_rows) + 2)
+
+    def bsdf(kind, y, **inputs):
+        node = nodes.new(kind)
+        node.location = (x0, y)
+        for name, value in inputs.items():
+            builder._feed(node.inputs[name], env[value] if isinstance(value, str) else value)
+        return node
+
+    shaders = [
+        bsdf("ShaderNodeBsdfDiffuse", 0, Color="diffuse_flat"),
+        bsdf("ShaderNodeBsdfDiffuse", -150, Color="diffuse_yarn", Normal="normal"),
+        bsdf("ShaderNodeBsdfTranslucent", -300, Color="translucent_flat"),
+        bsdf("ShaderNodeBsdfTranslucent", -375, Color="translucent_yarn", Normal="normal"),
+        bsdf("ShaderNodeBsdfTranslucent", -450, Color="tt_color"),
+        bsdf("ShaderNodeBsdfAnisotropic", -600, Color="gloss_s_color", Roughness="gloss_s_rough",
+             Anisotropy="gloss_s_aniso", Normal="fiber_normal", Tangent="fiber"),
+        bsdf("ShaderNodeBsdfAnisotropic", -800, Color="gloss_m_color", Roughness="gloss_m_rough",
+             Anisotropy="gloss_m_aniso", Normal="fiber_normal", Tangent="fiber"),
+    ]
+    for node in shaders:
+        if node.bl_idname == "ShaderNodeBsdfAnisotropic":
+            node.distribution = "GGX"
+    total = shaders[0].outputs[0]
+    for i, node in enumerate(shaders[1:], 1):
+        add = nodes.new("ShaderNodeAddShader")
+        add.location = (x0 + 200 + 100 * i, -150 * i)
+        links.new(total, add.inputs[0])
+        links.new(node.outputs[0], add.inputs[1])
+        total = add.outputs[0]
+    transparent = nodes.new("ShaderNodeBsdfTransparent")
+    transparent.location = (x0 + 800, 200)
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.location = (x0 + 1000, 0)
+    builder._feed(mix.inputs[0], env["coverage"])
+    links.new(transparent.outputs[0], mix.inputs[1])
+    links.new(total, mix.inputs[2])
+    group_out.location = (x0 + 1200, 0)
+    links.new(mix.outputs[0], group_out.inputs["BSDF"])
+    return tree
+
+
+def _compile_script(node) -> None:
+    _ensure_oslquery_path()
+    try:
+        from cycles import osl as cycles_osl  # Cycles' own compile-and-update of script nodes
+    except ImportError as exc:  # pragma: no cover - Cycles is always bundled
+        raise RuntimeError(f"the Cycles add-on is not available to compile the OSL shader ({exc})") from None
+    messages = []
+    ok = cycles_osl.update_script_node(node, lambda kind, text: messages.append(f"{kind}: {text}"))
+    if not ok:
+        raise RuntimeError("compiling shaders/woven_fabric.osl failed: " + "; ".join(messages))
+
+
+def _build_main_group(tree, fallback):
+    _sync_interface(tree, ("BSDF", "Fallback"))
+    tree.nodes.clear()
+    nodes, links = tree.nodes, tree.links
+    group_in = nodes.new("NodeGroupInput")
+    group_in.location = (-600, 0)
+    group_out = nodes.new("NodeGroupOutput")
+    group_out.location = (600, 0)
+
+    text = bpy.data.texts.get(TEXT_NAME) or bpy.data.texts.new(TEXT_NAME)
+    text.clear()
+    text.write(paths.shader_path().read_text())
+    script = nodes.new("ShaderNodeScript")
+    script.name = script.label = "Woven Fabric OSL"
+    script.mode = "INTERNAL"
+    script.script = text
+    script.location = (0, 300)
+    _compile_script(script)
+
+    uvmap = nodes.new("ShaderNodeUVMap")
+    uvmap.location = (-300, 500)
+    tangent = nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-300, 600)
+    links.new(uvmap.outputs["UV"], _socket_by_identifier(script.inputs, "UV"))
+    links.new(tangent.outputs["Tangent"], _socket_by_identifier(script.inputs, "Tangent"))
+
+    fb = nodes.new("ShaderNodeGroup")
+    fb.node_tree = fallback
+    fb.name = fb.label = "Fallback (EEVEE, GPU Cycles)"
+    fb.location = (0, -300)
+    for s in shader_params.socket_specs():
+        links.new(group_in.outputs[s.name], _socket_by_identifier(script.inputs, s.osl))
+        links.new(group_in.outputs[s.name], fb.inputs[s.name])
+
+    mix = nodes.new("ShaderNodeMixShader")
+    mix.name = mix.label = "OSL or fallback"
+    mix.location = (300, 0)
+    mix.inputs[0].default_value = 0.0  # what the factor reads where the Script node does not run
+    links.new(_socket_by_identifier(script.outputs, "OSLActive"), mix.inputs[0])
+    links.new(fb.outputs["BSDF"], mix.inputs[1])
+    links.new(_socket_by_identifier(script.outputs, "BSDF"), mix.inputs[2])
+    links.new(mix.outputs[0], group_out.inputs["BSDF"])
+    links.new(fb.outputs["BSDF"], group_out.inputs["Fallback"])
+
+
+def ensure_node_group() -> "bpy.types.ShaderNodeTree":
+    """The "Woven Fabric" node group, created (or rebuilt when the shader or sockets changed)."""
+    tree = bpy.data.node_groups.get(NODE_GROUP_NAME)
+    digest = _source_hash()
+    if tree is not None and tree.bl_idname == "ShaderNodeTree" and tree.get(_HASH) == digest \
+            and bpy.data.node_groups.get(FALLBACK_GROUP_NAME) is not None:
+        return tree
+    if tree is None or tree.bl_idname != "ShaderNodeTree":
+        tree = bpy.data.node_groups.new(NODE_GROUP_NAME, "ShaderNodeTree")
+    tree[_MARK] = "main"
+    fallback = _build_fallback_group()
+    _build_main_group(tree, fallback)
+    tree[_HASH] = digest
+    return tree
+
+
+def _group_node(material):
+    tree = getattr(material, "node_tree", None)
+    if tree is None:
+        raise ValueError(f"material {material.name!r} has no node tree")
+    for node in tree.nodes:
+        if node.type == "GROUP" and node.node_tree is not None and node.node_tree.get(_MARK) == "main":
+            return node
+    raise ValueError(f"material {material.name!r} has no {NODE_GROUP_NAME!r} group node")
+
+
+def create_material(name: str, params: dict, width_cm: float | None = None,
+                    cloth_size_cm: float | None = None) -> "bpy.types.Material":
+    """A new material whose node tree is the Woven Fabric group with `params` applied.
+
+    Two Material Output nodes: Cycles <- group BSDF (OSL or fallback, see the module docstring),
+    EEVEE <- group Fallback. For ``width_cm`` / ``cloth_size_cm`` see :func:`apply_params`.
+    """
+    group = ensure_node_group()
+    material = bpy.data.materials.new(name)
+    if hasattr(material, "use_nodes") and not material.use_nodes:
+        material.use_nodes = True
+    tree = material.node_tree
+    tree.nodes.clear()
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    node.name = node.label = NODE_GROUP_NAME
+    node.width = 260
+    out_cycles = tree.nodes.new("ShaderNodeOutputMaterial")
+    out_cycles.name = out_cycles.label = "Output (Cycles)"
+    out_cycles.target = "CYCLES"
+    out_cycles.location = (400, 100)
+    out_eevee = tree.nodes.new("ShaderNodeOutputMaterial")
+    out_eevee.name = out_eevee.label = "Output (EEVEE)"
+    out_eevee.target = "EEVEE"
+    out_eevee.location = (400, -150)
+    tree.links.new(node.outputs["BSDF"], out_cycles.inputs["Surface"])
+    tree.links.new(node.outputs["Fallback"], out_eevee.inputs["Surface"])
+    out_cycles.is_active_output = True
+    out_eevee.is_active_output = True
+    for attr, value in (("surface_render_method", "DITHERED"), ("use_transparent_shadow", True)):
+        if hasattr(material, attr):
+            try:
+                setattr(material, attr, value)
+            except (TypeError, AttributeError):
+                pass
+    apply_params(material, params, width_cm, cloth_size_cm)
+    return material
+
+
+def apply_params(material, params: dict, width_cm: float | None = None,
+                 cloth_size_cm: float | None = None) -> None:
+    """Writes a params.json dict onto the material's group node (values clamped into range).
+
+    ``uv scale`` is set to ``cloth_size_cm * V / (plane_size * width_cm)`` when both sizes are
+    known (``width_cm`` defaults to ``params["rig"]["width_cm"]``), so the weave has its real size
+    on a cloth whose UV unit square is ``cloth_size_cm`` wide; otherwise it is left as it is
+    (1 on a new material: tiles per UV unit as in the rig).
+    """
+    node = _group_node(material)
+    for name, value in shader_params.socket_values(params).items():
+        sock = node.inputs[name]
+        sock.default_value = _rgba(value) if isinstance(value, tuple) else value
+    rig = params.get("rig") if isinstance(params.get("rig"), dict) else None
+    if width_cm is None and rig is not None:
+        width_cm = rig.get("width_cm")
+    if width_cm is not None and cloth_size_cm is not None:
+        node.inputs[shader_params.UV_SCALE].default_value = shader_params.uv_scale(width_cm, cloth_size_cm, rig)
+        material["woven_fabric_width_cm"] = float(width_cm)
+        material["woven_fabric_cloth_size_cm"] = float(cloth_size_cm)
+
+
+def read_params(material) -> dict:
+    """The parameters currently on the material's group node, as a params.json dict
+    (``FabricParams.to_dict()`` names; tiles as on the sockets, i.e. per UV unit of the rig plane,
+    without the ``uv scale`` factor)."""
+    node = _group_node(material)
+    values = {}
+    for s in shader_params.socket_specs():
+        v = node.inputs[s.name].default_value
+        values[s.name] = tuple(v)[:3] if s.kind == "COLOR" else (int(v) if s.kind == "INT" else float(v))
+    return shader_params.params_from_sockets(values)

@@ -1,0 +1,99 @@
+"""blender_addon/node_group.py in Blender (bpy, in a subprocess): the group's sockets, the
+create_material / apply_params / read_params round trip, the real-world UV scale, and that a
+saved .blend keeps everything (OSL bytecode, packed fallback atlases)."""
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_shader import addon, blender, run_blender  # noqa: E402
+
+
+@blender
+@pytest.mark.blender
+def test_node_group_sockets_and_material_round_trip(tmp_path):
+    blend = tmp_path / "fabric.blend"
+    result = run_blender(f"""
+        from backend.params import FabricParams
+        from wf_addon import shader_params
+        group = node_group.ensure_node_group()
+        again = node_group.ensure_node_group()
+        inputs = [(i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None))
+                  for i in group.interface.items_tree if i.item_type == "SOCKET" and i.in_out == "INPUT"]
+        outputs = [i.name for i in group.interface.items_tree if i.item_type == "SOCKET" and i.in_out == "OUTPUT"]
+        p = FabricParams(pattern="satin1", tiles=(151.9, 84.7), roughness=(0.18, 0.75), thickness=(1.58, 2.79),
+                         twist_deg=(-12.0, 30.0), specular_albedo=((0.12, 0.53, 0.28), (0.1, 0.52, 0.26)),
+                         diffuse_reflection=(0.077, 0.282, 0.077), multiple_weight=0.94, noise=1.0)
+        data = dict(p.to_dict(), rig={{"width_cm": 5.0}}, interchange=p.to_interchange())
+        mat = node_group.create_material("Fitted", data)
+        mesh = bpy.data.meshes.new("cloth")
+        obj = bpy.data.objects.new("cloth", mesh)
+        bpy.context.scene.collection.objects.link(obj)
+        mesh.materials.append(mat)
+        first = node_group.read_params(mat)
+        node = [n for n in mat.node_tree.nodes if n.type == "GROUP"][0]
+        uv_default = node.inputs["uv scale"].default_value
+        node_group.apply_params(mat, dict(p.to_dict(), pattern="plain", roughness=[0.5, 0.25]),
+                                width_cm=5.0, cloth_size_cm=120.0)
+        second = node_group.read_params(mat)
+        uv_scale = node.inputs["uv scale"].default_value
+        targets = sorted(n.target for n in mat.node_tree.nodes if n.type == "OUTPUT_MATERIAL")
+        script = group.nodes["Woven Fabric OSL"]
+        has_bytecode = bool(script.bytecode)
+        bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})
+        bpy.ops.wm.open_mainfile(filepath={str(blend)!r})
+        mat = bpy.data.materials["Fitted"]
+        reloaded = node_group.read_params(mat)
+        atlases = {{im.name: (im.packed_file is not None, list(im.size)) for im in bpy.data.images
+                   if im.name.startswith(node_group.ATLAS_PREFIX)}}
+        header = bpy.data.images[node_group.ATLAS_PREFIX + "header"]
+        px = list(header.pixels[:8])
+        emit({{"same_group": group == again, "inputs": inputs, "outputs": outputs, "first": first,
+              "second": second, "reloaded": reloaded, "uv_default": uv_default, "uv_scale": uv_scale,
+              "targets": targets, "bytecode": has_bytecode, "atlases": atlases, "header_px": px,
+              "groups": sorted(g.name for g in bpy.data.node_groups)}})
+    """, tmp_path)
+    sp = addon("shader_params")
+    specs = sp.socket_specs()
+    assert [i[0] for i in result["inputs"]] == [s.name for s in specs]
+    for (name, socket_type, lo, hi), s in zip(result["inputs"], specs):
+        assert socket_type == {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}[s.kind]
+        if s.kind != "COLOR":
+            assert lo == pytest.approx(s.lo, rel=1e-6) and hi == pytest.approx(s.hi, rel=1e-6), name
+    assert result["outputs"] == ["BSDF", "Fallback"]
+    assert result["same_group"] and result["bytecode"]
+    assert result["targets"] == ["CYCLES", "EEVEE"]
+
+    from backend.params import FabricParams
+
+    expected = FabricParams(pattern="satin1", tiles=(151.9, 84.7), roughness=(0.18, 0.75), thickness=(1.58, 2.79),
+                            twist_deg=(-12.0, 30.0), specular_albedo=((0.12, 0.53, 0.28), (0.1, 0.52, 0.26)),
+                            diffuse_reflection=(0.077, 0.282, 0.077), multiple_weight=0.94, noise=1.0).to_dict()
+
+    def close(a, b):
+        assert a.keys() == b.keys()
+        for key in a:
+            if key == "pattern":
+                assert a[key] == b[key]
+            else:
+                flat_a = [x for v in a[key] for x in v] if key == "specular_albedo" else a[key]
+                flat_b = [x for v in b[key] for x in v] if key == "specular_albedo" else b[key]
+                assert flat_a == pytest.approx(flat_b, rel=1e-5, abs=1e-6), key
+
+    close(result["first"], expected)
+    close(result["second"], dict(expected, pattern="plain", roughness=[0.5, 0.25]))
+    close(result["reloaded"], result["second"])
+    assert result["uv_default"] == 1.0
+    V = 2 * 8 * math.tan(math.radians(26.5))
+    assert result["uv_scale"] == pytest.approx(120.0 * V / (10 * 5.0), rel=1e-5)
+    assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("header", "matrix", "warp", "weft")}
+    assert all(packed for packed, _ in result["atlases"].values())
+    sw = addon("shader_weave")
+    w, h, px = sw.fallback_atlases()["header"]
+    assert result["header_px"][:3] == pytest.approx(px[:3]) and result["header_px"][4:7] == pytest.approx(px[3:6])
+    assert {"Woven Fabric", "Woven Fabric fallback"} <= set(result["groups"])

@@ -1,0 +1,338 @@
+"""The Woven Fabric shader: declaration agreement, tables, tiles math, fallback geometry, and
+(in Blender subprocesses) OSL compilation, Cycles / EEVEE renders and a cheap validation."""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import subprocess
+import sys
+import textwrap
+import types
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+ADDON = ROOT / "blender_addon"
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+PKG = "woven_fabric_addon_tests"
+
+
+def addon(module: str):
+    """A blender_addon module, imported as part of a package without running its __init__."""
+    if PKG not in sys.modules:
+        package = types.ModuleType(PKG)
+        package.__path__ = [str(ADDON)]
+        sys.modules[PKG] = package
+    return importlib.import_module(f"{PKG}.{module}")
+
+
+def have_bpy() -> bool:
+    try:
+        return importlib.util.find_spec("bpy") is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def run_blender(script: str, tmp_path: Path, timeout: int = 300) -> dict:
+    """Runs `script` with the bpy module in a fresh interpreter; returns the JSON it prints last."""
+    path = tmp_path / "script.py"
+    prelude = textwrap.dedent(f"""
+        import sys, types, importlib, json
+        sys.path.insert(0, {str(ROOT)!r})
+        import bpy
+        _pkg = types.ModuleType("wf_addon")
+        _pkg.__path__ = [{str(ADDON)!r}]
+        sys.modules["wf_addon"] = _pkg
+        rig_scene = importlib.import_module("wf_addon.rig_scene")
+        node_group = importlib.import_module("wf_addon.node_group")
+        def emit(obj):
+            print("RESULT " + json.dumps(obj), flush=True)
+    """)
+    path.write_text(prelude + textwrap.dedent(script))
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"), PYTHONUNBUFFERED="1")
+    done = subprocess.run([sys.executable, str(path)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+    results = [line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")]
+    assert done.returncode == 0 and results, f"blender script failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    return json.loads(results[-1])
+
+
+blender = pytest.mark.skipif(not have_bpy(), reason="needs the bpy module")
+
+
+# -- declaration agreement (no bpy) ---------------------------------------------------------
+def test_sockets_follow_the_declaration():
+    sp = addon("shader_params")
+    paths = addon("paths")
+    specs = {s.name: s for s in sp.socket_specs()}
+    presets = list(paths.weave_presets())
+    assert specs["pattern"].kind == "INT" and (specs["pattern"].lo, specs["pattern"].hi) == (0, len(presets) - 1)
+    expected = {"pattern"}
+    for spec in paths.parameter_declaration():
+        names = [f"{spec.name} {y}" for y in ("warp", "weft")] if spec.per_yarn else [spec.name]
+        for name in names:
+            s = specs[name]
+            assert s.param == spec.name and (s.lo, s.hi) == (spec.lo, spec.hi)
+            assert s.kind == ("COLOR" if spec.rgb else "FLOAT")
+            expected.add(name)
+    for name in ("diffuse_reflection map", "diffuse_transmission map"):
+        assert specs[name].kind == "COLOR" and specs[name].default == (1.0, 1.0, 1.0)
+        expected.add(name)
+    expected.add("uv scale")
+    assert set(specs) == expected
+
+
+def test_osl_parameters_match_the_sockets():
+    """Fails when shaders/woven_fabric.osl and backend/params.py drift apart (names, ranges, defaults)."""
+    sp = addon("shader_params")
+    source = addon("paths").shader_path().read_text()
+    params = sp.osl_parameters(source)
+    specs = sp.socket_specs()
+    osl_type = {"INT": "int", "FLOAT": "float", "COLOR": "color"}
+    for s in specs:
+        assert s.osl in params, f"OSL shader lacks the parameter {s.osl}"
+        p = params[s.osl]
+        assert p["type"] == osl_type[s.kind] and not p["output"], s.osl
+        assert p["meta"].get("label") == s.name, s.osl
+        assert p["meta"].get("min") == pytest.approx(s.lo) and p["meta"].get("max") == pytest.approx(s.hi), s.osl
+        default = sp.osl_default(p["default"])
+        if s.kind == "COLOR":
+            assert default == pytest.approx(tuple(s.default)), s.osl
+        else:
+            assert default == pytest.approx(float(s.default)), s.osl
+    inputs = {n for n, p in params.items() if not p["output"]}
+    outputs = {n for n, p in params.items() if p["output"]}
+    assert inputs == {s.osl for s in specs} | set(sp.OSL_INTERNAL_INPUTS)
+    assert outputs == set(sp.OSL_OUTPUTS)
+
+
+def test_osl_weave_tables_are_generated_from_the_backend():
+    sw = addon("shader_weave")
+    source = addon("paths").shader_path().read_text()
+    assert sw.table_block_of(source) == sw.osl_table_block(), \
+        "run `python blender_addon/shader_weave.py` to regenerate the OSL weave tables"
+
+
+def test_pack_weave_layout():
+    sw = addon("shader_weave")
+    from backend.weave import PRESETS, WARP, WEFT
+
+    bases, data = sw.packed_presets()
+    for base, weave in zip(bases, PRESETS.values()):
+        assert data[base:base + 2] == [weave.cols, weave.rows]
+        assert data[base + 11:base + 13] == [weave.tile_width, weave.tile_height]
+        matrix = data[base + sw.HEADER:base + sw.HEADER + weave.rows * weave.cols]
+        assert matrix == [float(c) for row in weave.matrix for c in row]
+        warp0, weft0 = int(data[base + 13]), int(data[base + 14])
+        e = weave.interval_table(WARP)[weave.cols - 1][2 * weave.rows - 1]
+        off = base + warp0 + ((weave.cols - 1) * 2 * weave.rows + 2 * weave.rows - 1) * sw.ENTRY
+        assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
+        e = weave.interval_table(WEFT)[0][1]
+        off = base + weft0 + 1 * sw.ENTRY
+        assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
+
+
+def test_params_socket_round_trip():
+    sp = addon("shader_params")
+    from backend.params import FabricParams
+
+    for pattern in ("plain", "twill0", "twill1", "satin0", "satin1"):
+        p = FabricParams(pattern=pattern, tiles=(120.5, 80.25), roughness=(0.3, 0.7), twist_deg=(-30.0, 12.5),
+                         specular_albedo=((0.1, 0.2, 0.3), (0.4, 0.5, 0.6)), diffuse_reflection=(0.7, 0.1, 0.2),
+                         multiple_weight=1.3, noise=1.0)
+        data = p.to_dict()
+        data["rig"] = {"width_cm": 3.0}
+        back = sp.params_from_sockets(sp.socket_values(data))
+        assert FabricParams.from_dict(back) == p
+    with pytest.raises(ValueError):
+        sp.socket_values({"pattern": "custom"})
+    clamped = sp.socket_values({"pattern": "plain", "roughness": [5.0, -1.0]})
+    assert clamped["roughness warp"] == 1.0 and clamped["roughness weft"] == 0.01
+
+
+def test_tiles_to_real_world_scale():
+    sp = addon("shader_params")
+    V = 2 * 8 * math.tan(math.radians(26.5))
+    assert sp.view_size() == pytest.approx(V) and V == pytest.approx(7.977, abs=1e-3)  # the brief says 7.9787
+    width_cm, cloth_cm = 4.0, 150.0
+    unit = 10 * width_cm / V                      # cm per UV unit of the rig plane
+    assert sp.uv_unit_cm(width_cm) == pytest.approx(unit)
+    assert sp.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
+    tiles = [121.8, 168.9]
+    cloth = sp.cloth_tiles(tiles, width_cm, cloth_cm)
+    assert cloth == pytest.approx([t * cloth_cm / unit for t in tiles])
+    # same physical density: repeats per cm on the cloth = repeats per cm in the rig
+    assert [c / cloth_cm for c in cloth] == pytest.approx(sp.repeats_per_cm(tiles, width_cm))
+    assert sp.uv_scale(None, cloth_cm) == 1.0 and sp.uv_scale(width_cm, None) == 1.0
+    rig = {"camera_height": 10.0, "fov_deg": 40.0, "plane_size": 12.0}
+    V2 = 2 * 10 * math.tan(math.radians(20))
+    assert sp.uv_scale(width_cm, cloth_cm, rig) == pytest.approx(cloth_cm / (12 * width_cm / V2))
+    with pytest.raises(ValueError):
+        sp.uv_scale(-1.0, cloth_cm)
+
+
+def test_fallback_geometry_matches_the_backend():
+    """The standard-node fallback program (evaluated with numpy) gives the backend's visible layer,
+    yarn normal and fiber direction."""
+    import numpy as np
+    import torch
+    from backend.geometry import tile_coordinates
+    from backend.layers import GAP, WeaveLookup
+    from backend.params import FabricParams
+    from backend.rig import DEFAULT_RIG
+    from backend.weave import PRESETS
+    from backend.yarn import local_frame, scale_height
+
+    fb = addon("shader_fallback")
+    rng = np.random.default_rng(1)
+    S = 4000
+    for index, name in enumerate(PRESETS):
+        p = FabricParams(pattern=name, tiles=(37.0, 53.0), gap_scale=(0.8, 0.9), twist_deg=(-20.0, 15.0),
+                         height_scale=(1.5, 0.7))
+        x, y = rng.uniform(0, 10, S), rng.uniform(-10, 0, S)
+        env = dict(pattern=float(index), tiles_warp=37.0, tiles_weft=53.0, uv_scale=1.0, gap_scale_warp=0.8,
+                   gap_scale_weft=0.9, twist_deg_warp=-20.0, twist_deg_weft=15.0, height_scale_warp=1.5,
+                   height_scale_weft=0.7, UV=np.stack([x / 10, y / 10 + 1, np.zeros(S)]),
+                   Tangent=np.tile([[1.0], [0.0], [0.0]], S), Normal=np.tile([[0.0], [0.0], [1.0]], S))
+        out = fb.run(fb.NumpyBuilder(), env)
+        lookup = WeaveLookup(PRESETS[name])
+        X, Y, _, _ = tile_coordinates(torch.tensor(x), torch.tensor(y), DEFAULT_RIG, p.tiles, lookup)
+        front, back = lookup.layers(X, Y, p.gap_scale)
+        visible = torch.where(front.yarn != GAP, front.yarn, back.yarn).numpy()
+        mine = np.where(out["vis_warp"] > 0.5, 0, np.where(out["vis_weft"] > 0.5, 1, 2))
+        assert (visible == mine).mean() > 0.999, name
+        twist = tuple(math.radians(a) for a in p.twist_deg)
+        nf, of = local_frame(front, twist)
+        nb, ob = local_frame(back, twist)
+        use_front = (front.yarn != GAP)
+        beta = torch.where(torch.tensor(visible) == 0, 1.5, torch.where(torch.tensor(visible) == 1, 0.7, 1.0))
+        n, o = scale_height(torch.where(use_front, nf, nb), torch.where(use_front, of, ob), beta.double())
+        ok = visible == mine
+        assert np.abs(n.numpy() - out["normal"])[:, ok].max() < 1e-4, name
+        assert np.abs(o.numpy() - out["fiber"])[:, ok].max() < 1e-4, name
+        assert set(np.unique(out["coverage"])) <= {0.0, 1.0}
+
+
+# -- Blender (subprocesses) -----------------------------------------------------------------
+@blender
+@pytest.mark.blender
+def test_osl_compiles_with_cycles(tmp_path):
+    result = run_blender(f"""
+        import os
+        rig_scene.ensure_oslquery()
+        import _cycles, oslquery
+        ok = _cycles.osl_compile({str(ROOT / 'shaders' / 'woven_fabric.osl')!r}, "out.oso")
+        names = [p.name for p in oslquery.OSLQuery("out.oso").parameters] if ok else []
+        emit({{"ok": bool(ok), "names": names}})
+    """, tmp_path)
+    assert result["ok"]
+    sp = addon("shader_params")
+    assert set(result["names"]) == {s.osl for s in sp.socket_specs()} | set(sp.OSL_INTERNAL_INPUTS) | \
+        set(sp.OSL_OUTPUTS)
+
+
+RENDER_PAIR = textwrap.dedent("""
+    import numpy as np
+    from backend.params import FabricParams
+    def render(pattern, osl, engine="CYCLES", size=32, samples=4, lights=("front", "back")):
+        scene = bpy.data.scenes.new(f"{pattern} {osl} {engine}")
+        p = FabricParams(pattern=pattern, tiles=(40.0, 40.0), roughness=(0.3, 0.3), gap_scale=(0.8, 0.8),
+                         specular_albedo=((0.8, 0.6, 0.3), (0.3, 0.6, 0.8)), diffuse_reflection=(0.3, 0.3, 0.3))
+        mat = node_group.create_material(f"m {pattern}", p.to_dict())
+        rig_scene.build_scene(mat, size=size, samples=samples, osl=osl, scene=scene, threads=1)
+        scene.render.engine = engine
+        if engine != "CYCLES":
+            scene.eevee.taa_render_samples = samples
+        out = []
+        for which in lights:
+            img = rig_scene.render_linear(scene, which)
+            out.append(img[..., :3])
+        return np.stack(out)
+""")
+
+
+@blender
+@pytest.mark.blender
+def test_light_calibration_matches_the_backend_convention(tmp_path):
+    """A Lambertian fabric renders to k / pi * cos * intensity / distance^2 (the backend's units)."""
+    result = run_blender("""
+        import numpy as np, math
+        mat = bpy.data.materials.new("lambert")
+        tree = mat.node_tree
+        bsdf = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        bsdf.inputs["Color"].default_value = (0.5, 0.5, 0.5, 1)
+        out = tree.nodes.get("Material Output") or tree.nodes.new("ShaderNodeOutputMaterial")
+        tree.links.new(bsdf.outputs[0], out.inputs["Surface"])
+        scene = rig_scene.build_scene(mat, size=16, samples=16, osl=False, scene=bpy.context.scene, threads=1)
+        img = rig_scene.render_linear(scene, "front")[..., 0]
+        rig = rig_scene.rig_values()
+        V = rig_scene.view_size(rig)
+        c = (np.arange(16) + 0.5) * V / 16
+        x, y = c[None, :], -c[:, None]
+        lx, ly, lz = V / 2 + 0, -V / 2 + 8, 8
+        d2 = (lx - x) ** 2 + (ly - y) ** 2 + lz ** 2
+        expected = 0.5 / math.pi * (lz / np.sqrt(d2)) * 300 / d2
+        emit({"ratio": float(np.median(img / expected)), "spread": float(np.ptp(img / expected))})
+    """, tmp_path)
+    assert result["ratio"] == pytest.approx(1.0, rel=0.01)
+
+
+@blender
+@pytest.mark.blender
+def test_cycles_osl_and_fallback_renders(tmp_path):
+    """Tiny Cycles renders: the OSL shader and the fallback (OSL off) are not black, differ between
+    a plain and a satin weave, and the group switches between them by itself."""
+    result = run_blender(RENDER_PAIR + textwrap.dedent("""
+        res = {}
+        for osl in (True, False):
+            plain, satin = render("plain", osl), render("satin0", osl)
+            res[str(osl)] = {"plain_mean": [float(plain[0].mean()), float(plain[1].mean())],
+                             "satin_mean": [float(satin[0].mean()), float(satin[1].mean())],
+                             "difference": float(np.abs(plain - satin).mean()), "img": plain.tolist()}
+        osl_img, fb_img = np.array(res["True"].pop("img")), np.array(res["False"].pop("img"))
+        res["osl_vs_fallback"] = float(np.abs(osl_img - fb_img).mean() / (osl_img.mean() + 1e-9))
+        emit(res)
+    """), tmp_path)
+    for key in ("True", "False"):
+        r = result[key]
+        assert min(r["plain_mean"] + r["satin_mean"]) > 1e-3, (key, r)
+        assert r["difference"] > 0.05 * sum(r["plain_mean"]) / 2, (key, r)
+    assert result["osl_vs_fallback"] > 0.02  # the switch really changes the shader
+
+
+@blender
+@pytest.mark.blender
+@pytest.mark.slow
+def test_eevee_renders_the_fallback(tmp_path):
+    """EEVEE (software OpenGL here: about a minute) renders the fallback output: not black,
+    plain != satin (front light only, to keep it short)."""
+    result = run_blender(RENDER_PAIR + textwrap.dedent("""
+        plain = render("plain", False, engine="BLENDER_EEVEE", size=16, samples=1, lights=("front",))
+        satin = render("satin0", False, engine="BLENDER_EEVEE", size=16, samples=1, lights=("front",))
+        emit({"plain": float(plain.mean()), "satin": float(satin.mean()),
+              "difference": float(np.abs(plain - satin).mean())})
+    """), tmp_path, timeout=600)
+    assert result["plain"] > 1e-3 and result["satin"] > 1e-3
+    assert result["difference"] > 1e-3
+
+
+@blender
+@pytest.mark.blender
+@pytest.mark.slow
+def test_cheap_validation_against_the_backend(tmp_path):
+    """tools/validate_shader.py on one golden case at 64 x 64: loose bounds on the figures."""
+    out = tmp_path / "figures.json"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), "--cases", "example_twill1",
+                           "--size", "64", "--samples", "16", "--backend-spp", "4", "--threads", "1",
+                           "--out", str(tmp_path / "images"), "--json", str(out)],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    figures = json.loads(out.read_text())
+    case = figures["cases"][0]
+    assert case["R_l1"] < 0.06 and case["T_l1"] < 0.06, case
+    assert case["R_corr"] > 0.2 and case["T_corr"] > 0.2, case
