@@ -2,6 +2,7 @@
 
     render PARAMS --out DIR [--spp N] [--size N] [--rig RIG.json] [--flags JSON] [--seed S] [--device D]
     render-cases CASES.json --out DIR [--spp N] [--size N] [--device D]
+    fit REFLECTION TRANSMISSION --out DIR [...]  (see backend/fit_command.py)
     bench render [--json] [--size N] [--spp N] [--runs N]
 
 Bad input (unreadable files, malformed or out-of-range parameters) ends with exit code 2 and a
@@ -138,6 +139,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu")
     p.set_defaults(run=cmd_render_cases)
+
+    from .fit_command import add_parser as add_fit_parser
+
+    add_fit_parser(sub)
 
     p = sub.add_parser("bench", help="print performance figures")
     p.add_argument("what", choices=["render"])

@@ -1,0 +1,245 @@
+"""Fitting fabric parameters to a reflection/transmission photo pair.
+
+Stages (each reported through ``progress(stage, iteration, total, loss, eta_s)``):
+
+1. *search*: (pattern, tiles) candidates from the photos' spectra (:mod:`backend.search`); every
+   candidate starts from its pattern's typical parameters (or a given initial guess) with colours
+   matched to the photos, and the best ``trials`` of them (by that starting loss) get a short fit;
+   the candidate with the lowest loss wins: the pattern is chosen by comparing fits, not by a guess.
+2. *optimise*: Adam on the continuous parameters (roughness, thickness, their multiple-scattering
+   twins, height scale, albedos, diffuse weight, multiple weight), each with a learning rate
+   proportional to its declared range and halved at 50, 70 and 85 % of the run; every parameter
+   is clamped into its range after each step. Every ``search_every`` iterations the discrete
+   parameters (gap scale and twist, per yarn) take a deterministic parabolic step on the loss:
+   evaluate x - d, x, x + d, move to the parabola's minimum if that lowers the loss (a better
+   use of evaluations than the paper's random +/- steps). Tiles come from the lattice, which pins
+   them to a fraction of a percent, and stay fixed.
+3. the best parameters seen are returned (with the loss history and timings).
+
+Everything is deterministic for a given input, settings and seed (fixed jitter, no random steps).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+
+from . import priors
+from .features import LossWeights
+from .objective import Objective, Target
+from .param_tensors import ParamTensors
+from .params import PARAMETERS, SPECS, FabricParams
+from .render import Renderer
+from .rig import CaptureRig
+from .search import Candidate, propose
+
+OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
+Progress = Callable[[str, int, int, float | None, float | None], None]
+
+
+class FitCancelled(Exception):
+    """Raised from inside the loop when the caller asks to stop; carries the best parameters so far."""
+
+    def __init__(self, params: FabricParams | None):
+        super().__init__("cancelled")
+        self.params = params
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    pattern: str = "auto"            # a preset name, or "auto" to choose by comparing fits
+    iterations: int = 150
+    size: int = 256                  # working size of the loss (photos are area-downsampled to it)
+    spp: int = 16
+    seed: int = 0
+    trials: int = 4                  # candidates given a short fit in the search stage
+    trial_iterations: int = 20
+    search_every: int = 25
+    lr: float = 0.02                 # Adam step as a fraction of each parameter's range
+    weights: LossWeights = LossWeights()
+    prior_weight: float = 0.002
+    device: str = "cpu"
+    compile: bool | None = None      # None: torch.compile where a C++ compiler is found
+
+
+@dataclass
+class FitResult:
+    params: FabricParams
+    loss: float
+    terms: dict[str, float]
+    candidates: list[dict]
+    history: list[tuple[int, float]]
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def _colour_matched(params: FabricParams, objective: Objective) -> FabricParams:
+    """Scales the albedos so the render's mean linear colour matches the photos' (per channel)."""
+    with torch.no_grad():
+        pair = objective.renderer.render(params)
+    gamma = objective.rig.gamma
+
+    def ratio(render, photo):
+        r = render.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+        p = photo.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+        return (p / r.clamp_min(1e-4)).clamp(0.05, 20.0).tolist()
+
+    r_ratio = ratio(pair.reflection, objective.target.reflection)
+    t_ratio = ratio(pair.transmission, objective.target.transmission)
+
+    def scaled(rgb, factors):
+        return tuple(min(1.0, max(0.0, c * f)) for c, f in zip(rgb, factors))
+
+    return FabricParams.clamped_from(
+        pattern=params.pattern, weave=params.weave,
+        **{**{s.name: getattr(params, s.name) for s in PARAMETERS},
+           "diffuse_reflection": scaled(params.diffuse_reflection, r_ratio),
+           "specular_albedo": tuple(scaled(yarn, r_ratio) for yarn in params.specular_albedo),
+           "diffuse_transmission": scaled(params.diffuse_transmission, t_ratio)})
+
+
+class _Run:
+    """One optimisation run: parameters, Adam state, best-so-far tracking."""
+
+    def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int):
+        self.objective, self.settings, self.total = objective, settings, total
+        self.fabric = ParamTensors.from_params(params, objective.renderer.device, requires_grad=OPTIMISED)
+        groups = [{"params": [self.fabric.values[n]], "lr": settings.lr * (SPECS[n].hi - SPECS[n].lo),
+                   "name": n} for n in OPTIMISED]
+        self.optimiser = torch.optim.Adam(groups, eps=1e-6)
+        self.base_lr = [g["lr"] for g in groups]
+        self.step_count = 0
+        self.best_loss = math.inf
+        self.best = params
+        self.best_terms: dict[str, float] = {}
+        self.history: list[tuple[int, float]] = []
+
+    def _schedule(self):
+        progress = self.step_count / max(self.total, 1)
+        factor = 0.5 ** sum(progress >= p for p in (0.5, 0.7, 0.85))
+        for group, lr in zip(self.optimiser.param_groups, self.base_lr):
+            group["lr"] = lr * factor
+
+    def step(self) -> float:
+        self._schedule()
+        self.optimiser.zero_grad(set_to_none=True)
+        terms = self.objective.terms(self.fabric)
+        loss = terms["loss"]
+        loss.backward()
+        value = float(loss)
+        if value < self.best_loss:  # the parameters that produced this loss (before the step)
+            self.best_loss, self.best = value, self.fabric.to_params()
+            self.best_terms = {k: float(v) for k, v in terms.items()}
+        self.optimiser.step()
+        self.fabric.clamp_()
+        self.history.append((self.step_count, value))
+        self.step_count += 1
+        return value
+
+    def evaluate(self, fabric: ParamTensors) -> float:
+        with torch.no_grad():
+            return float(self.objective(fabric))
+
+    def discrete_search(self, round_index: int):
+        """Parabolic steps on gap scale and twist, per yarn, with shrinking spans."""
+        spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
+        current = self.evaluate(self.fabric)
+        for name, span in spans.items():
+            spec = SPECS[name]
+            for yarn in (0, 1):
+                values = self.fabric.values[name]
+                x = float(values[yarn])
+                trial = {}
+                for dx in (-span, span):
+                    candidate = values.detach().clone()
+                    candidate[yarn] = min(spec.hi, max(spec.lo, x + dx))
+                    trial[dx] = self.evaluate(self.fabric.with_values(**{name: candidate}))
+                lo, hi = trial[-span], trial[span]
+                curvature = lo + hi - 2 * current
+                step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
+                step = max(-2 * span, min(2 * span, step))
+                candidate = values.detach().clone()
+                candidate[yarn] = min(spec.hi, max(spec.lo, x + step))
+                best_dx, best_val = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
+                value = self.evaluate(self.fabric.with_values(**{name: candidate}))
+                if value < best_val:
+                    best_dx, best_val = step, value
+                if best_dx != 0.0:
+                    with torch.no_grad():
+                        values[yarn] = min(spec.hi, max(spec.lo, x + best_dx))
+                    current = best_val
+        if current < self.best_loss:
+            self.best_loss, self.best = current, self.fabric.to_params()
+
+
+def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
+        settings: FitSettings = FitSettings(), progress: Progress | None = None,
+        initial: FabricParams | None = None, should_stop: Callable[[], bool] | None = None) -> FitResult:
+    """Fits parameters to a photo pair (display-space float arrays (N, N, 3) in [0, 1])."""
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+    torch.manual_seed(settings.seed)
+    progress = progress or (lambda *args: None)
+    device = torch.device(settings.device)
+    target = Target.from_arrays(reflection, transmission, settings.size, device)
+    renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile)
+    objective = Objective(target, renderer, rig, settings.weights, settings.prior_weight)
+
+    def check_stop(best: FabricParams | None):
+        if should_stop is not None and should_stop():
+            raise FitCancelled(best)
+
+    # -- search: candidates from the spectrum, ranked by their starting loss, short fits --------
+    patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
+    progress("search", 0, 1, None, None)
+    found = propose(reflection, transmission, rig, patterns)
+    if not found:
+        found = [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
+    timings["lattice_s"] = time.perf_counter() - started
+    starts = []
+    for k, cand in enumerate(found):
+        base = initial if initial is not None and initial.pattern == cand.pattern else priors.typical(cand.pattern)
+        params = _colour_matched(base.replace(tiles=cand.tiles), objective)
+        with torch.no_grad():
+            loss = float(objective(ParamTensors.from_params(params, device)))
+        starts.append((loss, k, cand, params))
+        progress("search", k + 1, len(found), loss, None)
+        check_stop(None)
+    starts.sort(key=lambda t: (t[0], t[1]))
+    shortlisted = starts[: max(1, settings.trials)]
+    runs, summary = [], []
+    total = settings.iterations + settings.trial_iterations
+    for index, (loss, _, cand, params) in enumerate(shortlisted):
+        run = _Run(params, objective, settings, total)
+        for it in range(settings.trial_iterations if len(shortlisted) > 1 else 0):
+            run.step()
+            check_stop(run.best)
+        progress("search", index + 1, len(shortlisted), run.best_loss, None)
+        runs.append(run)
+        summary.append({"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
+                        "start_loss": loss, "trial_loss": run.best_loss if run.history else loss})
+    best_run = min(runs, key=lambda r: (r.best_loss if r.history else math.inf, runs.index(r)))
+    timings["search_s"] = time.perf_counter() - started
+
+    # -- optimise the winner ------------------------------------------------------------------
+    run = best_run
+    run.fabric = ParamTensors.from_params(run.best, device, requires_grad=OPTIMISED) if run.history else run.fabric
+    run.optimiser = torch.optim.Adam([{"params": [run.fabric.values[n]], "lr": lr, "name": n}
+                                      for n, lr in zip(OPTIMISED, run.base_lr)], eps=1e-6)
+    loop_started = time.perf_counter()
+    search_round = 0
+    for it in range(settings.iterations):
+        value = run.step()
+        check_stop(run.best)
+        if settings.search_every and (it + 1) % settings.search_every == 0 and it + 1 < settings.iterations:
+            run.discrete_search(search_round)
+            search_round += 1
+        done = it + 1
+        eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
+        progress("optimise", done, settings.iterations, value, eta)
+    timings["optimise_s"] = time.perf_counter() - loop_started
+    timings["total_s"] = time.perf_counter() - started
+    return FitResult(run.best, run.best_loss, run.best_terms, summary, run.history, timings)
