@@ -238,12 +238,16 @@ def test_osl_compiles_with_cycles(tmp_path):
 RENDER_PAIR = textwrap.dedent("""
     import numpy as np
     from backend.params import FabricParams
-    def render(pattern, osl, engine="CYCLES", size=32, samples=4, lights=("front", "back")):
-        scene = bpy.data.scenes.new(f"{pattern} {osl} {engine}")
+    def render(pattern, osl, engine="CYCLES", size=32, samples=4, lights=("front", "back"), noise=0.0,
+               flipped=False):
+        scene = bpy.data.scenes.new(f"{pattern} {osl} {engine} {noise} {flipped}")
         p = FabricParams(pattern=pattern, tiles=(40.0, 40.0), roughness=(0.3, 0.3), gap_scale=(0.8, 0.8),
-                         specular_albedo=((0.8, 0.6, 0.3), (0.3, 0.6, 0.8)), diffuse_reflection=(0.3, 0.3, 0.3))
+                         specular_albedo=((0.8, 0.6, 0.3), (0.3, 0.6, 0.8)), diffuse_reflection=(0.3, 0.3, 0.3),
+                         noise=noise)
         mat = node_group.create_material(f"m {pattern}", p.to_dict())
         rig_scene.build_scene(mat, size=size, samples=samples, osl=osl, scene=scene, threads=1)
+        if flipped:  # the camera sees the back of the fabric
+            rig_scene.rig_object(scene, "fabric").scale = (1.0, 1.0, -1.0)
         scene.render.engine = engine
         if engine != "CYCLES":
             scene.eevee.taa_render_samples = samples
@@ -285,7 +289,8 @@ def test_light_calibration_matches_the_backend_convention(tmp_path):
 @pytest.mark.blender
 def test_cycles_osl_and_fallback_renders(tmp_path):
     """Tiny Cycles renders: the OSL shader and the fallback (OSL off) are not black, differ between
-    a plain and a satin weave, and the group switches between them by itself."""
+    a plain and a satin weave, and the group switches between them by itself; the OSL shader also
+    renders with noise and from the back side."""
     result = run_blender(RENDER_PAIR + textwrap.dedent("""
         res = {}
         for osl in (True, False):
@@ -295,6 +300,10 @@ def test_cycles_osl_and_fallback_renders(tmp_path):
                              "difference": float(np.abs(plain - satin).mean()), "img": plain.tolist()}
         osl_img, fb_img = np.array(res["True"].pop("img")), np.array(res["False"].pop("img"))
         res["osl_vs_fallback"] = float(np.abs(osl_img - fb_img).mean() / (osl_img.mean() + 1e-9))
+        noisy = render("satin0", True, lights=("front",), noise=1.0)
+        back = render("satin0", True, flipped=True)
+        res["noisy"] = [bool(np.isfinite(noisy).all()), float(noisy.mean())]
+        res["back_side"] = [bool(np.isfinite(back).all()), float(back[0].mean()), float(back[1].mean())]
         emit(res)
     """), tmp_path)
     for key in ("True", "False"):
@@ -302,6 +311,8 @@ def test_cycles_osl_and_fallback_renders(tmp_path):
         assert min(r["plain_mean"] + r["satin_mean"]) > 1e-3, (key, r)
         assert r["difference"] > 0.05 * sum(r["plain_mean"]) / 2, (key, r)
     assert result["osl_vs_fallback"] > 0.02  # the switch really changes the shader
+    assert result["noisy"][0] and result["noisy"][1] > 1e-3      # noise N = 1 (spec 4.6) renders
+    assert result["back_side"][0] and min(result["back_side"][1:]) > 1e-3  # seen from behind
 
 
 @blender
