@@ -7,7 +7,8 @@ the user's scenes and materials are never touched. The scene holds, in metres:
 - the cloth: a ``cloth_size_cm`` square grid with UVs spanning it once, started just above the
   sphere and simulated for ``frames`` frames; by default the draped shape is then frozen into the
   mesh (the cloth modifier removed) so that any frame renders the same in Cycles and EEVEE;
-- a camera looking down at the drape, a key and a rim area light (the rim shows transmission).
+- a camera looking down at the drape, a key and a rim area light (the rim shows transmission);
+- Cycles set to Open Shading Language, so a CPU render uses the OSL shader.
 
 The material is a copy of the fitted one whose scale is set for the cloth (node_group.apply_params
 with ``cloth_size_cm``), so the weave appears at its real size when the fit knew the photographed
@@ -32,6 +33,9 @@ def add_drape_preview(material, *, cloth_size_cm: float = 100.0, resolution: int
     scene = bpy.data.scenes.new(name)
     if engine:
         scene.render.engine = engine
+    if hasattr(scene, "cycles"):
+        # The OSL shader is the reference on the CPU; GPU devices without OSL use the fallback nodes.
+        scene.cycles.shading_system = True
     scene.unit_settings.system = "METRIC"
     scene.frame_start, scene.frame_end = 1, max(frames, 1)
 
@@ -104,8 +108,11 @@ def _add_sphere(scene):
 
 
 def _add_cloth(scene, size_m, resolution):
-    mesh = _mesh_from("Fabric Cloth", lambda bm: bmesh.ops.create_grid(
-        bm, x_segments=resolution, y_segments=resolution, size=size_m / 2.0, calc_uvs=True))
+    def grid_with_uvs(bm):
+        bm.loops.layers.uv.new("UVMap")  # calc_uvs fills an existing UV layer, it makes none
+        bmesh.ops.create_grid(bm, x_segments=resolution, y_segments=resolution, size=size_m / 2.0, calc_uvs=True)
+
+    mesh = _mesh_from("Fabric Cloth", grid_with_uvs)
     for polygon in mesh.polygons:
         polygon.use_smooth = True
     cloth = _link(scene, "Fabric Cloth", mesh)

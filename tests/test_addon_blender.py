@@ -320,9 +320,9 @@ def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zi
             while True:
                 t = time.monotonic()
                 result = operator_class.modal(op, bpy.context, timer)
-                slowest, ticks = max(slowest, time.monotonic() - t), ticks + 1
-                if result != {{"PASS_THROUGH"}}:
+                if result != {{"PASS_THROUGH"}}:  # the last tick also builds the material
                     return result, op, fit, slowest
+                slowest, ticks = max(slowest, time.monotonic() - t), ticks + 1
                 if cancel_after is not None and ticks == cancel_after:
                     assert operator_class.modal(op, bpy.context, esc) == {{"RUNNING_MODAL"}}
                 assert time.monotonic() - started < 20, "the fit did not end"
@@ -330,7 +330,7 @@ def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zi
 
         result, op, fit, slowest = run("ok")
         assert result == {{"FINISHED"}}, op.reports
-        assert slowest < 0.5, slowest
+        assert slowest < 0.1, f"a timer tick took {{slowest:.3f}} s while the fit ran"
         assert settings.fit_progress == 1.0 and settings.last_material == "wool", settings.last_material
         assert settings.fit_status == "Fit finished: material wool"
 
@@ -395,10 +395,13 @@ def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
         assert set(bpy.data.scenes["Scene"].objects.keys()) == before  # the user's scene is untouched
         cloth = preview.objects["Fabric Cloth"]
         assert cloth.data.materials[0].name == "denim Drape" and material.name == "denim"
+        uvs = [tuple(d.uv) for d in cloth.data.uv_layers[0].data]  # the weave needs UVs spanning the cloth
+        assert min(uvs) == (0.0, 0.0) and max(uvs) == (1.0, 1.0), (min(uvs), max(uvs))
         zs = [(cloth.matrix_world @ v.co).z for v in cloth.data.vertices]
         assert max(zs) - min(zs) > 0.1, "the cloth did not drape"
         assert preview.camera is not None and len([o for o in preview.objects if o.type == "LIGHT"]) == 2
         assert any(m.type == "COLLISION" for m in preview.objects["Preview Collider"].modifiers)
+        assert preview.cycles.shading_system, "a CPU render of the preview should use the OSL shader"
         print("DRAPE OK")
     """)
     assert "DRAPE OK" in output
