@@ -4,6 +4,7 @@
     render-cases CASES.json --out DIR [--spp N] [--size N] [--device D]
     fit REFLECTION TRANSMISSION --out DIR [...]  (see backend/fit_command.py)
     bench render [--json] [--size N] [--spp N] [--runs N]
+    bench fit --golden DIR --real DIR [--cases ...] [--iterations N] [--json]
 
 Bad input (unreadable files, malformed or out-of-range parameters) ends with exit code 2 and a
 one-line message naming the file and the problem, never a traceback.
@@ -109,10 +110,15 @@ def cmd_render_cases(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    if args.what == "fit":
+        from .bench_fit import bench_fit
+
+        if not args.golden and not args.real:
+            raise InputError("bench fit: give --golden DIR and/or --real DIR")
+        extra = ["--iterations", str(args.iterations)] if args.iterations else []
+        return bench_fit(args.golden, args.real, args.cases, extra, args.json)
     from .bench import bench_render
 
-    if args.what != "render":
-        raise InputError(f"bench: unknown benchmark {args.what!r} (known: render)")
     return bench_render(size=args.size, spp=args.spp, runs=args.runs, as_json=args.json, device=_device(args.device))
 
 
@@ -145,8 +151,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_fit_parser(sub)
 
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render"])
-    p.add_argument("--json", action="store_true", help="one JSON line of medians")
+    p.add_argument("what", choices=["render", "fit"])
+    p.add_argument("--json", action="store_true", help="JSON lines")
+    p.add_argument("--golden", help="fit: a folder with cases.json and <name>_R/_T.png synthetic targets")
+    p.add_argument("--real", help="fit: a folder of <name>_R.* / <name>_T.* photo pairs")
+    p.add_argument("--cases", nargs="*", help="fit: only these names")
+    p.add_argument("--iterations", type=int, help="fit: iterations per pair (default: the fit's default)")
     p.add_argument("--size", type=_positive_int, default=512)
     p.add_argument("--spp", type=_positive_int, default=4)
     p.add_argument("--runs", type=_positive_int, default=5)

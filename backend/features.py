@@ -36,6 +36,7 @@ LUMA = (0.2126, 0.7152, 0.0722)
 QUANTILES = 24
 ORDER = 4
 REGIONS = 3
+MIN_FLOOR = 1e-3  # modulation depth below which harmonics are treated as noise
 
 
 def luminance(image: torch.Tensor) -> torch.Tensor:
@@ -99,7 +100,8 @@ class LatticeProbe:
                 out.append(coeff / mean)
         stacked = torch.stack(out)
         count = len(self.harmonics)
-        floor = stacked[:, count:].abs().median(dim=1, keepdim=True).values
+        # A channel that is black (an albedo of 0) has no noise either: keep a floor of 0.1 %.
+        floor = stacked[:, count:].abs().median(dim=1, keepdim=True).values.clamp_min(MIN_FLOOR)
         return stacked[:, :count], floor
 
     def phase_ramp(self, dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:

@@ -2,10 +2,13 @@
 
 Stages (each reported through ``progress(stage, iteration, total, loss, eta_s)``):
 
-1. *search*: (pattern, tiles) candidates from the photos' spectra (:mod:`backend.search`); every
-   candidate starts from its pattern's typical parameters (or a given initial guess) with colours
-   matched to the photos, and the best ``trials`` of them (by that starting loss) get a short fit;
-   the candidate with the lowest loss wins: the pattern is chosen by comparing fits, not by a guess.
+1. *search*: one (pattern, tiles) candidate per preset from the photos' spectra
+   (:mod:`backend.search`); every candidate starts from its pattern's typical parameters (or a given
+   initial guess) with colours matched to the photos, and the best ``trials`` of them (by that
+   starting loss) get a short fit. The pattern is chosen by comparing those fits: trial loss plus
+   ``spectrum_weight`` x (1 - correlation of the log power spectra of render and photo). The loss
+   reads harmonics at each candidate's own lattice, so a lattice twice too coarse would not be
+   charged for the photo's odd harmonics; the spectrum sees every peak, whatever the lattice.
 2. *optimise*: Adam on the continuous parameters (roughness, thickness, their multiple-scattering
    twins, height scale, albedos, diffuse weight, multiple weight), each with a learning rate
    proportional to its declared range and halved at 50, 70 and 85 % of the run; every parameter
@@ -56,8 +59,9 @@ class FitSettings:
     size: int = 256                  # working size of the loss (photos are area-downsampled to it)
     spp: int = 16
     seed: int = 0
-    trials: int = 4                  # candidates given a short fit in the search stage
+    trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
+    spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     search_every: int = 25
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
@@ -101,6 +105,33 @@ def _colour_matched(params: FabricParams, objective: Objective) -> FabricParams:
            "diffuse_transmission": scaled(params.diffuse_transmission, t_ratio)})
 
 
+GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
+
+
+def _best_gap(params: FabricParams, objective: Objective, device) -> tuple[float, FabricParams]:
+    """The starting gap scale (same for warp and weft) with the lowest loss among GAP_SCAN and the
+    current one: gaps change the transmission image more than anything, so start near the right one."""
+    best = None
+    for gap in (params.gap_scale,) + tuple((g, g) for g in GAP_SCAN):
+        trial = params.replace(gap_scale=gap)
+        with torch.no_grad():
+            loss = float(objective(ParamTensors.from_params(trial, device)))
+        if best is None or loss < best[0]:
+            best = (loss, trial)
+    return best
+
+
+def _spectrum_similarity(params: FabricParams, objective: Objective) -> float:
+    """Mean over R and T of the log-power-spectrum correlation between a render and the photo."""
+    from .metrics import spectrum_corr
+
+    with torch.no_grad():
+        pair = objective.renderer.render(params)
+    target = objective.target
+    return 0.5 * sum(spectrum_corr(photo.cpu().numpy(), render.cpu().numpy())
+                     for photo, render in ((target.reflection, pair.reflection), (target.transmission, pair.transmission)))
+
+
 class _Run:
     """One optimisation run: parameters, Adam state, best-so-far tracking."""
 
@@ -116,6 +147,7 @@ class _Run:
         self.best = params
         self.best_terms: dict[str, float] = {}
         self.history: list[tuple[int, float]] = []
+        self.selection = math.inf
 
     def _schedule(self):
         progress = self.step_count / max(self.total, 1)
@@ -128,8 +160,11 @@ class _Run:
         self.optimiser.zero_grad(set_to_none=True)
         terms = self.objective.terms(self.fabric)
         loss = terms["loss"]
-        loss.backward()
         value = float(loss)
+        if not math.isfinite(value):
+            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(float(v)))
+            raise FloatingPointError(f"the fit's loss is not finite ({bad}) at {self.fabric.to_params().to_interchange()}")
+        loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
             self.best_loss, self.best = value, self.fabric.to_params()
             self.best_terms = {k: float(v) for k, v in terms.items()}
@@ -177,8 +212,13 @@ class _Run:
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
         settings: FitSettings = FitSettings(), progress: Progress | None = None,
-        initial: FabricParams | None = None, should_stop: Callable[[], bool] | None = None) -> FitResult:
-    """Fits parameters to a photo pair (display-space float arrays (N, N, 3) in [0, 1])."""
+        initial_for: Callable[[Candidate], FabricParams | None] | None = None,
+        should_stop: Callable[[], bool] | None = None) -> FitResult:
+    """Fits parameters to a photo pair (display-space float arrays (N, N, 3) in [0, 1]).
+
+    ``initial_for(candidate)`` may give the starting parameters of a (pattern, tiles) candidate (the
+    initialisation network does); None, or no callback, starts from the pattern's typical values.
+    """
     started = time.perf_counter()
     timings: dict[str, float] = {}
     torch.manual_seed(settings.seed)
@@ -195,16 +235,20 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     # -- search: candidates from the spectrum, ranked by their starting loss, short fits --------
     patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
-    found = propose(reflection, transmission, rig, patterns)
+    found = propose(reflection, transmission, rig, patterns, per_pattern=1)
     if not found:
         found = [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
     timings["lattice_s"] = time.perf_counter() - started
     starts = []
     for k, cand in enumerate(found):
-        base = initial if initial is not None and initial.pattern == cand.pattern else priors.typical(cand.pattern)
-        params = _colour_matched(base.replace(tiles=cand.tiles), objective)
-        with torch.no_grad():
-            loss = float(objective(ParamTensors.from_params(params, device)))
+        guess = initial_for(cand) if initial_for is not None else None
+        if guess is not None:
+            params = guess.replace(tiles=cand.tiles)
+            with torch.no_grad():
+                loss = float(objective(ParamTensors.from_params(params, device)))
+        else:
+            params = _colour_matched(priors.typical(cand.pattern).replace(tiles=cand.tiles), objective)
+            loss, params = _best_gap(params, objective, device)
         starts.append((loss, k, cand, params))
         progress("search", k + 1, len(found), loss, None)
         check_stop(None)
@@ -217,11 +261,15 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         for it in range(settings.trial_iterations if len(shortlisted) > 1 else 0):
             run.step()
             check_stop(run.best)
-        progress("search", index + 1, len(shortlisted), run.best_loss, None)
+        trial_loss = run.best_loss if run.history else loss
+        similarity = _spectrum_similarity(run.best, objective) if len(shortlisted) > 1 else 1.0
+        run.selection = trial_loss + settings.spectrum_weight * (1.0 - similarity)
+        progress("search", index + 1, len(shortlisted), run.selection, None)
         runs.append(run)
         summary.append({"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
-                        "start_loss": loss, "trial_loss": run.best_loss if run.history else loss})
-    best_run = min(runs, key=lambda r: (r.best_loss if r.history else math.inf, runs.index(r)))
+                        "start_loss": loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
+                        "selection": run.selection})
+    best_run = min(runs, key=lambda r: (r.selection, runs.index(r)))
     timings["search_s"] = time.perf_counter() - started
 
     # -- optimise the winner ------------------------------------------------------------------

@@ -142,7 +142,11 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     metrics = {"reflection": compare(photos.reflection, renders[0]),
                "transmission": compare(photos.transmission, renders[1])}
     wall = time.perf_counter() - started
-    summary = {"metrics": metrics, "wall_s": round(wall, 2), "timings": {k: round(v, 2) for k, v in result.timings.items()},
+    import resource
+
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": round(peak_mb, 1),
+               "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles)}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
