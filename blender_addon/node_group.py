@@ -15,6 +15,10 @@ colour maps multiplying the diffuse albedos. Inside:
   OSL) renders the OSL shader, Cycles without OSL (CUDA, HIP, Metal, oneAPI, CPU with OSL off)
   renders the fallback, with no driver or script involved.
 
+If the OSL cannot be compiled (a Blender without Cycles' OSL tools), the group is still built, the
+error is printed and kept in the group's ``woven_fabric_osl_error`` property, and every engine
+renders the fallback; :func:`ensure_node_group` retries the compilation next time.
+
 Group outputs: ``BSDF`` (the switch above) and ``Fallback`` (standard nodes only). A material made
 by :func:`create_material` has two Material Output nodes: target Cycles <- BSDF, target EEVEE <-
 Fallback (EEVEE never runs OSL).
@@ -25,6 +29,7 @@ API (used by the add-on's operators): :data:`NODE_GROUP_NAME`, :func:`ensure_nod
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import sys
 
@@ -38,6 +43,7 @@ TEXT_NAME = "woven_fabric.osl"
 ATLAS_PREFIX = "Woven Fabric "
 _MARK = "woven_fabric_group"
 _HASH = "woven_fabric_hash"
+_ERROR = "woven_fabric_osl_error"
 _BUILD = 1  # bump when the node layout changes
 
 _SOCKET_TYPES = {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}
@@ -189,10 +195,8 @@ class _NodeBuilder:
         return float(x)
 
     def math(self, op, *args):
-        if all(isinstance(a, float) for a in args):  # fold constants
-            import numpy as np
-
-            return float(shader_fallback.NumpyBuilder.math(_NP, op, *[np.float64(a) for a in args]))
+        if all(isinstance(a, float) for a in args) and op in _FOLD:  # constant subexpression
+            return float(_FOLD[op](*args))
         node = self.tree.nodes.new("ShaderNodeMath")
         node.operation = op
         node.use_clamp = False
@@ -241,16 +245,11 @@ class _NodeBuilder:
         return node.outputs["Color"]
 
 
-class _NpStatic:
-    """numpy math for constant folding (NumpyBuilder.math without the atlases)."""
-
-    def __init__(self):
-        import numpy as np
-
-        self.np = np
-
-
-_NP = _NpStatic()
+_FOLD = {
+    "ADD": lambda a, b: a + b, "SUBTRACT": lambda a, b: a - b, "MULTIPLY": lambda a, b: a * b,
+    "DIVIDE": lambda a, b: a / b if b else 0.0, "MINIMUM": min, "MAXIMUM": max,
+    "SINE": math.sin, "COSINE": math.cos, "SQRT": lambda a: math.sqrt(max(a, 0.0)), "EXPONENT": math.exp,
+}
 
 
 def _program(text: str) -> list[tuple[str, str]]:
@@ -327,16 +326,20 @@ def _build_fallback_group():
     return tree
 
 
-def _compile_script(node) -> None:
+def _compile_script(node) -> str:
+    """Compiles the Script node's OSL (Cycles' own compile-and-update, which also makes the node's
+    sockets and stores the bytecode in it). Returns "" or the error."""
     _ensure_oslquery_path()
     try:
-        from cycles import osl as cycles_osl  # Cycles' own compile-and-update of script nodes
+        from cycles import osl as cycles_osl
     except ImportError as exc:  # pragma: no cover - Cycles is always bundled
-        raise RuntimeError(f"the Cycles add-on is not available to compile the OSL shader ({exc})") from None
+        return f"the Cycles add-on is not available to compile the OSL shader ({exc})"
     messages = []
-    ok = cycles_osl.update_script_node(node, lambda kind, text: messages.append(f"{kind}: {text}"))
-    if not ok:
-        raise RuntimeError("compiling shaders/woven_fabric.osl failed: " + "; ".join(messages))
+    try:
+        ok = cycles_osl.update_script_node(node, lambda kind, text: messages.append(f"{kind}: {text}"))
+    except ImportError as exc:  # pragma: no cover - oslquery missing from this Blender
+        return f"Cycles cannot compile OSL here ({exc})"
+    return "" if ok else "compiling shaders/woven_fabric.osl failed: " + "; ".join(messages)
 
 
 def _build_main_group(tree, fallback):
@@ -356,7 +359,20 @@ def _build_main_group(tree, fallback):
     script.mode = "INTERNAL"
     script.script = text
     script.location = (0, 300)
-    _compile_script(script)
+    error = _compile_script(script)
+    tree[_ERROR] = error
+    if error:
+        # The material still renders through the fallback (the OSLActive switch reads 0).
+        print(f"Woven Fabric: {error}; the node group falls back to standard nodes", file=sys.stderr)
+        for name, kind in (("BSDF", "NodeSocketShader"), ("OSLActive", "NodeSocketFloat")):
+            if not any(s.identifier == name for s in script.outputs):
+                script.outputs.new(kind, name, identifier=name)
+        for s in shader_params.socket_specs():
+            if not any(sock.identifier == s.osl for sock in script.inputs):
+                script.inputs.new(_SOCKET_TYPES[s.kind], s.name, identifier=s.osl)
+        for name in ("UV", "Tangent"):
+            if not any(sock.identifier == name for sock in script.inputs):
+                script.inputs.new("NodeSocketVector", name, identifier=name)
 
     uvmap = nodes.new("ShaderNodeUVMap")
     uvmap.location = (-300, 500)
@@ -390,7 +406,7 @@ def ensure_node_group() -> "bpy.types.ShaderNodeTree":
     tree = bpy.data.node_groups.get(NODE_GROUP_NAME)
     digest = _source_hash()
     if tree is not None and tree.bl_idname == "ShaderNodeTree" and tree.get(_HASH) == digest \
-            and bpy.data.node_groups.get(FALLBACK_GROUP_NAME) is not None:
+            and not tree.get(_ERROR) and bpy.data.node_groups.get(FALLBACK_GROUP_NAME) is not None:
         return tree
     if tree is None or tree.bl_idname != "ShaderNodeTree":
         tree = bpy.data.node_groups.new(NODE_GROUP_NAME, "ShaderNodeTree")
@@ -420,7 +436,7 @@ def create_material(name: str, params: dict, width_cm: float | None = None,
     """
     group = ensure_node_group()
     material = bpy.data.materials.new(name)
-    if hasattr(material, "use_nodes") and not material.use_nodes:
+    if material.node_tree is None:  # before Blender 5.0 materials start without nodes
         material.use_nodes = True
     tree = material.node_tree
     tree.nodes.clear()
