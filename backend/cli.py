@@ -3,6 +3,9 @@
     render PARAMS --out DIR [--spp N] [--size N] [--rig RIG.json] [--flags JSON] [--seed S] [--device D]
     render-cases CASES.json --out DIR [--spp N] [--size N] [--device D]
     fit REFLECTION TRANSMISSION --out DIR [...]  (see backend/fit_command.py)
+    dataset --out DIR --per-pattern N [--workers K]  (see backend/dataset.py)
+    train DATASET --out CHECKPOINT [...]  (see backend/train.py)
+    evaluate-init [--heldout DIR] [--golden DIR] [...]  (see backend/init_eval.py)
     bench render [--json] [--size N] [--spp N] [--runs N]
     bench fit --golden DIR --real DIR [--cases ...] [--iterations N] [--json]
 
@@ -149,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
     from .fit_command import add_parser as add_fit_parser
 
     add_fit_parser(sub)
+
+    from .dataset import add_parser as add_dataset_parser
+    from .init_eval import add_parser as add_evaluate_init_parser
+    from .train import add_parser as add_train_parser
+
+    add_dataset_parser(sub)
+    add_train_parser(sub)
+    add_evaluate_init_parser(sub)
 
     p = sub.add_parser("bench", help="print performance figures")
     p.add_argument("what", choices=["render", "fit"])

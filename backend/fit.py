@@ -68,6 +68,8 @@ class FitSettings:
     prior_weight: float = 0.002
     device: str = "cpu"
     compile: bool | None = None      # None: torch.compile where a C++ compiler is found
+    vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
+    gram_weight: float = 1.0
 
 
 @dataclass
@@ -160,9 +162,9 @@ class _Run:
         self.optimiser.zero_grad(set_to_none=True)
         terms = self.objective.terms(self.fabric)
         loss = terms["loss"]
-        value = float(loss)
+        value = float(loss.detach())
         if not math.isfinite(value):
-            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(float(v)))
+            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(float(v.detach() if hasattr(v, "detach") else v)))
             raise FloatingPointError(f"the fit's loss is not finite ({bad}) at {self.fabric.to_params().to_interchange()}")
         loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
@@ -179,9 +181,21 @@ class _Run:
             return float(self.objective(fabric))
 
     def discrete_search(self, round_index: int):
-        """Parabolic steps on gap scale and twist, per yarn, with shrinking spans."""
-        spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
+        """A joint coarse step in gap scale, then parabolic steps on gap scale and twist per yarn,
+        with spans shrinking each round."""
         current = self.evaluate(self.fabric)
+        gap = self.fabric.values["gap_scale"]
+        spec = SPECS["gap_scale"]
+        best_gap = None
+        for offset in (-0.1, -0.05, 0.05, 0.1):
+            candidate = (gap.detach() + offset).clamp(spec.lo, spec.hi)
+            value = self.evaluate(self.fabric.with_values(gap_scale=candidate))
+            if value < current:
+                current, best_gap = value, candidate
+        if best_gap is not None:
+            with torch.no_grad():
+                gap.copy_(best_gap)
+        spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
         for name, span in spans.items():
             spec = SPECS[name]
             for yarn in (0, 1):
@@ -226,7 +240,12 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     device = torch.device(settings.device)
     target = Target.from_arrays(reflection, transmission, settings.size, device)
     renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile)
-    objective = Objective(target, renderer, rig, settings.weights, settings.prior_weight)
+    gram = None
+    if settings.vgg_weights:
+        from .gram import GramDescriptor
+
+        gram = GramDescriptor.load(settings.vgg_weights, device)
+    objective = Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight)
 
     def check_stop(best: FabricParams | None):
         if should_stop is not None and should_stop():

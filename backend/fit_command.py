@@ -2,7 +2,8 @@
 
     fit REFLECTION TRANSMISSION --out DIR [--pattern auto|plain|twill0|twill1|satin0|satin1]
         [--iterations N] [--size N] [--device cpu|cuda] [--json-progress] [--rig RIG.json]
-        [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--overwrite]
+        [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior] [--vgg-weights PATH]
+        [--output-spp N] [--overwrite]
     fit --example --out DIR      (renders a known fabric, then fits it)
 
 Writes DIR/params.json (spec names, plus the interchange string, rig, fit details), DIR/reflection.png
@@ -24,6 +25,7 @@ import numpy as np
 
 from . import __version__
 from .fit import FitCancelled, FitSettings, fit
+from .gram import GramWeightsError
 from .params import FabricParams
 from .photos import PhotoError, load_pair
 from .protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
@@ -62,10 +64,10 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
-def _final_renders(params: FabricParams, rig: CaptureRig, device) -> tuple[np.ndarray, np.ndarray]:
+def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
     from .render import render_pair
 
-    pair = render_pair(params, rig, size=OUTPUT_SIZE, spp=OUTPUT_SPP, seed=1, device=device)
+    pair = render_pair(params, rig, size=OUTPUT_SIZE, spp=spp, seed=1, device=device, progress=progress)
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 
@@ -87,7 +89,7 @@ def run_fit(args) -> int:
         reporter.error("cancelled", "the fit was cancelled; the best parameters so far are in params.partial.json"
                        if cancelled.params is not None else "the fit was cancelled before any result")
         return EXIT_CANCELLED
-    except (FitInputError, PhotoError, RigError) as exc:
+    except (FitInputError, PhotoError, RigError, GramWeightsError) as exc:
         reporter.error("input", str(exc), getattr(exc, "file", None))
         return EXIT_INPUT
     except Exception as exc:  # the caller gets a readable line, never a silent death
@@ -124,20 +126,27 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     reporter.progress("load", 1, 1)
 
     settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
-                           device=args.device)
+                           device=args.device, vgg_weights=args.vgg_weights)
+    from .init_net import fit_initialiser
+
+    initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
-                 should_stop=should_stop)
+                 initial_for=initial_for, should_stop=should_stop)
 
     reporter.progress("render", 0, 1)
-    renders = _final_renders(result.params, rig, settings.device)
+    def render_progress(done, total):
+        if should_stop():
+            raise FitCancelled(result.params)
+        reporter.progress("render", done, total)
+
+    renders = _final_renders(result.params, rig, settings.device, args.output_spp, render_progress)
     from .images import write_png
     from .metrics import compare
     from .report import write_report
 
     files = {"reflection": str(write_png(out / "reflection.png", renders[0])),
              "transmission": str(write_png(out / "transmission.png", renders[1]))}
-    reporter.progress("render", 1, 1)
     reporter.progress("report", 0, 1)
     metrics = {"reflection": compare(photos.reflection, renders[0]),
                "transmission": compare(photos.transmission, renders[1])}
@@ -185,5 +194,9 @@ def add_parser(sub) -> None:
     p.add_argument("--flat-field", help="photo of a uniform target under the same light (vignetting)")
     p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--init", choices=("network", "prior"), default="network",
+                   help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
+    p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")
+    p.add_argument("--output-spp", type=int, default=OUTPUT_SPP, help="samples per pixel of the re-renders (default 64)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier fit in --out")
     p.set_defaults(run=run_fit)

@@ -3,7 +3,8 @@
     loss = sum over R, T of [ w_c L1(colour16) + w_h L1(log harmonic magnitudes) + w_q L1(quantiles) ]
            + w_p * prior(height_scale, gap_scale)
 
-(see :mod:`backend.features`; the prior is the spec's Gaussian NLL, :func:`backend.priors.prior_nll`).
+(see :mod:`backend.features`; the prior is the spec's Gaussian NLL, :func:`backend.priors.prior_nll`),
+plus, when the user supplies VGG-19 weights, the paper's Gram loss (:mod:`backend.gram`).
 Photos are compared at a working size (256 by default) after an area downsample in linear light,
 which is exactly what the renderer's box filter does, so a 256-pixel render with 16 samples per
 pixel sees the same thing as the photo; 16 samples keep sharp highlights unbiased where 4 do not.
@@ -61,10 +62,14 @@ class Objective:
     """Loss of parameter sets against a target, for one rig, renderer and lattice."""
 
     def __init__(self, target: Target, renderer: Renderer, rig: CaptureRig, weights: LossWeights = LossWeights(),
-                 prior_weight: float = 0.002):
+                 prior_weight: float = 0.002, gram=None, gram_weight: float = 1.0):
         self.target, self.renderer, self.rig = target, renderer, rig
         self.weights, self.prior_weight = weights, prior_weight
         self._probe_key = None
+        self.gram, self.gram_weight = gram, gram_weight
+        if gram is not None:
+            with torch.no_grad():
+                self._photo_grams = (gram(target.reflection), gram(target.transmission))
 
     def _probes(self, tiles) -> tuple[LatticeProbe, tuple[Descriptor, Descriptor]]:
         key = tuple(round(t, 6) for t in tiles)
@@ -86,6 +91,12 @@ class Objective:
             render = describe(downsample_linear(image, size, self.rig.gamma), probe, self.rig.gamma)
             for name, value in descriptor_terms(render, photo).items():
                 out[f"{name}_{tag}"] = getattr(self.weights, name) * value
+            if self.gram is not None:
+                from .gram import gram_loss
+
+                photo_grams = self._photo_grams[0 if tag == "R" else 1]
+                out[f"gram_{tag}"] = self.gram_weight * gram_loss(self.gram(downsample_linear(image, size, self.rig.gamma)),
+                                                                  photo_grams)
         out["prior"] = self.prior_weight * prior_nll(fabric.pattern, fabric.height_scale, fabric.gap_scale)
         out["loss"] = sum(out.values())
         return out

@@ -126,8 +126,11 @@ class Renderer:
         return geometry
 
     # -- rendering ---------------------------------------------------------------------------
-    def radiance(self, fabric: ParamTensors) -> tuple[torch.Tensor, torch.Tensor]:
-        """Linear radiance images (size, size, 3) of the front-lit and back-lit captures."""
+    def radiance(self, fabric: ParamTensors, progress=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Linear radiance images (size, size, 3) of the front-lit and back-lit captures.
+
+        ``progress(done, total)`` is called after each chunk of rows (long renders report through it).
+        """
         key = self.geometry_key(fabric)
         lookup = self._lookup(fabric)
         needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in fabric.values.values())
@@ -142,6 +145,8 @@ class Renderer:
                 r, t = self._evaluate(chunk, geometry, fabric)
             pieces_r.append(r)
             pieces_t.append(t)
+            if progress is not None:
+                progress(len(pieces_r), len(self.ranges))
         return torch.cat(pieces_r, 0), torch.cat(pieces_t, 0)
 
     @property
@@ -179,17 +184,17 @@ class Renderer:
             t = t + (self.glow[chunk.row0:chunk.row1] * open_fraction)[None]
         return r.permute(1, 2, 0), t.permute(1, 2, 0)
 
-    def render(self, fabric: ParamTensors | FabricParams) -> RenderedPair:
+    def render(self, fabric: ParamTensors | FabricParams, progress=None) -> RenderedPair:
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
-        r, t = self.radiance(fabric)
+        r, t = self.radiance(fabric, progress)
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(r, g, c, self.vignette), display_transform(t, g, c, self.vignette), r, t)
 
 
 def render_pair(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4,
-                seed: int = 0, options: RenderOptions = RenderOptions(), device="cpu") -> RenderedPair:
-    """One-shot render (no caching beyond this call), without gradients."""
+                seed: int = 0, options: RenderOptions = RenderOptions(), device="cpu", progress=None) -> RenderedPair:
+    """One-shot render (no caching beyond this call), without gradients; ``progress(done, total)``."""
     renderer = Renderer(rig, size, spp, seed, options, device, cache_samples=0)
     with torch.no_grad():
-        return renderer.render(params)
+        return renderer.render(params, progress)

@@ -1,0 +1,184 @@
+"""Fitting: the lattice, the descriptor, the optimiser, the fit command's contract, the metrics."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from backend import lattice, search
+from backend.features import LatticeProbe, describe, descriptor_terms
+from backend.fit import FitSettings, fit
+from backend.gram import GramDescriptor, GramWeightsError, vgg19_features
+from backend.objective import Objective, Target
+from backend.param_tensors import ParamTensors
+from backend.params import FabricParams
+from backend.priors import typical
+from backend.protocol import decode
+from backend.render import Renderer, render_pair
+from backend.rig import DEFAULT_RIG
+from conftest import ROOT
+
+TWILL = FabricParams.from_interchange(
+    "twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
+    "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
+SCALE = DEFAULT_RIG.view_size / DEFAULT_RIG.plane_size
+ENV = {**os.environ, "WFC_COMPILE": "0"}  # these tests run short fits: a cold compile would dominate
+
+
+@pytest.fixture(scope="module")
+def twill_pair():
+    pair = render_pair(TWILL, size=512, spp=8, seed=3)
+    return pair.reflection.numpy(), pair.transmission.numpy()
+
+
+def test_lattice_reads_the_tiles_from_the_spectrum(twill_pair):
+    candidates = search.propose(*twill_pair, DEFAULT_RIG, ("twill1",))
+    tiles = candidates[0].tiles
+    assert tiles == pytest.approx(TWILL.tiles, rel=0.01)
+
+
+def test_comb_prefers_the_true_spacing_over_its_submultiples(twill_pair):
+    comb = lattice.estimate(list(twill_pair), (25.0, 250.0), (25.0, 250.0))
+    a, b = (t * SCALE for t in TWILL.tiles)
+    # The comb pins the lattice up to small ratios; the pattern signature settles them later.
+    for found, true in ((comb.a, a), (comb.b, b)):
+        assert min(abs(found / (true * r) - 1) for r in lattice.RATIOS) < 0.01
+
+
+def test_harmonic_descriptor_ignores_where_the_weave_sits(twill_pair):
+    image = torch.tensor(twill_pair[0])
+    probe = LatticeProbe(512, *(t * SCALE for t in TWILL.tiles))
+    base = describe(image, probe)
+    shifted = describe(torch.roll(image, shifts=(3, 5), dims=(0, 1)), probe)
+    # A translation changes phases only: magnitudes and the aligned comparison stay put.
+    keep = base.harmonics > 4 * base.floor
+    ratio = (shifted.harmonics[keep] / base.harmonics[keep]).median()
+    assert ratio == pytest.approx(1.0, abs=0.05)
+    terms = descriptor_terms(shifted, base)
+    assert terms["aligned"] < 0.25 * descriptor_terms(describe(image.flip(0), probe), base)["aligned"] + 0.05
+
+
+def test_the_loss_is_lowest_at_the_true_parameters(twill_pair):
+    target = Target.from_arrays(*twill_pair, size=128)
+    objective = Objective(target, Renderer(DEFAULT_RIG, 128, 16, compile=False), DEFAULT_RIG)
+
+    def loss(p):
+        with torch.no_grad():
+            return float(objective(ParamTensors.from_params(p)))
+
+    truth = loss(TWILL)
+    for wrong in (TWILL.replace(thickness=(1.0, 1.2)), TWILL.replace(height_scale=(0.6, 0.7)),
+                  TWILL.replace(gap_scale=(0.7, 0.7)), TWILL.replace(roughness=(0.2, 0.2))):
+        assert loss(wrong) > truth
+
+
+def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
+    settings = FitSettings(pattern="twill1", iterations=6, size=64, spp=4, search_every=3, compile=False)
+    first = fit(*twill_pair, settings=settings)
+    second = fit(*twill_pair, settings=settings)
+    assert first.params == second.params
+    losses = [value for _, value in first.history]
+    assert min(losses) < losses[0]
+    assert first.params.pattern == "twill1"
+
+
+def test_gram_loss_path_with_user_weights(tmp_path, twill_pair):
+    torch.manual_seed(0)
+    weights = tmp_path / "vgg19_random.pt"
+    torch.save({f"features.{k}": v for k, v in vgg19_features().state_dict().items()}, weights)
+    gram = GramDescriptor.load(weights)
+    target = Target.from_arrays(*twill_pair, size=64)
+    objective = Objective(target, Renderer(DEFAULT_RIG, 64, 2, compile=False), DEFAULT_RIG, gram=gram)
+    fabric = ParamTensors.from_params(typical("twill1").replace(tiles=TWILL.tiles), requires_grad=["roughness"])
+    terms = objective.terms(fabric)
+    assert terms["gram_R"] > 0 and torch.isfinite(terms["loss"])
+    terms["loss"].backward()
+    assert torch.isfinite(fabric.roughness.grad).all()
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(b"not a checkpoint")
+    with pytest.raises(GramWeightsError, match="broken.pt: not a readable"):
+        GramDescriptor.load(broken)
+    torch.save({"0.weight": torch.zeros(3)}, tmp_path / "wrong.pt")
+    with pytest.raises(GramWeightsError, match="wrong.pt: not a VGG-19"):
+        GramDescriptor.load(tmp_path / "wrong.pt")
+
+
+def run_fit(*args, **kwargs):
+    return subprocess.run([sys.executable, "-m", "backend", "fit", *args], cwd=ROOT, capture_output=True,
+                          text=True, env=ENV, **kwargs)
+
+
+def test_fit_example_end_to_end(tmp_path):
+    out = tmp_path / "example"
+    result = run_fit("--example", "--out", str(out), "--iterations", "12", "--output-spp", "4", "--json-progress")
+    assert result.returncode == 0, result.stderr[-2000:]
+    events = [decode(line) for line in result.stdout.splitlines()]
+    assert events[0]["event"] == "start" and events[-1]["event"] == "result"
+    stages = {e["stage"] for e in events if e["event"] == "progress"}
+    assert {"load", "search", "optimise", "render", "report"} <= stages
+    assert all(set(e) >= {"stage", "iteration", "total", "loss", "eta_s"} for e in events if e["event"] == "progress")
+    fitted = FabricParams.from_dict(json.loads((out / "params.json").read_text()))
+    assert fitted.pattern == "twill1"
+    assert fitted.tiles == pytest.approx((92.0, 131.0), rel=0.01)
+    metrics = json.loads((out / "metrics.json").read_text())
+    for tag in ("reflection", "transmission"):
+        assert set(metrics["metrics"][tag]) == {"flip", "colour_l1", "spectrum_corr"}
+        assert metrics["metrics"][tag]["colour_l1"] < 0.03
+    for name in ("reflection.png", "transmission.png", "report.png"):
+        assert (out / name).stat().st_size > 1000
+    # A second fit into the same folder is refused: nothing is lost.
+    again = run_fit("--example", "--out", str(out))
+    assert again.returncode == 2 and "already holds a fit" in again.stderr
+
+
+def test_fit_cancel_keeps_the_best_so_far(tmp_path):
+    out = tmp_path / "cancel"
+    proc = subprocess.Popen([sys.executable, "-m", "backend", "fit", "--example", "--out", str(out), "--pattern",
+                             "twill1", "--iterations", "400", "--json-progress"], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stdout:
+        lines.append(decode(line))
+        if lines[-1].get("stage") == "optimise" and lines[-1]["iteration"] >= 2:
+            proc.send_signal(signal.SIGTERM)
+            break
+    rest, _ = proc.communicate(timeout=120)
+    lines += [decode(line) for line in rest.splitlines()]
+    assert proc.returncode == 130
+    assert lines[-1]["event"] == "error" and lines[-1]["kind"] == "cancelled"
+    partial = FabricParams.from_dict(json.loads((out / "params.partial.json").read_text()))
+    assert partial.pattern == "twill1"
+
+
+def test_fit_bad_photos_are_clear_errors(tmp_path):
+    good = tmp_path / "good_R.png"
+    bad = tmp_path / "bad_T.png"
+    import cv2
+
+    cv2.imwrite(str(good), np.full((512, 512, 3), 128, np.uint8))
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n broken")
+    result = run_fit(str(good), str(bad), "--out", str(tmp_path / "o"), "--json-progress")
+    assert result.returncode == 2
+    error = decode(result.stdout.splitlines()[-1])
+    assert error["event"] == "error" and error["kind"] == "input" and "bad_T.png" in error["message"]
+    missing = run_fit(str(good), str(tmp_path / "nothing.png"), "--out", str(tmp_path / "o2"))
+    assert missing.returncode == 2 and "nothing.png" in missing.stderr and "Traceback" not in missing.stderr
+
+
+def test_metrics_match_the_team_checker(shared_tools, twill_pair):
+    sys.path.insert(0, str(shared_tools))
+    try:
+        import imagemetrics
+    finally:
+        sys.path.remove(str(shared_tools))
+    from backend import metrics
+
+    photo, render = twill_pair[0], np.clip(twill_pair[0] * 0.9 + 0.03, 0, 1)
+    assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
+    assert metrics.colour_l1(photo, render) == pytest.approx(imagemetrics.downsample_l1(photo, render), rel=1e-6)
+    assert metrics.spectrum_corr(photo, render) == pytest.approx(imagemetrics.spectrum_corr(photo, render), rel=1e-6)

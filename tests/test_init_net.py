@@ -1,0 +1,146 @@
+"""The initialisation network: shipped weights, features, predictions, dataset and training (fast)."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from backend import dataset, init_net, lattice, priors, train
+from backend.params import PARAMETERS, FabricParams
+from backend.render import render_pair
+from backend.rig import DEFAULT_RIG
+from backend.search import Candidate
+
+TINY = dataset.DatasetSettings(size=32, spp=1, seed=3)
+
+
+@pytest.fixture(scope="module")
+def small_pair():
+    params = priors.typical("twill1")
+    pair = render_pair(params, DEFAULT_RIG, size=96, spp=1, seed=0)
+    return pair.reflection.numpy(), pair.transmission.numpy()
+
+
+@pytest.fixture(scope="module")
+def trivial_signatures():
+    """A one-harmonic signature per preset: the dataset's mechanics, without measuring the real ones."""
+    one = lattice.Signature(np.array([1]), np.array([0]), np.array([1.0]))
+    return {p: [one, one] for p in priors.PATTERNS}
+
+
+def _in_range(params: FabricParams) -> bool:
+    for spec in PARAMETERS:
+        if not all(spec.lo <= x <= spec.hi for x in params.flat(spec.name)):
+            return False
+    return True
+
+
+def test_shipped_weights_load_with_weights_only_and_are_small():
+    path = init_net.DEFAULT_WEIGHTS
+    assert path.is_file(), f"{path} is missing: run `python -m backend train DATASET --out {path}`"
+    assert path.stat().st_size < 20e6
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    header = json.loads(blob["header"])
+    assert header["feature_version"] == init_net.FEATURE_VERSION
+    assert header["feature_dim"] == init_net.FEATURE_DIM
+    assert init_net.InitModel.load(path).info["targets"] == list(init_net.TARGETS)
+
+
+def test_features_are_finite_and_sized(small_pair):
+    pair = init_net.WorkingPair.from_images(*small_pair)
+    assert pair.reflection.shape == (init_net.WORK_SIZE, init_net.WORK_SIZE, 3)
+    for pattern in priors.PATTERNS:
+        features = init_net.candidate_features(pair, pattern, priors.typical(pattern).tiles, DEFAULT_RIG)
+        assert features.shape == (init_net.FEATURE_DIM,)
+        assert torch.isfinite(features).all()
+    black = init_net.WorkingPair.from_images(np.zeros((64, 64, 3)), np.zeros((64, 64, 3)))
+    assert torch.isfinite(init_net.candidate_features(black, "plain", (173.0, 173.0), DEFAULT_RIG)).all()
+
+
+def test_one_prediction_per_preset_candidate_is_valid(small_pair):
+    hook = init_net.initialiser(*small_pair, DEFAULT_RIG)
+    for pattern in priors.PATTERNS:
+        tiles = priors.typical(pattern).tiles
+        guess = hook(Candidate(pattern, tiles, 0.0))
+        assert isinstance(guess, FabricParams) and guess.pattern == pattern
+        assert guess.tiles == pytest.approx(tiles) and guess.noise == 0.0
+        assert guess.twist_deg == priors.typical(pattern).twist_deg
+        assert _in_range(guess)
+    model = init_net.load_model()
+    cands = [Candidate(p, priors.typical(p).tiles, 0.0) for p in priors.PATTERNS]
+    probabilities = [p for _, p in model.guesses(init_net.WorkingPair.from_images(*small_pair), cands, DEFAULT_RIG)]
+    assert sum(probabilities) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_target_vector_round_trip():
+    params = priors.sample("satin0", __import__("random").Random(5))
+    again = init_net.params_from_vector(init_net.target_vector(params), "satin0", params.tiles)
+    for name in init_net.TARGETS:
+        assert again.flat(name) == pytest.approx(params.flat(name), abs=1e-5)
+
+
+def test_fit_initialiser_falls_back_to_the_prior_with_a_warning(small_pair, tmp_path):
+    warnings = []
+    assert init_net.fit_initialiser("prior", *small_pair, DEFAULT_RIG, warnings.append) is None
+    assert init_net.fit_initialiser("network", *small_pair, DEFAULT_RIG, warnings.append,
+                                    path=tmp_path / "missing.pt") is None
+    assert len(warnings) == 1 and "missing" in warnings[0]
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(b"not a checkpoint")
+    assert init_net.fit_initialiser("network", *small_pair, DEFAULT_RIG, warnings.append, path=broken) is None
+    assert len(warnings) == 2
+    assert callable(init_net.fit_initialiser("network", *small_pair, DEFAULT_RIG, warnings.append))
+
+
+def test_fit_command_defaults_to_the_network():
+    import argparse
+
+    from backend.fit_command import add_parser
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    assert parser.parse_args(["fit", "--out", "x"]).init == "network"
+    assert parser.parse_args(["fit", "--out", "x", "--init", "prior"]).init == "prior"
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory, trivial_signatures):
+    folder = tmp_path_factory.mktemp("dataset")
+    made = dataset.generate(folder, 1, settings=TINY, compile=False, patterns=("plain", "satin0"),
+                            signatures=trivial_signatures, log=open("/dev/null", "w"))
+    assert made == 2
+    return folder
+
+
+def test_dataset_is_deterministic_and_resumable(tiny_dataset, tmp_path, trivial_signatures):
+    first = {p.name: p.read_bytes() for p in tiny_dataset.glob("*.npz")}
+    assert sorted(first) == ["plain_00000.npz", "satin0_00000.npz"]
+    # Resume: a finished folder makes nothing; a missing item is remade with the same bytes.
+    quiet = open("/dev/null", "w")
+    assert dataset.generate(tiny_dataset, 1, settings=TINY, compile=False, patterns=("plain", "satin0"),
+                            signatures=trivial_signatures, log=quiet) == 0
+    (tmp_path / "again").mkdir()
+    (tmp_path / "again" / "plain_00000.npz").write_bytes(first["plain_00000.npz"])
+    assert dataset.generate(tmp_path / "again", 1, settings=TINY, compile=False, patterns=("plain", "satin0"),
+                            signatures=trivial_signatures, log=quiet) == 1
+    assert {p.name: p.read_bytes() for p in (tmp_path / "again").glob("*.npz")} == first
+    with pytest.raises(ValueError, match="other settings"):
+        dataset.generate(tiny_dataset, 1, settings=dataset.DatasetSettings(size=32, spp=2, seed=3),
+                         compile=False, patterns=("plain", "satin0"), signatures=trivial_signatures, log=quiet)
+    item = dataset.read_item(tiny_dataset / "satin0_00000.npz")
+    assert item["features"].shape == (6, init_net.FEATURE_DIM) and np.isfinite(item["features"]).all()
+    assert int(item["pattern"]) == priors.PATTERNS.index("satin0")
+    truth = FabricParams.from_interchange(str(item["params"]))
+    assert item["tiles"][-1] == pytest.approx(truth.tiles)
+    assert item["target"] == pytest.approx(init_net.target_vector(truth))
+
+
+def test_a_tiny_training_run_reduces_its_loss(tiny_dataset):
+    arrays = train.load_arrays(tiny_dataset, log=open("/dev/null", "w"))
+    net, info = train.train(arrays, train.TrainSettings(batch=2, lr=3e-3, dropout=0.0), log=open("/dev/null", "w"),
+                            steps=40)
+    assert info["train"]["loss"] < 0.5 * info["initial_train"]["loss"]
+    path = init_net.save(net, tiny_dataset / "net.pt", {"training": info})
+    model = init_net.InitModel.load(path)
+    targets, logits = model.predict(arrays.features[:, :5])
+    assert targets.shape == (2, 5, init_net.TARGET_SIZE) and logits.shape == (2, 5)
