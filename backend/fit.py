@@ -4,7 +4,8 @@ Stages (each reported through ``progress(stage, iteration, total, loss, eta_s)``
 
 1. *search*: one (pattern, tiles) candidate per preset from the photos' spectra
    (:mod:`backend.search`); every candidate starts from its pattern's typical parameters (or a given
-   initial guess) with colours matched to the photos, and the best ``trials`` of them (by that
+   initial guess) with colours matched to the photos (candidates an initialisation network rates
+   below ``min_pattern_probability`` are dropped first), and the best ``trials`` of them (by that
    starting loss) get a short fit. The pattern is chosen by comparing those fits: trial loss plus
    ``spectrum_weight`` x (1 - correlation of the log power spectra of render and photo). The loss
    reads harmonics at each candidate's own lattice, so a lattice twice too coarse would not be
@@ -62,6 +63,7 @@ class FitSettings:
     trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
+    min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
     search_every: int = 25
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
@@ -80,6 +82,11 @@ class FitResult:
     candidates: list[dict]
     history: list[tuple[int, float]]
     timings: dict[str, float] = field(default_factory=dict)
+
+
+def _number(value) -> float:
+    """A loss term as a float (a tensor is detached first: it may carry the graph)."""
+    return float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
 
 
 def _colour_matched(params: FabricParams, objective: Objective) -> FabricParams:
@@ -164,12 +171,12 @@ class _Run:
         loss = terms["loss"]
         value = float(loss.detach())
         if not math.isfinite(value):
-            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(float(v.detach() if hasattr(v, "detach") else v)))
+            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(_number(v)))
             raise FloatingPointError(f"the fit's loss is not finite ({bad}) at {self.fabric.to_params().to_interchange()}")
         loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
             self.best_loss, self.best = value, self.fabric.to_params()
-            self.best_terms = {k: float(v) for k, v in terms.items()}
+            self.best_terms = {k: _number(v) for k, v in terms.items()}
         self.optimiser.step()
         self.fabric.clamp_()
         self.history.append((self.step_count, value))
@@ -227,11 +234,14 @@ class _Run:
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
         settings: FitSettings = FitSettings(), progress: Progress | None = None,
         initial_for: Callable[[Candidate], FabricParams | None] | None = None,
+        pattern_probabilities: Callable[[list[Candidate]], list[float] | None] | None = None,
         should_stop: Callable[[], bool] | None = None) -> FitResult:
     """Fits parameters to a photo pair (display-space float arrays (N, N, 3) in [0, 1]).
 
     ``initial_for(candidate)`` may give the starting parameters of a (pattern, tiles) candidate (the
     initialisation network does); None, or no callback, starts from the pattern's typical values.
+    ``pattern_probabilities(candidates)`` may rate the candidates (the network's pattern softmax):
+    those below ``settings.min_pattern_probability`` are dropped before the trial fits.
     """
     started = time.perf_counter()
     timings: dict[str, float] = {}
@@ -257,6 +267,16 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     found = propose(reflection, transmission, rig, patterns, per_pattern=1)
     if not found:
         found = [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
+    ruled_out, rated = [], {}
+    if pattern_probabilities is not None and len(found) > 1:
+        probabilities = pattern_probabilities(found)
+        if probabilities is not None:
+            rated = {id(c): p for c, p in zip(found, probabilities)}
+            kept = [c for c, p in zip(found, probabilities) if p >= settings.min_pattern_probability]
+            ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score,
+                          "probability": p} for c, p in zip(found, probabilities)
+                         if p < settings.min_pattern_probability]
+            found = kept or [found[int(np.argmax(probabilities))]]
     timings["lattice_s"] = time.perf_counter() - started
     starts = []
     for k, cand in enumerate(found):
@@ -287,7 +307,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         runs.append(run)
         summary.append({"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
                         "start_loss": loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
-                        "selection": run.selection})
+                        "selection": run.selection, "probability": rated.get(id(cand))})
+    summary += ruled_out
     best_run = min(runs, key=lambda r: (r.selection, runs.index(r)))
     timings["search_s"] = time.perf_counter() - started
 

@@ -132,7 +132,9 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
-                 initial_for=initial_for, should_stop=should_stop)
+                 initial_for=initial_for,
+                 pattern_probabilities=initial_for.pattern_probabilities if initial_for is not None else None,
+                 should_stop=should_stop)
 
     reporter.progress("render", 0, 1)
     def render_progress(done, total):

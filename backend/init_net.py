@@ -37,8 +37,9 @@ feature version and sizes, so a file that does not match this code is refused ra
 ``python -m backend train`` reproduces it from ``python -m backend dataset`` (:mod:`backend.train`,
 :mod:`backend.dataset`).
 
-Use in the fit: :func:`initialiser` (or :func:`initial_guess`) is the ``initial_for`` hook of
-:func:`backend.fit.fit`.
+Use in the fit: :class:`NetworkStart` is the ``initial_for`` hook of :func:`backend.fit.fit`, and its
+``pattern_probabilities`` the fit's ``pattern_probabilities`` hook: candidates the network gives
+less than ``FitSettings.min_pattern_probability`` get no trial fit.
 """
 from __future__ import annotations
 
@@ -274,21 +275,31 @@ def load_model(path: str = str(DEFAULT_WEIGHTS)) -> InitModel:
     return InitModel.load(path)
 
 
-def initialiser(reflection, transmission, rig: CaptureRig, model: InitModel | None = None
-                ) -> Callable[[object], FabricParams | None]:
-    """The fit's ``initial_for`` hook for one photo pair: candidate -> network guess.
+class NetworkStart:
+    """The network's starts for one photo pair: the fit's ``initial_for`` hook (candidate -> guess)
+    and its ``pattern_probabilities`` hook (candidates -> softmax of their plausibility logits)."""
 
-    Custom weaves (not one of the presets the network knows) get None (the fit's prior start).
-    """
-    model = model or load_model()
-    pair = WorkingPair.from_images(reflection, transmission, rig.gamma)
+    def __init__(self, reflection, transmission, rig: CaptureRig, model: InitModel | None = None):
+        self.model = model or load_model()
+        self.rig = rig
+        self.pair = WorkingPair.from_images(reflection, transmission, rig.gamma)
 
-    def initial_for(candidate) -> FabricParams | None:
+    def __call__(self, candidate) -> FabricParams | None:
+        """Custom weaves (not one of the presets the network knows) get None (the fit's prior start)."""
         if candidate.pattern not in PATTERNS:
             return None
-        return model.guess(pair, candidate.pattern, candidate.tiles, rig)
+        return self.model.guess(self.pair, candidate.pattern, candidate.tiles, self.rig)
 
-    return initial_for
+    def pattern_probabilities(self, candidates: Sequence) -> list[float] | None:
+        """One probability per candidate; None when a candidate is not a preset (no opinion)."""
+        if not candidates or any(c.pattern not in PATTERNS for c in candidates):
+            return None
+        return [p for _, p in self.model.guesses(self.pair, candidates, self.rig)]
+
+
+def initialiser(reflection, transmission, rig: CaptureRig, model: InitModel | None = None) -> NetworkStart:
+    """The fit's ``initial_for`` hook for one photo pair (with its ``pattern_probabilities``)."""
+    return NetworkStart(reflection, transmission, rig, model)
 
 
 def initial_guess(reflection, transmission, rig: CaptureRig, candidate) -> FabricParams:
@@ -305,7 +316,7 @@ INIT_CHOICES = ("network", "prior")
 
 
 def fit_initialiser(mode: str, reflection, transmission, rig: CaptureRig, warn: Callable[[str], None],
-                    path: str | Path = DEFAULT_WEIGHTS) -> Callable[[object], FabricParams | None] | None:
+                    path: str | Path = DEFAULT_WEIGHTS) -> NetworkStart | None:
     """The ``initial_for`` hook for ``fit --init MODE``: the network's, or None (the prior's start).
 
     With ``network``, weights that are missing or do not load give a warning through ``warn`` and

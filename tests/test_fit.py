@@ -87,6 +87,23 @@ def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
     assert first.params.pattern == "twill1"
 
 
+def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):
+    settings = FitSettings(iterations=2, trial_iterations=2, size=64, spp=4, search_every=0, compile=False)
+    rated = []
+
+    def probabilities(candidates):
+        rated.extend(c.pattern for c in candidates)
+        return [0.96 if c.pattern == "satin0" else 0.01 for c in candidates]
+
+    result = fit(*twill_pair, settings=settings, pattern_probabilities=probabilities)
+    assert sorted(rated) == sorted(["plain", "twill0", "twill1", "satin0", "satin1"])
+    tried = [c for c in result.candidates if "trial_loss" in c]
+    assert [c["pattern"] for c in tried] == ["satin0"] and tried[0]["probability"] == 0.96
+    assert sorted(c["pattern"] for c in result.candidates if "trial_loss" not in c) == \
+        ["plain", "satin1", "twill0", "twill1"]
+    assert result.params.pattern == "satin0"  # the network's word decides: no trial to overrule it
+
+
 def test_gram_loss_path_with_user_weights(tmp_path, twill_pair):
     torch.manual_seed(0)
     weights = tmp_path / "vgg19_random.pt"

@@ -70,6 +70,8 @@ def test_one_prediction_per_preset_candidate_is_valid(small_pair):
     cands = [Candidate(p, priors.typical(p).tiles, 0.0) for p in priors.PATTERNS]
     probabilities = [p for _, p in model.guesses(init_net.WorkingPair.from_images(*small_pair), cands, DEFAULT_RIG)]
     assert sum(probabilities) == pytest.approx(1.0, abs=1e-5)
+    assert hook.pattern_probabilities(cands) == pytest.approx(probabilities)
+    assert hook.pattern_probabilities(cands[:1] + [Candidate("custom", (100.0, 100.0), 0.0)]) is None
 
 
 def test_target_vector_round_trip():
