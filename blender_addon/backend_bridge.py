@@ -100,6 +100,7 @@ class FitRequest:
     size: int | None = None
     device: str | None = None
     rig_json: Path | None = None
+    output_spp: int | None = None   # samples per pixel of the fit's re-renders (backend default: 64)
 
     def arguments(self) -> list[str]:
         if self.pattern not in PATTERNS:
@@ -109,7 +110,8 @@ class FitRequest:
         args = ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir),
                 "--pattern", self.pattern, "--json-progress"]
         for flag, value in (("--iterations", self.iterations), ("--size", self.size),
-                            ("--device", self.device), ("--rig", self.rig_json)):
+                            ("--device", self.device), ("--rig", self.rig_json),
+                            ("--output-spp", self.output_spp)):
             if value is not None:
                 args += [flag, str(value)]
         return args

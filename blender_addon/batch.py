@@ -58,6 +58,7 @@ class BatchOptions:
     width_cm: float | None = None
     timeout_s: float | None = None
     overwrite: bool = False
+    output_spp: int | None = None
 
 
 def run_batch(folder: str | Path, library: str | Path | None = None, *, backend: backend_bridge.Backend,
@@ -125,7 +126,8 @@ def _fit_pair(pair, backend, options, rig, fits_parent, prefix, log):
     out_dir = captures.new_run_folder(fits_parent, pair.name)
     request = backend_bridge.FitRequest(pair.reflection, pair.transmission, out_dir, pattern=options.pattern,
                                         iterations=options.iterations, size=options.size, device=options.device,
-                                        rig_json=captures.write_rig_json(out_dir, rig))
+                                        rig_json=captures.write_rig_json(out_dir, rig),
+                                        output_spp=options.output_spp)
     fit = backend_bridge.FitProcess.fit(backend, request, log_path=out_dir / "backend.log").start()
     last_stage = [None]
 
@@ -168,6 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--iterations", type=int)
     parser.add_argument("--size", type=int)
     parser.add_argument("--device", choices=backend_bridge.DEVICES)
+    parser.add_argument("--output-spp", type=int, help="samples per pixel of each fit's re-renders "
+                                                       "(default: the backend's, 64; fewer for quick previews)")
     parser.add_argument("--rig", type=Path, help="RIG.json (CaptureRig settings; default: the spec's rig)")
     parser.add_argument("--width-cm", type=float, help="real width of the photographed square in centimetres")
     parser.add_argument("--timeout", type=float, help="seconds allowed per pair (default: no limit)")
@@ -188,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         backend = _backend(args)
         options = BatchOptions(args.pattern, args.iterations, args.size, args.device, args.rig, args.width_cm,
-                               args.timeout, args.overwrite)
+                               args.timeout, args.overwrite, args.output_spp)
         if not Path(args.folder).is_dir():
             raise ValueError(f"{args.folder}: not a folder")
         report = run_batch(args.folder, args.out, backend=backend, options=options, fits_parent=args.fits)

@@ -149,6 +149,7 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int)
     p.add_argument("--device")
     p.add_argument("--rig")
+    p.add_argument("--output-spp", type=int)
     p.add_argument("--json-progress", action="store_true")
     args = parser.parse_args(argv)
     return fit(args)

@@ -11,6 +11,7 @@ to run the real ``python -m backend fit`` instead (slower: give it --iterations/
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import struct
 import subprocess
@@ -20,6 +21,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.blender
@@ -405,3 +407,54 @@ def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
         print("DRAPE OK")
     """)
     assert "DRAPE OK" in output
+
+
+@needs_bpy
+@pytest.mark.slow
+def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_engines(tmp_path, extension_zip):
+    """The whole chain, no fake: the zip installed into bpy runs its *bundled* backend on a small
+    synthetic pair, the node group holds the fitted values, Cycles (OSL) and EEVEE render them."""
+    from backend.images import write_png as write_png16
+    from backend.params import FabricParams
+    from backend.render import render_pair
+
+    truth = FabricParams.from_interchange(
+        "twill1_R_0.6,0.5_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
+        "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
+    pair = render_pair(truth, size=256, spp=4, seed=1)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    write_png16(photos / "cotton_R.png", pair.reflection.numpy())
+    write_png16(photos / "cotton_T.png", pair.transmission.numpy())
+    library = tmp_path / "cotton.blend"
+    output = run_bpy(tmp_path, extension_zip, f"""
+        import numpy as np
+        code = registered_commands["fabric_fit"]([{str(photos)!r}, "--out", {str(library)!r}, "--pattern", "twill1",
+                                                  "--iterations", "4", "--size", "64", "--output-spp", "4",
+                                                  "--width-cm", "5"])
+        assert code == 0, code
+        bpy.ops.wm.open_mainfile(filepath={str(library)!r})
+        material = bpy.data.materials["cotton"]
+        assert material.asset_data is not None
+        print("VALUES", json.dumps(ext.node_group.read_params(material)))
+        means = {{}}
+        for engine, osl in (("CYCLES", True), ("BLENDER_EEVEE", False)):
+            scene = ext.rig_scene.build_scene(material, size=16, samples=1, osl=osl, scene=bpy.data.scenes.new(engine),
+                                              threads=1)
+            scene.render.engine = engine
+            image = ext.rig_scene.render_linear(scene, "front")[..., :3]
+            assert np.isfinite(image).all(), engine
+            means[engine] = float(image.mean())
+        print("MEANS", json.dumps(means))
+    """, WOVEN_FABRIC_BACKEND_SCRIPT="", WFC_COMPILE="0")
+    lines = {line.split(" ", 1)[0]: json.loads(line.split(" ", 1)[1]) for line in output.splitlines()
+             if line.startswith(("VALUES ", "MEANS "))}
+    fitted = json.loads((photos / "fabric_fits" / "cotton_001" / "params.json").read_text())
+    in_blender = lines["VALUES"]
+    assert in_blender["pattern"] == fitted["pattern"] == "twill1"
+    for name, value in FabricParams.from_dict(fitted).to_dict().items():
+        if name != "pattern":
+            assert np.ravel(in_blender[name]) == pytest.approx(np.ravel(value), rel=1e-4, abs=1e-5), name
+    assert in_blender["tiles"] == pytest.approx(truth.tiles, rel=0.02)  # the lattice, through the whole chain
+    assert min(lines["MEANS"].values()) > 1e-3, lines["MEANS"]
+
