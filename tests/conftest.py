@@ -17,7 +17,11 @@ if str(ROOT) not in sys.path:
 
 
 def _require_shared(*parts: str) -> Path:
-    path = SHARED.joinpath(*parts)
+    return require_path(SHARED.joinpath(*parts))
+
+
+def require_path(path: Path) -> Path:
+    """A shared file or folder, or a failure (a skip with the reason under WFC_ALLOW_NO_SHARED=1)."""
     if not path.exists():
         message = f"{path} is missing: the shared data must sit beside the checkout (../shared)"
         if os.environ.get("WFC_ALLOW_NO_SHARED") == "1":

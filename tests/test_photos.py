@@ -21,6 +21,7 @@ import pytest  # noqa: E402
 
 from backend import photos  # noqa: E402
 from backend.photos import PhotoError, load_pair, load_photo, read_image  # noqa: E402
+from conftest import require_path  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 REAL = SHARED / "data" / "real"
@@ -546,14 +547,7 @@ def test_pair_shared_crop_and_flat_fields(tmp_path):
 
 # -- pair checks: real photos, golden renders, a fresh render -----------------------------------------
 
-def need(path: Path) -> Path:
-    """The shared file, or a failure (a skip with the reason under WFC_ALLOW_NO_SHARED=1, as in conftest)."""
-    if not path.exists():
-        message = f"{path} is missing: the shared data must sit beside the checkout (../shared)"
-        if os.environ.get("WFC_ALLOW_NO_SHARED") == "1":
-            pytest.skip(message)
-        pytest.fail(message)
-    return path
+need = require_path  # the shared file, or a failure (see conftest)
 
 
 @pytest.mark.parametrize("name", REAL_PAIRS)
