@@ -413,7 +413,7 @@ def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
 @pytest.mark.slow
 def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_engines(tmp_path, extension_zip):
     """The whole chain, no fake: the zip installed into bpy runs its *bundled* backend on a small
-    synthetic pair, the node group holds the fitted values, Cycles (OSL) and EEVEE render them."""
+    synthetic 512-px pair, the node group holds the fitted values, Cycles (OSL) and EEVEE render them."""
     from backend.images import write_png as write_png16
     from backend.params import FabricParams
     from backend.render import render_pair
@@ -421,7 +421,7 @@ def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_e
     truth = FabricParams.from_interchange(
         "twill1_R_0.6,0.5_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
         "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
-    pair = render_pair(truth, size=256, spp=4, seed=1)
+    pair = render_pair(truth, size=512, spp=4, seed=1)  # a 256-px photo would alias this yarn density
     photos = tmp_path / "photos"
     photos.mkdir()
     write_png16(photos / "cotton_R.png", pair.reflection.numpy())
@@ -430,19 +430,20 @@ def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_e
     output = run_bpy(tmp_path, extension_zip, f"""
         import numpy as np
         code = registered_commands["fabric_fit"]([{str(photos)!r}, "--out", {str(library)!r}, "--pattern", "twill1",
-                                                  "--iterations", "4", "--size", "64", "--output-spp", "4",
+                                                  "--iterations", "4", "--size", "256", "--output-spp", "4",
                                                   "--width-cm", "5"])
         assert code == 0, code
         bpy.ops.wm.open_mainfile(filepath={str(library)!r})
         material = bpy.data.materials["cotton"]
         assert material.asset_data is not None
         print("VALUES", json.dumps(ext.node_group.read_params(material)))
+        rig_scene = importlib.import_module(ext.__name__ + ".rig_scene")
         means = {{}}
         for engine, osl in (("CYCLES", True), ("BLENDER_EEVEE", False)):
-            scene = ext.rig_scene.build_scene(material, size=16, samples=1, osl=osl, scene=bpy.data.scenes.new(engine),
+            scene = rig_scene.build_scene(material, size=16, samples=1, osl=osl, scene=bpy.data.scenes.new(engine),
                                               threads=1)
             scene.render.engine = engine
-            image = ext.rig_scene.render_linear(scene, "front")[..., :3]
+            image = rig_scene.render_linear(scene, "front")[..., :3]
             assert np.isfinite(image).all(), engine
             means[engine] = float(image.mean())
         print("MEANS", json.dumps(means))
