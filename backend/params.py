@@ -295,12 +295,20 @@ def _short(x: float) -> str:
     return repr(float(x))
 
 
+def _is_file(path) -> bool:
+    """``path.is_file()``, False where the text cannot be a path (a long interchange string)."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def load_params(source: str) -> FabricParams:
     """Reads parameters from a JSON file path or an interchange string."""
     import pathlib
 
     path = pathlib.Path(source)
-    if source.endswith(".json") or path.is_file():
+    if source.endswith(".json") or _is_file(path):
         try:
             text = path.read_text()
         except OSError as exc:

@@ -138,3 +138,15 @@ def test_declaration_shapes_match_the_dataclass():
     for spec in PARAMETERS:
         assert len(p.flat(spec.name)) == spec.size, spec.name
         assert spec.lo < spec.hi
+
+
+def test_load_params_reads_a_full_precision_interchange_string_longer_than_a_file_name():
+    # A fit's interchange string carries float32 values at full precision: well over the 255 bytes a
+    # file name may have, so asking the file system about it must not be an error.
+    p = FabricParams.clamped_from(pattern="twill0", roughness=(0.6742228865623474, 0.1234567890123),
+                                  tiles=(125.31483459472656, 63.829593658447266),
+                                  thickness=(2.3999743461608887, 1.2345678901234),
+                                  diffuse_reflection=(0.3424746096134186, 0.31826329231262207, 0.1652661710))
+    text = p.to_interchange()
+    assert len(text) > 255
+    assert load_params(text) == p
