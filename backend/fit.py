@@ -18,7 +18,10 @@ Stages (each reported through ``progress(stage, iteration, total, loss, eta_s)``
    evaluate x - d, x, x + d, move to the parabola's minimum if that lowers the loss (a better
    use of evaluations than the paper's random +/- steps). Tiles come from the lattice, which pins
    them to a fraction of a percent, and stay fixed.
-3. the best parameters seen are returned (with the loss history and timings).
+   The camera's blur (the rig's ``camera_blur_px``: a phone photo is softer than a sharp render,
+   and without it the fit washes the yarns out to match) is scanned once before the trial fits and
+   takes the same parabolic step in every round, unless the settings fix it.
+3. the best parameters seen are returned (with the camera blur, the loss history and timings).
 
 Everything is deterministic for a given input, settings and seed (fixed jitter, no random steps).
 """
@@ -38,7 +41,7 @@ from .objective import Objective, Target
 from .param_tensors import ParamTensors
 from .params import PARAMETERS, SPECS, FabricParams
 from .render import Renderer
-from .rig import CaptureRig
+from .rig import MAX_CAMERA_BLUR_PX, CaptureRig
 from .search import Candidate, propose
 
 OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
@@ -72,6 +75,7 @@ class FitSettings:
     compile: bool | None = None      # None: torch.compile where a C++ compiler is found
     vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
     gram_weight: float = 1.0
+    camera_blur: float | None = None  # film pixels; None: estimated from the photos
 
 
 @dataclass
@@ -82,6 +86,7 @@ class FitResult:
     candidates: list[dict]
     history: list[tuple[int, float]]
     timings: dict[str, float] = field(default_factory=dict)
+    camera_blur_px: float = 0.0
 
 
 def _number(value) -> float:
@@ -115,6 +120,19 @@ def _colour_matched(params: FabricParams, objective: Objective) -> FabricParams:
 
 
 GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
+BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
+
+
+def _best_blur(params: FabricParams, objective: Objective, device) -> float:
+    """The camera blur among BLUR_SCAN with the lowest loss for ``params`` (set on the renderer)."""
+    fabric = ParamTensors.from_params(params, device)
+    losses = []
+    for blur in BLUR_SCAN:
+        objective.renderer.camera_blur_px = blur
+        with torch.no_grad():
+            losses.append(float(objective(fabric)))
+    objective.renderer.camera_blur_px = BLUR_SCAN[int(np.argmin(losses))]
+    return objective.renderer.camera_blur_px
 
 
 def _best_gap(params: FabricParams, objective: Objective, device) -> tuple[float, FabricParams]:
@@ -154,6 +172,8 @@ class _Run:
         self.step_count = 0
         self.best_loss = math.inf
         self.best = params
+        self.best_blur = objective.renderer.camera_blur_px
+        self.estimate_blur = settings.camera_blur is None
         self.best_terms: dict[str, float] = {}
         self.history: list[tuple[int, float]] = []
         self.selection = math.inf
@@ -176,6 +196,7 @@ class _Run:
         loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
             self.best_loss, self.best = value, self.fabric.to_params()
+            self.best_blur = self.objective.renderer.camera_blur_px
             self.best_terms = {k: _number(v) for k, v in terms.items()}
         self.optimiser.step()
         self.fabric.clamp_()
@@ -227,8 +248,29 @@ class _Run:
                     with torch.no_grad():
                         values[yarn] = min(spec.hi, max(spec.lo, x + best_dx))
                     current = best_val
+        if self.estimate_blur:
+            current = self._blur_step(current, 0.4 / 2 ** round_index)
         if current < self.best_loss:
             self.best_loss, self.best = current, self.fabric.to_params()
+            self.best_blur = self.objective.renderer.camera_blur_px
+
+    def _blur_step(self, current: float, span: float) -> float:
+        """The parabolic step of the discrete parameters, on the renderer's camera blur."""
+        renderer = self.objective.renderer
+        x = renderer.camera_blur_px
+
+        def loss_at(blur):
+            renderer.camera_blur_px = min(MAX_CAMERA_BLUR_PX, max(0.0, blur))
+            return self.evaluate(self.fabric)
+
+        lo, hi = loss_at(x - span), loss_at(x + span)
+        curvature = lo + hi - 2 * current
+        step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
+        step = max(-2 * span, min(2 * span, step))
+        tried = [(current, 0.0), (lo, -span), (hi, span), (loss_at(x + step), step)]
+        best, dx = min(tried, key=lambda t: t[0])
+        renderer.camera_blur_px = min(MAX_CAMERA_BLUR_PX, max(0.0, x + dx))
+        return best
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -292,6 +334,14 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         progress("search", k + 1, len(found), loss, None)
         check_stop(None)
     starts.sort(key=lambda t: (t[0], t[1]))
+    if settings.camera_blur is None:
+        _best_blur(starts[0][3], objective, device)
+        if len(starts) > 1:  # the starting losses change with the blur: rank the candidates again
+            with torch.no_grad():
+                starts = sorted(((float(objective(ParamTensors.from_params(p, device))), k, c, p)
+                                 for _, k, c, p in starts), key=lambda t: (t[0], t[1]))
+    else:
+        renderer.camera_blur_px = settings.camera_blur
     shortlisted = starts[: max(1, settings.trials)]
     runs, summary = [], []
     total = settings.iterations + settings.trial_iterations
@@ -330,4 +380,4 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         progress("optimise", done, settings.iterations, value, eta)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["total_s"] = time.perf_counter() - started
-    return FitResult(run.best, run.best_loss, run.best_terms, summary, run.history, timings)
+    return FitResult(run.best, run.best_loss, run.best_terms, summary, run.history, timings, run.best_blur)

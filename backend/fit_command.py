@@ -16,6 +16,8 @@ without --overwrite.
 """
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import json
 import signal
 import time
@@ -29,7 +31,7 @@ from .gram import GramWeightsError
 from .params import FabricParams
 from .photos import PhotoError, load_pair
 from .protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
-from .rig import DEFAULT_RIG, CaptureRig, RigError
+from .rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig, RigError
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
@@ -126,7 +128,8 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     reporter.progress("load", 1, 1)
 
     settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
-                           device=args.device, vgg_weights=args.vgg_weights)
+                           device=args.device, vgg_weights=args.vgg_weights,
+                           camera_blur=None if args.camera_blur == "auto" else float(args.camera_blur))
     from .init_net import fit_initialiser
 
     initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
@@ -136,7 +139,9 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
                  pattern_probabilities=initial_for.pattern_probabilities if initial_for is not None else None,
                  should_stop=should_stop)
 
+    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4))  # re-renders, params.json
     reporter.progress("render", 0, 1)
+
     def render_progress(done, total):
         if should_stop():
             raise FitCancelled(result.params)
@@ -158,7 +163,8 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": round(peak_mb, 1),
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
-               "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles)}
+               "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
+               "camera_blur_px": rig.camera_blur_px}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
     files["metrics"] = str(out / "metrics.json")
@@ -176,6 +182,19 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     reporter.info(f"wrote {out}: params.json, reflection.png, transmission.png, report.png, metrics.json")
     reporter.result(out_dir=str(out), params=files["params"], files=files, metrics=metrics)
     return 0
+
+
+def _camera_blur(text: str) -> str:
+    """argparse type of --camera-blur: 'auto' or a number in the rig's range."""
+    if text == "auto":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or a number of pixels, got {text!r}") from None
+    if not 0.0 <= value <= MAX_CAMERA_BLUR_PX:
+        raise argparse.ArgumentTypeError(f"must be in [0, {MAX_CAMERA_BLUR_PX}] pixels, got {text}")
+    return text
 
 
 def add_parser(sub) -> None:
@@ -196,6 +215,8 @@ def add_parser(sub) -> None:
     p.add_argument("--flat-field", help="photo of a uniform target under the same light (vignetting)")
     p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--camera-blur", default="auto", type=_camera_blur, metavar="auto|PX",
+                   help="the camera's blur in film pixels: estimated with the fit (auto, default) or fixed")
     p.add_argument("--init", choices=("network", "prior"), default="network",
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")

@@ -2,7 +2,8 @@
 
     pixel radiance   = mean over the pixel's samples of  BSDF * intensity / distance^2
                        (+ glow * fraction of samples seeing no yarn, transmission only)
-    displayed value  = min(radiance, clamp) ** (1 / gamma) * vignette
+    displayed value  = min(blur(radiance), clamp) ** (1 / gamma) * vignette
+                       (blur: the rig's camera point spread, a Gaussian; none by default)
 
 Work is split into chunks of film rows (``max_chunk_samples`` samples each) so that memory stays
 bounded at any resolution and sample count; when gradients are needed over several chunks each
@@ -18,6 +19,7 @@ the environment overrides the automatic choice.
 """
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import warnings
@@ -25,6 +27,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch.utils.checkpoint import checkpoint
 
 from .bsdf import eval_pair
@@ -68,6 +71,23 @@ def display_transform(radiance: torch.Tensor, gamma: float, clamp: float, vignet
     return out * vignette[..., None] if vignette is not None else out
 
 
+def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of an (H, W, C) image, standard deviation ``sigma`` pixels, with
+    mirrored borders (differentiable; the identity for sigma <= 0)."""
+    if sigma <= 1e-3:
+        return image
+    radius = max(1, min(int(math.ceil(3.0 * sigma)), image.shape[0] - 1, image.shape[1] - 1))
+    x = torch.arange(-radius, radius + 1, device=image.device, dtype=image.dtype)
+    kernel = torch.exp(-0.5 * (x / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    channels = image.shape[2]
+    planes = image.permute(2, 0, 1)[None]
+    planes = F.pad(planes, (radius, radius, radius, radius), mode="reflect")
+    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
+    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
+    return planes[0].permute(1, 2, 0)
+
+
 class Renderer:
     """Renders (reflection, transmission) pairs of one rig, size, sample count and jitter seed."""
 
@@ -78,6 +98,7 @@ class Renderer:
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
         self.size, self.spp = size, spp
+        self.camera_blur_px = rig.camera_blur_px  # a fit may adjust it (it does not touch the caches)
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
@@ -188,6 +209,8 @@ class Renderer:
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         r, t = self.radiance(fabric, progress)
+        sigma = self.camera_blur_px * self.size / self.rig.film_size
+        r, t = gaussian_blur(r, sigma), gaussian_blur(t, sigma)
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(r, g, c, self.vignette), display_transform(t, g, c, self.vignette), r, t)
 

@@ -13,6 +13,11 @@ normalised to a maximum of 1 (d in pixels of the ``film_size`` film, from the fi
 The transmission image adds ``glow_strength * exp(-d^2 / glow_sigma_px^2)`` (same normalised
 form) to samples that see no yarn, before the clamp.
 
+``camera_blur_px`` is the camera's point spread (lens, demosaicing, the photo's resize): the linear
+radiance of each image is blurred by a Gaussian of that standard deviation, in film pixels, before
+the output transform. The paper's renderer has none (0, the default, is exact); a phone photo shows
+about a pixel, and a sharp render of yarns beside a soft photo pushes a fit to wash them out.
+
 ``width_cm`` is the real width of the visible square when known (for physical scale).
 """
 from __future__ import annotations
@@ -22,6 +27,9 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+
+
+MAX_CAMERA_BLUR_PX = 4.0
 
 
 class RigError(ValueError):
@@ -43,6 +51,7 @@ class CaptureRig:
     glow_sigma_px: float = 20.0
     gamma: float = 2.2
     clamp: float = 1.0
+    camera_blur_px: float = 0.0
     width_cm: float | None = None
 
     def __post_init__(self):
@@ -58,6 +67,8 @@ class CaptureRig:
             positive("width_cm")
         if not 0 < self.fov_deg < 170:
             raise RigError(f"rig.fov_deg: must be in (0, 170), got {self.fov_deg!r}")
+        if not isinstance(self.camera_blur_px, (int, float)) or not 0 <= self.camera_blur_px <= MAX_CAMERA_BLUR_PX:
+            raise RigError(f"rig.camera_blur_px: must be in [0, {MAX_CAMERA_BLUR_PX}], got {self.camera_blur_px!r}")
         if self.glow_strength < 0:
             raise RigError(f"rig.glow_strength: must be >= 0, got {self.glow_strength!r}")
         for name, side in (("front_light", 1), ("back_light", -1)):

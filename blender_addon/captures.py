@@ -123,6 +123,7 @@ _RIG_TEXT = {
     "glow_sigma_px": ("Glow sigma", "Size of the back light's glow, in pixels"),
     "gamma": ("Gamma", "Display gamma of the photos"),
     "clamp": ("Clamp", "Radiance clamp before the gamma"),
+    "camera_blur_px": ("Camera blur", "Point spread of the camera in pixels (a fit estimates it; 0: sharp)"),
     "width_cm": ("Photographed width", "Real width of the photographed square in centimetres "
                                        "(0: unknown); gives the material its real-world scale"),
 }

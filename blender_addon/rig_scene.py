@@ -33,7 +33,8 @@ DEFAULT_RIG = {
     "film_size": 512, "plane_size": 10.0, "camera_height": 8.0, "fov_deg": 53.0,
     "front_light": [0.0, 8.0, 8.0], "back_light": [0.0, 0.0, -9.0],
     "front_intensity": 300.0, "back_intensity": 300.0, "vignette_sigma_px": 450.0,
-    "glow_strength": 8.0, "glow_sigma_px": 20.0, "gamma": 2.2, "clamp": 1.0, "width_cm": None,
+    "glow_strength": 8.0, "glow_sigma_px": 20.0, "gamma": 2.2, "clamp": 1.0, "camera_blur_px": 0.0,
+    "width_cm": None,
 }
 
 _ROLE = "woven_fabric_rig"  # custom property naming each object's role (names get .001 suffixes)
@@ -218,10 +219,23 @@ def falloff(size: int, sigma_px: float, film_size: int = 512) -> np.ndarray:
     return mask / mask.max()
 
 
+def gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
+    """Separable Gaussian blur (mirrored borders) of an (N, N, C) image; sigma in pixels."""
+    if sigma <= 1e-3:
+        return image
+    radius = max(1, min(int(math.ceil(3.0 * sigma)), image.shape[0] - 1))
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (x / sigma) ** 2)
+    kernel /= kernel.sum()
+    out = np.pad(image, ((radius, radius), (radius, radius), (0, 0)), mode="reflect")
+    out = sum(w * out[i:i + image.shape[0]] for i, w in enumerate(kernel))
+    return sum(w * out[:, i:i + image.shape[1]] for i, w in enumerate(kernel))
+
+
 def display(radiance: np.ndarray, rig: dict | None = None, coverage: np.ndarray | None = None,
             glow: bool = False) -> np.ndarray:
     """The rig's output transform of a linear (N, N, 3) image: (+ glow where the pixel sees no
-    yarn, transmission only), clamp, 1 / gamma, vignette."""
+    yarn, transmission only), the camera blur, clamp, 1 / gamma, vignette."""
     rig = rig_values(rig)
     n = radiance.shape[0]
     rad = radiance[..., :3].astype(np.float64)
@@ -229,6 +243,7 @@ def display(radiance: np.ndarray, rig: dict | None = None, coverage: np.ndarray 
         open_fraction = 1.0 - np.clip(coverage, 0.0, 1.0)
         rad = rad + (falloff(n, rig["glow_sigma_px"], rig["film_size"]) * rig["glow_strength"]
                      * open_fraction)[..., None]
+    rad = gaussian_blur(rad, rig.get("camera_blur_px", 0.0) * n / rig["film_size"])
     out = np.clip(rad, 0.0, rig["clamp"]) ** (1.0 / rig["gamma"])
     return out * falloff(n, rig["vignette_sigma_px"], rig["film_size"])[..., None]
 

@@ -20,7 +20,7 @@ from backend.params import FabricParams
 from backend.priors import typical
 from backend.protocol import decode
 from backend.render import Renderer, render_pair
-from backend.rig import DEFAULT_RIG
+from backend.rig import DEFAULT_RIG, CaptureRig
 from conftest import ROOT
 
 TWILL = FabricParams.from_interchange(
@@ -85,6 +85,20 @@ def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
     losses = [value for _, value in first.history]
     assert min(losses) < losses[0]
     assert first.params.pattern == "twill1"
+
+
+def test_fit_estimates_the_camera_blur(twill_pair):
+    # A phone photo is softer than a sharp render: the fit finds the blur (or keeps it when told).
+    soft = render_pair(TWILL, CaptureRig(camera_blur_px=1.0), size=512, spp=8, seed=3)
+    settings = FitSettings(pattern="twill1", iterations=3, size=256, spp=16, search_every=2, compile=False)
+    start = lambda candidate: TWILL  # noqa: E731  (the truth: this checks the blur alone)
+    blurred = fit(soft.reflection.numpy(), soft.transmission.numpy(), settings=settings, initial_for=start)
+    assert blurred.camera_blur_px == pytest.approx(1.0, abs=0.3)
+    quick = FitSettings(**{**settings.__dict__, "iterations": 1, "search_every": 0})
+    sharp = fit(*twill_pair, settings=quick, initial_for=start)
+    assert sharp.camera_blur_px <= 0.6  # under half a working pixel a blur hardly shows
+    fixed = fit(*twill_pair, settings=FitSettings(**{**quick.__dict__, "camera_blur": 1.5}), initial_for=start)
+    assert fixed.camera_blur_px == 1.5
 
 
 def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):

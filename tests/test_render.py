@@ -14,7 +14,7 @@ from backend.layers import WeaveLookup
 from backend.options import RenderOptions
 from backend.param_tensors import ParamTensors
 from backend.params import PARAMETERS, SPECS, FabricParams
-from backend.render import Renderer, compile_available, display_transform
+from backend.render import Renderer, compile_available, display_transform, gaussian_blur
 from backend.rig import DEFAULT_RIG, CaptureRig
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
@@ -211,6 +211,33 @@ def test_rig_settings_are_validated():
         CaptureRig(fov_deg=0.0)
     with pytest.raises(ValueError, match="unknown setting"):
         CaptureRig.from_dict({"camera_hieght": 8})
+    with pytest.raises(ValueError, match="camera_blur_px"):
+        CaptureRig(camera_blur_px=-0.5)
     # V = 2 * 8 * tan(26.5 deg) = 7.97731 (the spec prints 7.9787..., which its own formula does not give).
     assert CaptureRig().view_size == pytest.approx(7.97731, abs=1e-5)
     assert dataclasses.asdict(CaptureRig.from_dict(DEFAULT_RIG.to_dict())) == dataclasses.asdict(DEFAULT_RIG)
+
+
+def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
+    params = FabricParams(pattern="twill0", tiles=(120.0, 120.0))
+    sharp = Renderer(DEFAULT_RIG, 128, 4).render(params)
+    soft = Renderer(CaptureRig(camera_blur_px=4.0), 128, 4).render(params)  # 1 pixel at 128 px
+    for a, b in ((sharp.reflection_radiance, soft.reflection_radiance),
+                 (sharp.transmission_radiance, soft.transmission_radiance)):
+        blurred = gaussian_blur(a, 1.0)
+        assert torch.allclose(b, blurred)
+        # mirrored borders: the mean moves by edge effects only
+        assert blurred.mean().item() == pytest.approx(a.mean().item(), rel=0.02)
+        detail = lambda img: (img[1:] - img[:-1]).abs().mean().item()  # noqa: E731
+        assert detail(blurred) < 0.7 * detail(a)
+    assert torch.equal(gaussian_blur(sharp.reflection, 0.0), sharp.reflection)
+
+
+def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
+    import numpy as np
+
+    from blender_addon.rig_scene import gaussian_blur as numpy_blur
+
+    image = torch.rand(24, 24, 3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 1.3), (image,))
+    assert np.allclose(gaussian_blur(image, 1.3).detach().numpy(), numpy_blur(image.detach().numpy(), 1.3))
