@@ -19,6 +19,7 @@ import json
 import sys
 from pathlib import Path
 
+from .jsonfile import read_json
 from .options import OptionsError, RenderOptions
 from .params import FabricParams, ParamError, load_params
 from .protocol import EXIT_INPUT
@@ -80,12 +81,7 @@ def cmd_render(args) -> int:
 
 def cmd_render_cases(args) -> int:
     path = Path(args.cases)
-    try:
-        cases = json.loads(path.read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    cases = read_json(path, InputError)
     if not isinstance(cases, list):
         raise InputError(f"{path}: expected a list of cases (name, params, flags)")
     prepared = []

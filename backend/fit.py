@@ -19,8 +19,10 @@ Stages (each reported through ``progress(stage, iteration, total, loss, eta_s)``
    use of evaluations than the paper's random +/- steps). Tiles come from the lattice, which pins
    them to a fraction of a percent, and stay fixed.
    The camera's blur (the rig's ``camera_blur_px``: a phone photo is softer than a sharp render,
-   and without it the fit washes the yarns out to match) is scanned once before the trial fits and
-   takes the same parabolic step in every round, unless the settings fix it.
+   and without it the fit washes the yarns out to match): unless the settings fix it, photos whose
+   noise spectrum is as flat as a render's (:mod:`backend.camera_blur`) get none; softer ones get a
+   scan before the trial fits and the same parabolic step in every round, never below the blur
+   their noise shows.
 3. the best parameters seen are returned (with the camera blur, the loss history and timings).
 
 Everything is deterministic for a given input, settings and seed (fixed jitter, no random steps).
@@ -36,6 +38,7 @@ import numpy as np
 import torch
 
 from . import priors
+from .camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from .features import LossWeights
 from .objective import Objective, Target
 from .param_tensors import ParamTensors
@@ -123,15 +126,17 @@ GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 
 
-def _best_blur(params: FabricParams, objective: Objective, device) -> float:
-    """The camera blur among BLUR_SCAN with the lowest loss for ``params`` (set on the renderer)."""
+def _best_blur(params: FabricParams, objective: Objective, device, floor: float) -> float:
+    """The camera blur among ``floor`` and the BLUR_SCAN values above it with the lowest loss for
+    ``params`` (set on the renderer)."""
     fabric = ParamTensors.from_params(params, device)
     losses = []
-    for blur in BLUR_SCAN:
+    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
+    for blur in scan:
         objective.renderer.camera_blur_px = blur
         with torch.no_grad():
             losses.append(float(objective(fabric)))
-    objective.renderer.camera_blur_px = BLUR_SCAN[int(np.argmin(losses))]
+    objective.renderer.camera_blur_px = scan[int(np.argmin(losses))]
     return objective.renderer.camera_blur_px
 
 
@@ -162,7 +167,8 @@ def _spectrum_similarity(params: FabricParams, objective: Objective) -> float:
 class _Run:
     """One optimisation run: parameters, Adam state, best-so-far tracking."""
 
-    def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int):
+    def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
+                 blur_floor: float | None = None):
         self.objective, self.settings, self.total = objective, settings, total
         self.fabric = ParamTensors.from_params(params, objective.renderer.device, requires_grad=OPTIMISED)
         groups = [{"params": [self.fabric.values[n]], "lr": settings.lr * (SPECS[n].hi - SPECS[n].lo),
@@ -173,7 +179,7 @@ class _Run:
         self.best_loss = math.inf
         self.best = params
         self.best_blur = objective.renderer.camera_blur_px
-        self.estimate_blur = settings.camera_blur is None
+        self.blur_floor = blur_floor  # None: the camera blur stays as it is
         self.best_terms: dict[str, float] = {}
         self.history: list[tuple[int, float]] = []
         self.selection = math.inf
@@ -248,7 +254,7 @@ class _Run:
                     with torch.no_grad():
                         values[yarn] = min(spec.hi, max(spec.lo, x + best_dx))
                     current = best_val
-        if self.estimate_blur:
+        if self.blur_floor is not None:
             current = self._blur_step(current, 0.4 / 2 ** round_index)
         if current < self.best_loss:
             self.best_loss, self.best = current, self.fabric.to_params()
@@ -259,8 +265,11 @@ class _Run:
         renderer = self.objective.renderer
         x = renderer.camera_blur_px
 
+        def clamped(blur):
+            return min(MAX_CAMERA_BLUR_PX, max(self.blur_floor, blur))
+
         def loss_at(blur):
-            renderer.camera_blur_px = min(MAX_CAMERA_BLUR_PX, max(0.0, blur))
+            renderer.camera_blur_px = clamped(blur)
             return self.evaluate(self.fabric)
 
         lo, hi = loss_at(x - span), loss_at(x + span)
@@ -269,7 +278,7 @@ class _Run:
         step = max(-2 * span, min(2 * span, step))
         tried = [(current, 0.0), (lo, -span), (hi, span), (loss_at(x + step), step)]
         best, dx = min(tried, key=lambda t: t[0])
-        renderer.camera_blur_px = min(MAX_CAMERA_BLUR_PX, max(0.0, x + dx))
+        renderer.camera_blur_px = clamped(x + dx)
         return best
 
 
@@ -334,19 +343,23 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         progress("search", k + 1, len(found), loss, None)
         check_stop(None)
     starts.sort(key=lambda t: (t[0], t[1]))
-    if settings.camera_blur is None:
-        _best_blur(starts[0][3], objective, device)
+    blur_floor = None
+    if settings.camera_blur is not None:
+        renderer.camera_blur_px = settings.camera_blur
+    elif (photo_blur := photo_blur_px(reflection, transmission, rig.film_size)) < SOFT_PHOTO_PX:
+        renderer.camera_blur_px = 0.0  # as sharp as a render: a blur would only hide model error
+    else:
+        blur_floor = min(photo_blur, MAX_CAMERA_BLUR_PX)
+        _best_blur(starts[0][3], objective, device, blur_floor)
         if len(starts) > 1:  # the starting losses change with the blur: rank the candidates again
             with torch.no_grad():
                 starts = sorted(((float(objective(ParamTensors.from_params(p, device))), k, c, p)
                                  for _, k, c, p in starts), key=lambda t: (t[0], t[1]))
-    else:
-        renderer.camera_blur_px = settings.camera_blur
     shortlisted = starts[: max(1, settings.trials)]
     runs, summary = [], []
     total = settings.iterations + settings.trial_iterations
     for index, (loss, _, cand, params) in enumerate(shortlisted):
-        run = _Run(params, objective, settings, total)
+        run = _Run(params, objective, settings, total, blur_floor)
         for it in range(settings.trial_iterations if len(shortlisted) > 1 else 0):
             run.step()
             check_stop(run.best)

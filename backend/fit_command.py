@@ -129,7 +129,7 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
 
     settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
                            device=args.device, vgg_weights=args.vgg_weights,
-                           camera_blur=None if args.camera_blur == "auto" else float(args.camera_blur))
+                           camera_blur=_given_blur(args.camera_blur, rig))
     from .init_net import fit_initialiser
 
     initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
@@ -184,6 +184,14 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     return 0
 
 
+def _given_blur(option: str, rig: CaptureRig) -> float | None:
+    """The fixed camera blur: --camera-blur PX, else a rig file's non-zero ``camera_blur_px`` (the
+    same camera again); None (estimate it) otherwise."""
+    if option != "auto":
+        return float(option)
+    return rig.camera_blur_px if rig.camera_blur_px > 0 else None
+
+
 def _camera_blur(text: str) -> str:
     """argparse type of --camera-blur: 'auto' or a number in the rig's range."""
     if text == "auto":
@@ -216,7 +224,8 @@ def add_parser(sub) -> None:
     p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--camera-blur", default="auto", type=_camera_blur, metavar="auto|PX",
-                   help="the camera's blur in film pixels: estimated with the fit (auto, default) or fixed")
+                   help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's "
+                        "non-zero camera_blur_px is kept) or fixed")
     p.add_argument("--init", choices=("network", "prior"), default="network",
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")

@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Iterable
 
+from .jsonfile import read_json
 from .weave import PRESETS, Weave
 
 
@@ -309,14 +310,7 @@ def load_params(source: str) -> FabricParams:
 
     path = pathlib.Path(source)
     if source.endswith(".json") or _is_file(path):
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise ParamError(f"{source}: cannot read ({exc.strerror or exc})") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ParamError(f"{source}: not valid JSON ({exc})") from None
+        data = read_json(source, ParamError)
         try:
             return FabricParams.from_dict(data)
         except ParamError as exc:

@@ -23,10 +23,11 @@ about a pixel, and a sharp render of yarns beside a soft photo pushes a fit to w
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+
+from .jsonfile import read_json
 
 
 MAX_CAMERA_BLUR_PX = 4.0
@@ -122,13 +123,7 @@ class CaptureRig:
 
     @classmethod
     def load(cls, path: str | Path) -> "CaptureRig":
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except OSError as exc:
-            raise RigError(f"{path}: cannot read ({exc.strerror or exc})") from None
-        except json.JSONDecodeError as exc:
-            raise RigError(f"{path}: not valid JSON ({exc})") from None
+        data = read_json(path, RigError)
         try:
             return cls.from_dict(data)
         except RigError as exc:
