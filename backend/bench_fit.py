@@ -7,7 +7,8 @@ product's; wall time includes starting Python and importing torch) on
   true parameters: pattern, roughness MAE, thickness MAE (warp and weft), tiles error (worst axis, %);
 - the real pairs of a folder (``<name>_R.*``/``_T.*``);
 and, for every pair, FLIP, 16 x 16 colour L1 and spectrum correlation of the re-renders against the
-photos (same definitions as the team's ``photo_metrics.py``), wall time and peak memory. Prints one
+photos (same definitions as the team's ``photo_metrics.py``), the camera blur the fit found, wall time
+and peak memory. Prints one
 line per pair and a summary with the targets of the fit issue.
 """
 from __future__ import annotations
@@ -41,7 +42,7 @@ def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) 
     metrics = json.loads((out / "metrics.json").read_text())
     params = FabricParams.from_dict(json.loads((out / "params.json").read_text()))
     return {"params": params, "metrics": metrics["metrics"], "wall_s": wall, "fit_s": metrics["wall_s"],
-            "peak_mb": metrics.get("peak_mb")}
+            "peak_mb": metrics.get("peak_mb"), "camera_blur_px": metrics.get("camera_blur_px")}
 
 
 def _errors(fitted: FabricParams, truth: FabricParams) -> dict:
@@ -86,7 +87,7 @@ def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, ext
                 row["error"] = result["error"]
             else:
                 row.update(pattern=result["params"].pattern, tiles=[round(x, 1) for x in result["params"].tiles],
-                           peak_mb=round(result["peak_mb"] or 0, 1))
+                           peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=result["camera_blur_px"])
                 for tag in ("reflection", "transmission"):
                     for key, value in result["metrics"][tag].items():
                         row[f"{key}_{tag[0].upper()}"] = round(value, 4)
@@ -104,7 +105,8 @@ def _format(row: dict) -> str:
         return f"{row['kind']:9s} {row['name']:16s} ERROR {row['error']}"
     text = (f"{row['kind']:9s} {row['name']:16s} {row['pattern']:7s} tiles {row['tiles'][0]:6.1f} {row['tiles'][1]:6.1f}"
             f"  FLIP {row['flip_R']:.3f}/{row['flip_T']:.3f}  colour {row['colour_l1_R']:.4f}/{row['colour_l1_T']:.4f}"
-            f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB")
+            f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}  blur {row['camera_blur_px'] or 0:.2f}"
+            f"  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB")
     if "roughness_mae" in row:
         text += (f"  pattern {'ok' if row['pattern_ok'] else 'WRONG'}  roughness {row['roughness_mae']:.3f}"
                  f"  thickness {row['thickness_mae']:.3f}  tiles {row['tiles_error_pct']:.2f}%")
