@@ -234,26 +234,18 @@ class _Run:
             spec = SPECS[name]
             for yarn in (0, 1):
                 values = self.fabric.values[name]
-                x = float(values[yarn])
-                trial = {}
-                for dx in (-span, span):
+
+                def clamped(v, spec=spec):
+                    return min(spec.hi, max(spec.lo, v))
+
+                def loss_at(v, values=values, yarn=yarn, name=name):
                     candidate = values.detach().clone()
-                    candidate[yarn] = min(spec.hi, max(spec.lo, x + dx))
-                    trial[dx] = self.evaluate(self.fabric.with_values(**{name: candidate}))
-                lo, hi = trial[-span], trial[span]
-                curvature = lo + hi - 2 * current
-                step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
-                step = max(-2 * span, min(2 * span, step))
-                candidate = values.detach().clone()
-                candidate[yarn] = min(spec.hi, max(spec.lo, x + step))
-                best_dx, best_val = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
-                value = self.evaluate(self.fabric.with_values(**{name: candidate}))
-                if value < best_val:
-                    best_dx, best_val = step, value
-                if best_dx != 0.0:
-                    with torch.no_grad():
-                        values[yarn] = min(spec.hi, max(spec.lo, x + best_dx))
-                    current = best_val
+                    candidate[yarn] = v
+                    return self.evaluate(self.fabric.with_values(**{name: candidate}))
+
+                x, current = _parabolic_step(loss_at, float(values[yarn]), current, span, clamped)
+                with torch.no_grad():
+                    values[yarn] = x
         if self.blur_floor is not None:
             current = self._blur_step(current, 0.4 / 2 ** round_index)
         if current < self.best_loss:
@@ -263,23 +255,33 @@ class _Run:
     def _blur_step(self, current: float, span: float) -> float:
         """The parabolic step of the discrete parameters, on the renderer's camera blur."""
         renderer = self.objective.renderer
-        x = renderer.camera_blur_px
 
         def clamped(blur):
             return min(MAX_CAMERA_BLUR_PX, max(self.blur_floor, blur))
 
         def loss_at(blur):
-            renderer.camera_blur_px = clamped(blur)
+            renderer.camera_blur_px = blur
             return self.evaluate(self.fabric)
 
-        lo, hi = loss_at(x - span), loss_at(x + span)
-        curvature = lo + hi - 2 * current
-        step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
-        step = max(-2 * span, min(2 * span, step))
-        tried = [(current, 0.0), (lo, -span), (hi, span), (loss_at(x + step), step)]
-        best, dx = min(tried, key=lambda t: t[0])
-        renderer.camera_blur_px = clamped(x + dx)
-        return best
+        renderer.camera_blur_px, current = _parabolic_step(loss_at, renderer.camera_blur_px, current, span, clamped)
+        return current
+
+
+def _parabolic_step(loss_at: Callable[[float], float], x: float, current: float, span: float,
+                    clamped: Callable[[float], float]) -> tuple[float, float]:
+    """One deterministic step on a discrete parameter: evaluate x - d and x + d (d = ``span``),
+    then the minimum of the parabola through the three losses (at most 2 d away); returns the
+    best of those points and x itself (``current`` is the loss at x), as (value, loss). Every
+    value is passed through ``clamped`` before it is evaluated."""
+    lo, hi = loss_at(clamped(x - span)), loss_at(clamped(x + span))
+    curvature = lo + hi - 2 * current
+    step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
+    step = max(-2 * span, min(2 * span, step))
+    best_dx, best = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
+    value = loss_at(clamped(x + step))
+    if value < best:
+        best_dx, best = step, value
+    return (clamped(x + best_dx), best) if best_dx != 0.0 else (x, current)
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
