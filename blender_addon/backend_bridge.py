@@ -55,7 +55,7 @@ STDERR_LINES = 200
 
 def protocol():
     """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
-    return paths.backend_module("protocol")
+    return paths.backend_module("core.protocol")
 
 
 class BackendError(RuntimeError):

@@ -7,7 +7,7 @@ missing partner, or with two candidate files for one side, is a problem that nam
 Result folders are never reused: :func:`new_run_folder` creates ``<parent>/<name>_001``,
 ``_002``, ... atomically (``mkdir`` without ``exist_ok``), so an earlier fit is never overwritten.
 
-The rig's settings come from ``backend/rig.py`` (the spec's defaults), loaded without torch: the
+The rig's settings come from ``backend/core/rig.py`` (the spec's defaults), loaded without torch: the
 panel shows every field of ``CaptureRig`` and a new field appears without touching the add-on.
 """
 from __future__ import annotations
@@ -140,7 +140,7 @@ class RigField:
 
 def rig_fields() -> list[RigField]:
     """The rig's settings with the spec's defaults, in declaration order (width_cm: float, 0 = unknown)."""
-    rig = paths.backend_module("rig")
+    rig = paths.backend_module("core.rig")
     defaults = rig.DEFAULT_RIG
     fields = []
     for spec in dataclasses.fields(rig.CaptureRig):
@@ -163,7 +163,7 @@ def rig_dict(values: dict) -> dict:
 
     Raises ValueError (the backend's RigError) naming the bad setting.
     """
-    rig = paths.backend_module("rig")
+    rig = paths.backend_module("core.rig")
     data = {name: (list(value) if hasattr(value, "__len__") else value)
             for name, value in values.items()}
     if not data.get("width_cm"):

@@ -1,7 +1,7 @@
 """The "Woven Fabric" shader node group and materials that use it (bpy layer).
 
 The group's inputs are the fabric parameters (names from the spec, ranges from
-``backend/params.py``; see :mod:`shader_params` for the socket list and the UV-scale rule) plus
+``backend/core/params.py``; see :mod:`shader_params` for the socket list and the UV-scale rule) plus
 colour maps multiplying the diffuse albedos. Inside:
 
 - a Script node running ``shaders/woven_fabric.osl`` (stored as an internal text, compiled here

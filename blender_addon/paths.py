@@ -5,7 +5,7 @@ Two layouts are supported:
   sit inside the add-on folder;
 - the repository: ``blender_addon/``, ``backend/`` and ``shaders/`` are siblings.
 
-The parameter declaration (names, ranges, labels) is read from ``backend/params.py``, which is
+The parameter declaration (names, ranges, labels) is read from ``backend/core/params.py``, which is
 plain Python: the node group's sockets and the OSL inputs therefore come from the same table as the
 backend's clamping and JSON. The backend package is loaded under a private module name so that no
 top-level ``backend`` module is added to Blender's Python.
@@ -51,9 +51,9 @@ def backend_module(name: str):
 
 def parameter_declaration():
     """The backend's ``PARAMETERS`` tuple of ParamSpec (name, lo, hi, per_yarn, rgb, label, doc, unit)."""
-    return backend_module("params").PARAMETERS
+    return backend_module("core.params").PARAMETERS
 
 
 def weave_presets() -> dict:
     """The backend's preset weaves (name -> Weave with matrix, bands, umax_deg, s_min)."""
-    return backend_module("weave").PRESETS
+    return backend_module("core.weave").PRESETS

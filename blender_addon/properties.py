@@ -1,6 +1,6 @@
 """Scene settings of a capture (``scene.woven_fabric``): the photos, the rig, the fit and its state.
 
-The rig's properties are generated from ``CaptureRig`` in backend/rig.py (captures.rig_fields),
+The rig's properties are generated from ``CaptureRig`` in backend/core/rig.py (captures.rig_fields),
 so the panel shows the spec's defaults and follows any new rig setting.
 """
 from __future__ import annotations

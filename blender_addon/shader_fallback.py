@@ -2,7 +2,7 @@
 
 EEVEE and GPU Cycles (without OptiX OSL) cannot run ``shaders/woven_fabric.osl``; the node group
 then uses a fallback built from Math / Vector Math / Image Texture nodes that computes the same
-weave geometry (spec section 3, like ``backend/layers.py``) from UV: band tests, the interlacing
+weave geometry (spec section 3, like ``backend/model/layers.py``) from UV: band tests, the interlacing
 matrix and the backend's interval tables (read from the float atlases of
 :func:`shader_weave.fallback_atlases`), gap scaling, the visible yarn (front layer, or the back
 layer through a gap in front), its bent-cylinder normal and twisted fiber direction with height

@@ -4,7 +4,7 @@ Plain Python (no bpy, no torch): everything here is testable without Blender.
 
 Sockets (one per scalar component, spec section 2 names, ranges = the backend's lo/hi):
 
-- ``pattern``: integer, the preset index in ``backend.weave.PRESETS`` order
+- ``pattern``: integer, the preset index in ``backend.core.weave.PRESETS`` order
   (0 plain, 1 twill0, 2 twill1, 3 satin0, 4 satin1);
 - per-yarn scalars as ``"<name> warp"`` and ``"<name> weft"`` (``tiles warp`` = tu, the repeats
   along U; ``tiles weft`` = tv, along V);
@@ -101,7 +101,7 @@ def pattern_name(index: int) -> str:
 
 def _defaults() -> dict:
     """Default values of every parameter: the backend dataclass defaults (read without torch)."""
-    params = paths.backend_module("params")
+    params = paths.backend_module("core.params")
     return params.FabricParams().to_dict()
 
 

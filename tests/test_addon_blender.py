@@ -117,7 +117,7 @@ def test_build_makes_an_extension_zip_with_backend_and_shaders(tmp_path):
     assert path.parent == tmp_path and path.name == "woven_fabric-0.1.0.zip"
     names = zipfile.ZipFile(path).namelist()
     for required in ("blender_manifest.toml", "__init__.py", "backend_bridge.py", "operators.py", "batch.py",
-                     "paths.py", "backend/__init__.py", "backend/protocol.py", "backend/params.py"):
+                     "paths.py", "backend/__init__.py", "backend/core/protocol.py", "backend/core/params.py"):
         assert required in names, required
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
     validator = next(Path(importlib.util.find_spec("bpy").origin).parent.glob(
@@ -414,9 +414,9 @@ def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
 def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_engines(tmp_path, extension_zip):
     """The whole chain, no fake: the zip installed into bpy runs its *bundled* backend on a small
     synthetic 512-px pair, the node group holds the fitted values, Cycles (OSL) and EEVEE render them."""
-    from backend.images import write_png as write_png16
-    from backend.params import FabricParams
-    from backend.render import render_pair
+    from backend.image.png import write_png as write_png16
+    from backend.core.params import FabricParams
+    from backend.model.render import render_pair
 
     truth = FabricParams.from_interchange(
         "twill1_R_0.6,0.5_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from backend import asggx, reference, sggx
-from backend.spongecake import eval_layer, slab_g
-from backend.yarn import scale_height
+from backend.model.spongecake import eval_layer, slab_g
+from backend.model.yarn import scale_height
 
 DT = torch.float64
 

@@ -1,11 +1,11 @@
-"""The camera's blur read from a photo's noise spectrum (backend.camera_blur)."""
+"""The camera's blur read from a photo's noise spectrum (backend.image.camera_blur)."""
 import numpy as np
 import pytest
 
-from backend.camera_blur import SOFT_PHOTO_PX, noise_blur_px, photo_blur_px
-from backend.render import render_pair
-from backend.params import FabricParams
-from backend.rig import CaptureRig
+from backend.image.camera_blur import SOFT_PHOTO_PX, noise_blur_px, photo_blur_px
+from backend.model.render import render_pair
+from backend.core.params import FabricParams
+from backend.core.rig import CaptureRig
 from blender_addon.rig_scene import gaussian_blur
 
 

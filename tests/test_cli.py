@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.params import FabricParams
+from backend.core.params import FabricParams
 from conftest import ROOT
 
 EXAMPLE = ("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,0.286,0.279,0.0"

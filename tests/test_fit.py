@@ -11,16 +11,16 @@ import pytest
 import torch
 
 from backend import lattice, search
-from backend.features import LatticeProbe, describe, descriptor_terms
-from backend.fit import FitSettings, fit
-from backend.gram import GramDescriptor, GramWeightsError, vgg19_features
-from backend.objective import Objective, Target
-from backend.param_tensors import ParamTensors
-from backend.params import FabricParams
-from backend.priors import typical
-from backend.protocol import decode
-from backend.render import Renderer, render_pair
-from backend.rig import DEFAULT_RIG, CaptureRig
+from backend.texture.features import LatticeProbe, describe, descriptor_terms
+from backend.fit.pipeline import FitSettings, fit
+from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
+from backend.fit.objective import Objective, Target
+from backend.model.param_tensors import ParamTensors
+from backend.core.params import FabricParams
+from backend.core.priors import typical
+from backend.core.protocol import decode
+from backend.model.render import Renderer, render_pair
+from backend.core.rig import DEFAULT_RIG, CaptureRig
 from conftest import ROOT
 
 TWILL = FabricParams.from_interchange(

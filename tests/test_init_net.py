@@ -6,10 +6,10 @@ import pytest
 import torch
 
 from backend import dataset, init_net, lattice, priors, train
-from backend.params import PARAMETERS, FabricParams
-from backend.render import render_pair
-from backend.rig import DEFAULT_RIG
-from backend.search import Candidate
+from backend.core.params import PARAMETERS, FabricParams
+from backend.model.render import render_pair
+from backend.core.rig import DEFAULT_RIG
+from backend.texture.candidates import Candidate
 
 TINY = dataset.DatasetSettings(size=32, spp=1, seed=3)
 
@@ -97,7 +97,7 @@ def test_fit_initialiser_falls_back_to_the_prior_with_a_warning(small_pair, tmp_
 def test_fit_command_defaults_to_the_network():
     import argparse
 
-    from backend.fit_command import add_parser
+    from backend.cli.fit import add_parser
 
     parser = argparse.ArgumentParser()
     add_parser(parser.add_subparsers())

@@ -19,7 +19,7 @@ from test_shader import addon, blender, run_blender  # noqa: E402
 def test_node_group_sockets_and_material_round_trip(tmp_path):
     blend = tmp_path / "fabric.blend"
     result = run_blender(f"""
-        from backend.params import FabricParams
+        from backend.core.params import FabricParams
         from wf_addon import shader_params
         group = node_group.ensure_node_group()
         again = node_group.ensure_node_group()
@@ -69,7 +69,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["same_group"] and result["bytecode"]
     assert result["targets"] == ["CYCLES", "EEVEE"]
 
-    from backend.params import FabricParams
+    from backend.core.params import FabricParams
 
     expected = FabricParams(pattern="satin1", tiles=(151.9, 84.7), roughness=(0.18, 0.75), thickness=(1.58, 2.79),
                             twist_deg=(-12.0, 30.0), specular_albedo=((0.12, 0.53, 0.28), (0.1, 0.52, 0.26)),

@@ -4,9 +4,9 @@ import json
 import pytest
 import torch
 
-from backend.param_tensors import ParamTensors
-from backend.params import PARAMETERS, SPECS, FabricParams, ParamError, load_params
-from backend.weave import Weave
+from backend.model.param_tensors import ParamTensors
+from backend.core.params import PARAMETERS, SPECS, FabricParams, ParamError, load_params
+from backend.core.weave import Weave
 
 EXAMPLE = ("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,0.286,0.279,0.0"
            "_G_0.99,1.0_Rm_0.65,0.62_Tm_2.66,0.79_W_0.71,1.29_Ks_0.325,0.37,0.0,0.351,0.883,0.0_Psi_-30.5,-29.5")

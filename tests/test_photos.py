@@ -1,4 +1,4 @@
-"""Photo input (backend/photos.py): formats, RAW decoding, crop/resize, flat-field, errors, pair checks.
+"""Photo input (backend/image/photos.py): formats, RAW decoding, crop/resize, flat-field, errors, pair checks.
 
 Test images are written here, in tmp dirs. The swap check is also run on the real photo pairs and the
 golden renders in ../shared (CI has it beside the checkout; where it is missing those tests fail, or
@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from backend import photos  # noqa: E402
-from backend.photos import PhotoError, load_pair, load_photo, read_image  # noqa: E402
+from backend.image.photos import PhotoError, load_pair, load_photo, read_image  # noqa: E402
 from conftest import require_path  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -595,8 +595,8 @@ def test_golden_renders_swap_check(name):
 def test_fresh_render_swap_check():
     """The forward model itself (spec example parameters, default rig), rendered small."""
     torch = pytest.importorskip("torch", reason="the backend's renderer needs torch")
-    from backend.params import load_params
-    from backend.render import render_pair
+    from backend.core.params import load_params
+    from backend.model.render import render_pair
 
     params = load_params("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,"
                          "0.286,0.279,0.0_G_0.99,1.0_Rm_0.65,0.62_Tm_2.66,0.79_W_0.71,1.29_Ks_0.325,0.37,0.0,"

@@ -7,15 +7,15 @@ import pytest
 import torch
 
 from backend import reference
-from backend.bsdf import eval_pair
-from backend.camera import CameraSamples
-from backend.geometry import GeometryKey, sample_geometry
-from backend.layers import WeaveLookup
-from backend.options import RenderOptions
-from backend.param_tensors import ParamTensors
-from backend.params import PARAMETERS, SPECS, FabricParams
-from backend.render import Renderer, compile_available, display_transform, gaussian_blur
-from backend.rig import DEFAULT_RIG, CaptureRig
+from backend.model.bsdf import eval_pair
+from backend.model.camera import CameraSamples
+from backend.model.geometry import GeometryKey, sample_geometry
+from backend.model.layers import WeaveLookup
+from backend.core.options import RenderOptions
+from backend.model.param_tensors import ParamTensors
+from backend.core.params import PARAMETERS, SPECS, FabricParams
+from backend.model.render import Renderer, compile_available, display_transform, gaussian_blur
+from backend.core.rig import DEFAULT_RIG, CaptureRig
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
 VARIANTS = {"full": {}, "one_layer": {"layers": 1}, "sggx": {"multiple_lobe": "sggx"},

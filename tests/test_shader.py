@@ -87,7 +87,7 @@ def test_sockets_follow_the_declaration():
 
 
 def test_osl_parameters_match_the_sockets():
-    """Fails when shaders/woven_fabric.osl and backend/params.py drift apart (names, ranges, defaults)."""
+    """Fails when shaders/woven_fabric.osl and backend/core/params.py drift apart (names, ranges, defaults)."""
     sp = addon("shader_params")
     source = addon("paths").shader_path().read_text()
     params = sp.osl_parameters(source)
@@ -119,7 +119,7 @@ def test_osl_weave_tables_are_generated_from_the_backend():
 
 def test_pack_weave_layout():
     sw = addon("shader_weave")
-    from backend.weave import PRESETS, WARP, WEFT
+    from backend.core.weave import PRESETS, WARP, WEFT
 
     bases, data = sw.packed_presets()
     for base, weave in zip(bases, PRESETS.values()):
@@ -138,7 +138,7 @@ def test_pack_weave_layout():
 
 def test_params_socket_round_trip():
     sp = addon("shader_params")
-    from backend.params import FabricParams
+    from backend.core.params import FabricParams
 
     for pattern in ("plain", "twill0", "twill1", "satin0", "satin1"):
         p = FabricParams(pattern=pattern, tiles=(120.5, 80.25), roughness=(0.3, 0.7), twist_deg=(-30.0, 12.5),
@@ -180,12 +180,12 @@ def test_fallback_geometry_matches_the_backend():
     yarn normal and fiber direction."""
     import numpy as np
     import torch
-    from backend.geometry import tile_coordinates
-    from backend.layers import GAP, WeaveLookup
-    from backend.params import FabricParams
-    from backend.rig import DEFAULT_RIG
-    from backend.weave import PRESETS
-    from backend.yarn import local_frame, scale_height
+    from backend.model.geometry import tile_coordinates
+    from backend.model.layers import GAP, WeaveLookup
+    from backend.core.params import FabricParams
+    from backend.core.rig import DEFAULT_RIG
+    from backend.core.weave import PRESETS
+    from backend.model.yarn import local_frame, scale_height
 
     fb = addon("shader_fallback")
     rng = np.random.default_rng(1)
@@ -237,7 +237,7 @@ def test_osl_compiles_with_cycles(tmp_path):
 
 RENDER_PAIR = textwrap.dedent("""
     import numpy as np
-    from backend.params import FabricParams
+    from backend.core.params import FabricParams
     def render(pattern, osl, engine="CYCLES", size=32, samples=4, lights=("front", "back"), noise=0.0,
                flipped=False):
         scene = bpy.data.scenes.new(f"{pattern} {osl} {engine} {noise} {flipped}")

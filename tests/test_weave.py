@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from backend import reference
-from backend.layers import GAP, WeaveLookup
-from backend.weave import BACK, FRONT, PRESETS, WARP, WEFT, Weave, WeaveError, weave_from_matrix
+from backend.model.layers import GAP, WeaveLookup
+from backend.core.weave import BACK, FRONT, PRESETS, WARP, WEFT, Weave, WeaveError, weave_from_matrix
 
 
 def shapes(weave, yarn, layer):

@@ -113,7 +113,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     sys.path.insert(0, str(ROOT))
-    from backend.params import FabricParams  # torch-free
+    from backend.core.params import FabricParams  # torch-free
 
     import bpy  # noqa: F401  (the bpy module of the venv)
 

@@ -1,0 +1,105 @@
+"""The fitting objective: photos as a target, and the loss of a parameter set against them.
+
+    loss = sum over R, T of [ w_c L1(colour16) + w_h L1(log harmonic magnitudes) + w_q L1(quantiles) ]
+           + w_p * prior(height_scale, gap_scale)
+
+(see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL, :func:`backend.core.priors.prior_nll`),
+plus, when the user supplies VGG-19 weights, the paper's Gram loss (:mod:`backend.fit.gram`).
+Photos are compared at a working size (256 by default) after an area downsample in linear light,
+which is exactly what the renderer's box filter does, so a 256-pixel render with 16 samples per
+pixel sees the same thing as the photo; 16 samples keep sharp highlights unbiased where 4 do not.
+The harmonics are read at the lattice of the candidate tiles for both images.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms
+from ..model.param_tensors import ParamTensors
+from ..core.priors import prior_nll
+from ..model.render import Renderer
+from ..core.rig import CaptureRig
+
+
+def downsample_linear(image: torch.Tensor, size: int, gamma: float = 2.2) -> torch.Tensor:
+    """Area downsample of a display-space (H, W, 3) image, averaged in linear light."""
+    if image.shape[0] == size:
+        return image
+    linear = image.clamp_min(0).pow(gamma).permute(2, 0, 1)[None]
+    return F.adaptive_avg_pool2d(linear, size)[0].permute(1, 2, 0).pow(1 / gamma)
+
+
+def lattice_of(tiles, rig: CaptureRig) -> tuple[float, float]:
+    """Tiles across and down the image for a tiles pair."""
+    scale = rig.view_size / rig.plane_size
+    return tiles[0] * scale, tiles[1] * scale
+
+
+@dataclass
+class Target:
+    """The photo pair at the working size (display space, (size, size, 3) tensors)."""
+
+    reflection: torch.Tensor
+    transmission: torch.Tensor
+
+    @classmethod
+    def from_arrays(cls, reflection: np.ndarray, transmission: np.ndarray, size: int, device="cpu") -> "Target":
+        def prep(a):
+            return downsample_linear(torch.tensor(np.asarray(a), dtype=torch.float32, device=device), size)
+
+        return cls(prep(reflection), prep(transmission))
+
+    @property
+    def size(self) -> int:
+        return self.reflection.shape[0]
+
+
+class Objective:
+    """Loss of parameter sets against a target, for one rig, renderer and lattice."""
+
+    def __init__(self, target: Target, renderer: Renderer, rig: CaptureRig, weights: LossWeights = LossWeights(),
+                 prior_weight: float = 0.002, gram=None, gram_weight: float = 1.0):
+        self.target, self.renderer, self.rig = target, renderer, rig
+        self.weights, self.prior_weight = weights, prior_weight
+        self._probe_key = None
+        self.gram, self.gram_weight = gram, gram_weight
+        if gram is not None:
+            with torch.no_grad():
+                self._photo_grams = (gram(target.reflection), gram(target.transmission))
+
+    def _probes(self, tiles) -> tuple[LatticeProbe, tuple[Descriptor, Descriptor]]:
+        key = tuple(round(t, 6) for t in tiles)
+        if key != self._probe_key:
+            a, b = lattice_of(tiles, self.rig)
+            self._probe = LatticeProbe(self.target.size, a, b, device=self.target.reflection.device)
+            self._photo = (describe(self.target.reflection, self._probe, self.rig.gamma),
+                           describe(self.target.transmission, self._probe, self.rig.gamma))
+            self._probe_key = key
+        return self._probe, self._photo
+
+    def terms(self, fabric: ParamTensors) -> dict[str, torch.Tensor]:
+        """Weighted loss terms (and their sum under 'loss')."""
+        probe, (photo_r, photo_t) = self._probes(fabric.scalar("tiles"))
+        pair = self.renderer.render(fabric)
+        size = self.target.size
+        out: dict[str, torch.Tensor] = {}
+        for tag, image, photo in (("R", pair.reflection, photo_r), ("T", pair.transmission, photo_t)):
+            render = describe(downsample_linear(image, size, self.rig.gamma), probe, self.rig.gamma)
+            for name, value in descriptor_terms(render, photo).items():
+                out[f"{name}_{tag}"] = getattr(self.weights, name) * value
+            if self.gram is not None:
+                from .gram import gram_loss
+
+                photo_grams = self._photo_grams[0 if tag == "R" else 1]
+                out[f"gram_{tag}"] = self.gram_weight * gram_loss(self.gram(downsample_linear(image, size, self.rig.gamma)),
+                                                                  photo_grams)
+        out["prior"] = self.prior_weight * prior_nll(fabric.pattern, fabric.height_scale, fabric.gap_scale)
+        out["loss"] = sum(out.values())
+        return out
+
+    def __call__(self, fabric: ParamTensors) -> torch.Tensor:
+        return self.terms(fabric)["loss"]

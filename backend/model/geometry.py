@@ -1,0 +1,106 @@
+"""Per-sample fabric geometry: the non-differentiable stage between the camera and the BSDF.
+
+From world positions to, per layer: warp/weft masks, the yarn normal and fiber direction before
+height scaling, the tension thickness factor, and the noise factors of spec 4.6. It depends only on
+the discrete parameters (pattern, tiles, gap scale, twist, noise), so the optimiser computes it
+once per discrete state and reuses it across iterations.
+
+UV mapping (spec 1): u = x / P, v = y / P + 1; tile coordinates s = frac(u tu), t = 1 - frac(v tv);
+tile units X = s * tile_width, Y = t * tile_height (Y grows down the image).
+Tension (spec 3.4): thickness *= S_min + (1 - mu)(1 - S_min).
+Noise (spec 4.6, N > 0): for non-plain weaves the albedos are scaled by min(-ln xi, 10) per cell of
+a grid of spacing 1 / (11 - N) tile units; for plain the height scale of each yarn segment moves by
+-0.1 N + 0.15 N r. xi and r are hashes of the cell or segment (a free choice of the spec).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from . import rng
+from .camera import SampleChunk
+from .layers import GAP, WARP, WEFT, Layer, WeaveLookup
+from ..core.rig import CaptureRig
+from .yarn import local_frame
+
+
+@dataclass
+class LayerGeometry:
+    warp: torch.Tensor                    # (S,) 1 where the layer is a warp yarn
+    weft: torch.Tensor                    # (S,) 1 where it is a weft yarn
+    normal: torch.Tensor                  # (3, S) before height scaling
+    fiber: torch.Tensor                   # (3, S) before height scaling
+    thickness_scale: torch.Tensor         # (S,) tension factor
+    albedo_scale: torch.Tensor | None     # (S,) noise factor on k_s, k_m
+    height_offset: torch.Tensor | None    # (S,) noise offset on beta
+
+    @property
+    def is_yarn(self) -> torch.Tensor:
+        return self.warp + self.weft
+
+
+@dataclass
+class SampleGeometry:
+    layers: list[LayerGeometry]   # front, then back (one layer in the single-layer variant)
+    no_yarn: torch.Tensor         # (S,) 1 where every layer is a gap (the glow shows through)
+
+
+@dataclass(frozen=True)
+class GeometryKey:
+    """The discrete state the geometry depends on."""
+
+    pattern: str
+    tiles: tuple[float, float]
+    gap_scale: tuple[float, float]
+    twist_deg: tuple[float, float]
+    noise: float
+    tension: bool
+    layers: int
+
+
+def tile_coordinates(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig, tiles, lookup: WeaveLookup):
+    """World (x, y) -> tile units (X, Y), plus the integer tile indices (for noise)."""
+    u = x / rig.plane_size * tiles[0]
+    v = (y / rig.plane_size + 1.0) * tiles[1]
+    s = u - torch.floor(u)
+    t = 1.0 - (v - torch.floor(v))
+    return s * lookup.weave.tile_width, t * lookup.weave.tile_height, torch.floor(u).long(), torch.floor(v).long()
+
+
+def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey,
+                    dtype=torch.float32) -> SampleGeometry:
+    X, Y, tile_u, tile_v = tile_coordinates(chunk.x, chunk.y, rig, key.tiles, lookup)
+    front, back = lookup.layers(X, Y, key.gap_scale)
+    layers = [front, back][: key.layers]
+    twist = tuple(math.radians(a) for a in key.twist_deg)
+    s_min = lookup.weave.s_min if key.tension else 1.0
+    out = []
+    for index, layer in enumerate(layers):
+        n, o = local_frame(layer, twist)
+        warp = (layer.yarn == WARP).to(dtype)
+        weft = (layer.yarn == WEFT).to(dtype)
+        thickness_scale = (s_min + (1.0 - layer.mu) * (1.0 - s_min)).to(dtype)
+        albedo_scale = height_offset = None
+        if key.noise > 0:
+            albedo_scale, height_offset = _noise(layer, index, X, Y, tile_u, tile_v, lookup, key, dtype)
+        out.append(LayerGeometry(warp, weft, n.to(dtype), o.to(dtype), thickness_scale, albedo_scale, height_offset))
+    no_yarn = torch.ones_like(out[0].warp)
+    for layer in out:
+        no_yarn = no_yarn * (1.0 - layer.is_yarn)
+    return SampleGeometry(out, no_yarn)
+
+
+def _noise(layer: Layer, index: int, X, Y, tile_u, tile_v, lookup: WeaveLookup, key: GeometryKey, dtype):
+    is_yarn = layer.yarn != GAP
+    if key.pattern == "plain":
+        r = rng.uniform(tile_u, tile_v, layer.yarn.long(), layer.yarn_index, layer.segment, seed=7)
+        offset = torch.where(is_yarn, -0.1 * key.noise + 0.15 * key.noise * r, torch.zeros_like(r))
+        return None, offset.to(dtype)
+    density = 11.0 - key.noise
+    gx = torch.floor((tile_u * lookup.weave.tile_width + X) * density).long()
+    gy = torch.floor((tile_v * lookup.weave.tile_height - Y) * density).long()
+    xi = (rng.uniform(gx, gy, index, seed=11) + 0.5 / (1 << 24)).clamp(max=1.0)
+    factor = torch.where(is_yarn, torch.clamp(-torch.log(xi), max=10.0), torch.ones_like(xi))
+    return factor.to(dtype), None

@@ -1,0 +1,53 @@
+"""Bent-cylinder yarn: surface normal n and fiber direction o (spec 3.2), height scaling (3.3).
+
+In the segment's local frame (a warp's: x across to the right, y along up the image)::
+
+    n = ( sin v,  sin u cos v,  cos u cos v )
+    o = ( -cos v sin psi,
+           cos u cos psi + sin u sin v sin psi,
+          -sin u cos psi + cos u sin v sin psi )
+
+Both are unit and orthogonal by construction. A weft's local frame is rotated to the world by
+(x, y, z) -> (y, -x, z). Flat segments use n = o = (0, 0, 1); gaps n = (0, 0, 1), o = (0, 1, 0).
+
+Height scaling by beta: n' = normalize(beta n_x, beta n_y, n_z), and o is kept perpendicular by
+scaling its x, y by k = -(n'_z o_z) / (n'_x o_x + n'_y o_y). Because n . o = 0 before scaling,
+that k equals 1 / beta whenever n_z o_z != 0 (and when it is 0, o' does not depend on k, or the spec's
+k = 1 applies to a vector that needs no change), so o' = normalize(o_x, o_y, beta o_z): the same
+vector without the 0/0 that the literal formula meets at segment centres. The literal formula
+lives in :mod:`tests.oracles.reference`, and a test checks both agree.
+"""
+from __future__ import annotations
+
+import torch
+
+from .frames import normalize
+from .layers import GAP, WEFT, Layer
+
+
+def local_frame(layer: Layer, twist_rad: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """World-space (n, o), each (3, *batch), before height scaling."""
+    u, v = layer.u, layer.v
+    psi = torch.where(layer.yarn == WEFT, twist_rad[1], twist_rad[0]).to(u.dtype)
+    su, cu, sv, cv, sp, cp = torch.sin(u), torch.cos(u), torch.sin(v), torch.cos(v), torch.sin(psi), torch.cos(psi)
+    n = torch.stack((sv, su * cv, cu * cv))
+    o = torch.stack((-cv * sp, cu * cp + su * sv * sp, -su * cp + cu * sv * sp))
+    is_weft = layer.yarn == WEFT
+    n = torch.where(is_weft, torch.stack((n[1], -n[0], n[2])), n)
+    o = torch.where(is_weft, torch.stack((o[1], -o[0], o[2])), o)
+    up = torch.zeros_like(n)
+    up[2] = 1
+    along_y = torch.zeros_like(o)
+    along_y[1] = 1
+    flat = layer.flat & (layer.yarn != GAP)
+    gap = layer.yarn == GAP
+    n = torch.where(flat | gap, up, n)
+    o = torch.where(flat, up, torch.where(gap, along_y, o))
+    return n, o
+
+
+def scale_height(n: torch.Tensor, o: torch.Tensor, beta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Height-field scaling (spec 3.3) with per-sample beta; differentiable in beta."""
+    n_scaled = normalize(torch.stack((beta * n[0], beta * n[1], n[2])))
+    o_scaled = normalize(torch.stack((o[0], o[1], beta * o[2])))
+    return n_scaled, o_scaled

@@ -1,0 +1,66 @@
+"""Candidate weaves and yarn densities for a photo pair, read from the spectrum (no optimisation).
+
+1. :func:`backend.texture.lattice.estimate` finds the tile lattice that explains the spectral peaks of both
+   photos, up to small sub- and super-multiples;
+2. for each preset, :func:`backend.texture.lattice.candidates` scales that lattice by small ratios, polishes
+   each hypothesis and scores it with the preset's *signature* (its harmonic structure, measured once
+   per rig from a render of the preset's typical parameters at a low density).
+
+The fit then gives the best few (pattern, tiles) candidates a short optimisation each and keeps the
+one that explains the photos best (:mod:`backend.fit.pipeline`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+from . import lattice
+from ..core import priors
+from ..model.render import Renderer
+from ..core.rig import CaptureRig
+
+SIGNATURE_DENSITY = 20.0  # tiles across the image for the signature renders: every harmonic below Nyquist
+
+
+@dataclass(frozen=True)
+class Candidate:
+    pattern: str
+    tiles: tuple[float, float]
+    score: float
+
+
+@lru_cache(maxsize=4)
+def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
+    """Per preset, the (reflection, transmission) harmonic signatures of its typical parameters."""
+    renderer = Renderer(rig, size=512, spp=4, cache_samples=0)
+    tiles = SIGNATURE_DENSITY * rig.plane_size / rig.view_size
+    out = {}
+    for pattern in priors.PATTERNS:
+        params = priors.typical(pattern).replace(tiles=(tiles, tiles))
+        with torch.no_grad():
+            pair = renderer.render(params)
+        out[pattern] = [lattice.signature(img.numpy(), SIGNATURE_DENSITY, SIGNATURE_DENSITY)
+                        for img in (pair.reflection, pair.transmission)]
+    return out
+
+
+def propose(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig, patterns: tuple[str, ...],
+            per_pattern: int = 2) -> list[Candidate]:
+    """(pattern, tiles) candidates, best lattice score first (scores compare within a pattern only)."""
+    scale = rig.view_size / rig.plane_size
+    ranges = {p: priors.tile_range(p) for p in patterns}
+    lo = min(min(r[0][0], r[1][0]) for r in ranges.values()) * scale
+    hi = max(max(r[0][1], r[1][1]) for r in ranges.values()) * scale
+    images = [np.asarray(reflection, dtype=np.float64), np.asarray(transmission, dtype=np.float64)]
+    comb = lattice.estimate(images, (lo, hi), (lo, hi))
+    sigs = signatures(rig)
+    out = []
+    for pattern in patterns:
+        (tu_lo, tu_hi), (tv_lo, tv_hi) = ranges[pattern]
+        found = lattice.candidates(images, comb, sigs[pattern], (tu_lo * scale, tu_hi * scale),
+                                   (tv_lo * scale, tv_hi * scale), top=per_pattern)
+        out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
+    return out

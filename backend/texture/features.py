@@ -1,0 +1,214 @@
+"""Weight-free texture statistics of an image (no downloaded network), differentiable.
+
+A woven fabric photographed by the rig is a periodic texture on a known lattice (see
+:mod:`backend.texture.lattice`): all of its structure lives at the harmonics (m a, n b). Statistics are
+taken on the *linearised* image (display value ** gamma), where a render's Monte Carlo noise and a
+camera's noise are zero-mean: averaging display values would bias noisy pixels (the gamma curve is
+concave), and a 4-spp render of a sharp highlight would look darker than the photo of it. The
+descriptor of an (H, W, 3) display-space image is:
+
+- ``colour``: the 16 x 16 area downsample (the paper's pixel term: tone, colour, lighting gradient);
+- ``harmonics``: for a 3 x 3 grid of regions, the magnitude of the Hann-windowed Fourier transform
+  of each RGB channel at the lattice harmonics |m| <= 4, 0 <= n <= 4 (half plane), divided by the
+  region's mean colour (modulation depth). Phase-invariant (a translated weave matches), robust to
+  pixel noise (it averages out at a single frequency) and regional, so it sees how the texture's
+  contrast changes with the lighting angle across the image (roughness, height, twist). Computed at
+  the image's own lattice, so a render and a photo are compared harmonic by harmonic even when
+  their lattices differ slightly. On a pixel grid a frequency past Nyquist is automatically folded,
+  exactly as in the image. Each region also gets a noise floor: the median magnitude at the
+  off-lattice frequencies (m + 1/2, n + 1/2);
+- ``quantiles``: 24 luminance quantiles (the highlight distribution);
+- ``spectrum`` (diagnostics, :func:`log_spectrum`): the smoothed, standardised log power spectrum of
+  the high-passed luminance, as the project's spectrum metric computes it.
+
+:func:`descriptor_terms` compares two descriptors: L1 of the 16 x 16 colours, L1 of the log
+harmonic amplitudes above a noise floor, L1 of the quantiles.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+LUMA = (0.2126, 0.7152, 0.0722)
+QUANTILES = 24
+ORDER = 4
+REGIONS = 3
+MIN_FLOOR = 1e-3  # modulation depth below which harmonics are treated as noise
+
+
+def luminance(image: torch.Tensor) -> torch.Tensor:
+    return image @ torch.tensor(LUMA, dtype=image.dtype, device=image.device)
+
+
+def colour16(image: torch.Tensor) -> torch.Tensor:
+    """16 x 16 area downsample, (3, 16, 16)."""
+    return F.adaptive_avg_pool2d(image.permute(2, 0, 1)[None], 16)[0]
+
+
+def luminance_quantiles(image: torch.Tensor) -> torch.Tensor:
+    y = luminance(image).flatten()
+    q = torch.linspace(0.02, 0.98, QUANTILES, dtype=y.dtype, device=y.device)
+    return torch.quantile(y, q)
+
+
+def harmonic_indices(order: int = ORDER) -> list[tuple[int, int]]:
+    """Lattice harmonics (m, n) with |m|, n <= order in the half plane n > 0 or (n = 0, m > 0)."""
+    return [(m, n) for n in range(order + 1) for m in range(-order, order + 1) if n > 0 or m > 0]
+
+
+class LatticeProbe:
+    """Regional Fourier magnitudes of an image at the harmonics of one lattice (a, b).
+
+    a, b: tiles across and down the image (cycles per image). The probe precomputes the windowed
+    complex exponentials of each region; calling it is two small matrix products per region.
+    """
+
+    def __init__(self, size: int, a: float, b: float, device="cpu", dtype=torch.float32,
+                 regions: int = REGIONS, order: int = ORDER):
+        self.size, self.a, self.b, self.regions = size, a, b, regions
+        self.harmonics = harmonic_indices(order)
+        # Lattice harmonics, then the same count of off-lattice probes for the noise floor.
+        ms = torch.tensor([m for m, _ in self.harmonics] + [m + 0.5 for m, _ in self.harmonics], dtype=torch.float64)
+        ns = torch.tensor([n for _, n in self.harmonics] + [n + 0.5 for _, n in self.harmonics], dtype=torch.float64)
+        self.bounds = [round(k * size / regions) for k in range(regions + 1)]
+        self.ex, self.ey = [], []
+        for k in range(regions):
+            lo, hi = self.bounds[k], self.bounds[k + 1]
+            coords = torch.arange(lo, hi, dtype=torch.float64)
+            window = torch.hann_window(hi - lo + 2, periodic=False, dtype=torch.float64)[1:-1]
+            window = window / window.sum()
+            # e^{-2 pi i f x / size} with the window folded in: (harmonics, region width)
+            self.ex.append((torch.exp(-2j * math.pi * torch.outer(ms * a, coords) / size) * window).to(device))
+            self.ey.append((torch.exp(-2j * math.pi * torch.outer(ns * b, coords) / size) * window).to(device))
+        self.dtype = dtype
+
+    def __call__(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(coefficients / region mean (regions^2, harmonics, 3), complex; noise floor (regions^2, 1, 3))."""
+        out = []
+        for i in range(self.regions):
+            for j in range(self.regions):
+                patch = image[self.bounds[i]:self.bounds[i + 1], self.bounds[j]:self.bounds[j + 1]]
+                patch = patch.to(torch.complex64 if self.dtype == torch.float32 else torch.complex128)
+                ey = self.ey[i].to(patch.dtype)
+                ex = self.ex[j].to(patch.dtype)
+                # sum_y sum_x ey[k, y] ex[k, x] patch[y, x, c]
+                coeff = torch.einsum("ky,yxc,kx->kc", ey, patch, ex)
+                mean = patch.real.mean(dim=(0, 1)).clamp_min(1e-4)
+                out.append(coeff / mean)
+        stacked = torch.stack(out)
+        count = len(self.harmonics)
+        # A channel that is black (an albedo of 0) has no noise either: keep a floor of 0.1 %.
+        floor = stacked[:, count:].abs().median(dim=1, keepdim=True).values.clamp_min(MIN_FLOOR)
+        return stacked[:, :count], floor
+
+    def phase_ramp(self, dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
+        """e^{2 pi i (m dx + n dy)} for translations (dx, dy) in tile units: (..., harmonics)."""
+        m = torch.tensor([h[0] for h in self.harmonics], dtype=torch.float32, device=dx.device)
+        n = torch.tensor([h[1] for h in self.harmonics], dtype=torch.float32, device=dx.device)
+        return torch.polar(torch.ones(1, device=dx.device), 2 * math.pi * (dx[..., None] * m + dy[..., None] * n))
+
+
+@dataclass
+class Descriptor:
+    colour: torch.Tensor        # (3, 16, 16) display space (area average taken in linear space)
+    coefficients: torch.Tensor  # (regions^2, harmonics, 3) complex, relative to the region's mean
+    floor: torch.Tensor         # (regions^2, 1, 3) noise floor of their magnitudes
+    quantiles: torch.Tensor     # (QUANTILES,) linear luminance
+    probe: LatticeProbe
+
+    @property
+    def harmonics(self) -> torch.Tensor:
+        """Modulation depth per harmonic (phase-invariant)."""
+        return self.coefficients.abs()
+
+
+def describe(image: torch.Tensor, probe: LatticeProbe, gamma: float = 2.2) -> Descriptor:
+    """Descriptor of a display-space image (values in [0, 1], gamma-encoded)."""
+    linear = image.clamp_min(0).pow(gamma)
+    coefficients, floor = probe(linear)
+    return Descriptor(colour16(linear).clamp_min(1e-8).pow(1 / gamma), coefficients, floor,
+                      luminance_quantiles(linear), probe)
+
+
+ALIGN_STEPS = 32
+
+
+def aligned_difference(render: Descriptor, photo: Descriptor, keep: torch.Tensor, floor: torch.Tensor) -> torch.Tensor:
+    """Complex harmonics compared after the best translation of the render per region.
+
+    A translation by (dx, dy) tiles multiplies harmonic (m, n) by e^{-2 pi i (m dx + n dy)}; per
+    region the shift maximising the correlation of the significant harmonics (a 32 x 32 grid over
+    one tile) is applied, then |render - photo| / (|photo| + 2 floor) is averaged. The relative
+    phases of the harmonics carry the shape of the tile (where highlights sit on the yarns), which
+    the magnitudes alone lose; the translation itself (the sample's placement) is free.
+    """
+    probe = render.probe
+    grid = (torch.arange(ALIGN_STEPS, dtype=torch.float32, device=keep.device) + 0.5) / ALIGN_STEPS
+    dy, dx = torch.meshgrid(grid, grid, indexing="ij")
+    ramp = probe.phase_ramp(dx.flatten(), dy.flatten())                       # (shifts, harmonics)
+    with torch.no_grad():
+        weights = keep / (photo.harmonics + 2 * floor)
+        cross = (photo.coefficients.conj() * render.coefficients * weights).sum(-1)  # (regions, harmonics)
+        score = torch.einsum("rk,sk->rs", cross, ramp.to(cross.dtype)).real       # (regions, shifts)
+        best = ramp[score.argmax(dim=1)].to(render.coefficients.dtype)            # (regions, harmonics)
+    shifted = render.coefficients * best[..., None]
+    diff = (shifted - photo.coefficients).abs() / (photo.harmonics + 2 * floor)
+    return (diff * keep).sum() / keep.sum().clamp_min(1.0)
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    colour: float = 10.0
+    harmonics: float = 1.0
+    aligned: float = 0.5
+    quantiles: float = 2.0
+
+
+def descriptor_terms(render: Descriptor, photo: Descriptor, significance: float = 4.0) -> dict[str, torch.Tensor]:
+    """Unweighted distances. Harmonic magnitudes compare as log(x + f) with f twice the larger of
+    the two noise floors, over the harmonics that stand ``significance`` times above the photo's
+    floor in either image (the rest is noise in both and would only add noise to the loss)."""
+    floor = torch.maximum(render.floor, photo.floor).detach()
+    keep = ((photo.harmonics > significance * floor) | (render.harmonics.detach() > significance * floor)).float()
+    log_diff = (torch.log(render.harmonics + 2 * floor) - torch.log(photo.harmonics + 2 * floor)).abs()
+    return {"colour": (render.colour - photo.colour).abs().mean(),
+            "harmonics": (log_diff * keep).sum() / keep.sum().clamp_min(1.0),
+            "aligned": aligned_difference(render, photo, keep, floor),
+            "quantiles": (render.quantiles - photo.quantiles).abs().mean()}
+
+
+def descriptor_loss(render: Descriptor, photo: Descriptor, weights: LossWeights = LossWeights()) -> torch.Tensor:
+    terms = descriptor_terms(render, photo)
+    return sum(getattr(weights, name) * value for name, value in terms.items())
+
+
+def log_spectrum(image: torch.Tensor, keep: float = 0.5) -> torch.Tensor:
+    """Standardised, smoothed log power spectrum of the high-passed luminance (central band)."""
+    y = luminance(image)
+    h, w = y.shape
+    blur = _gaussian_blur(y, h / 32)
+    y = y - blur
+    window = torch.outer(torch.hann_window(h, periodic=False, dtype=y.dtype, device=y.device),
+                         torch.hann_window(w, periodic=False, dtype=y.dtype, device=y.device))
+    power = torch.fft.fftshift(torch.fft.fft2(y * window)).abs().square()
+    power = F.avg_pool2d(power[None, None], 3, stride=1, padding=1, count_include_pad=False)[0, 0]
+    ch, cw = int(h * keep / 2), int(w * keep / 2)
+    band = torch.log(power[h // 2 - ch: h // 2 + ch, w // 2 - cw: w // 2 + cw] + 1e-10)
+    mask = torch.ones_like(band, dtype=torch.bool)
+    mask[ch - 2: ch + 3, cw - 2: cw + 3] = False  # the DC neighbourhood carries only lighting
+    values = band[mask]
+    return (values - values.mean()) / (values.std() + 1e-8)
+
+
+def _gaussian_blur(plane: torch.Tensor, sigma: float) -> torch.Tensor:
+    radius = max(1, int(math.ceil(3 * sigma)))
+    x = torch.arange(-radius, radius + 1, dtype=plane.dtype, device=plane.device)
+    k = torch.exp(-x * x / (2 * sigma * sigma))
+    k = (k / k.sum())
+    p = plane[None, None]
+    p = F.conv2d(F.pad(p, (radius, radius, 0, 0), mode="reflect"), k.view(1, 1, 1, -1))
+    p = F.conv2d(F.pad(p, (0, 0, radius, radius), mode="reflect"), k.view(1, 1, -1, 1))
+    return p[0, 0]
