@@ -20,11 +20,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..core.pairs import find_pairs
 from ..core.params import FabricParams
 
 TARGETS = {"flip": 0.12, "colour_l1": 0.02, "spectrum_corr": 0.6, "roughness_mae": 0.05,
            "thickness_mae": 0.25, "tiles_error_pct": 2.0, "wall_s": 120.0}
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".dng", ".cr2", ".nef", ".arw")
 
 
 def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) -> dict:
@@ -54,17 +54,6 @@ def _errors(fitted: FabricParams, truth: FabricParams) -> dict:
             "tiles_error_pct": 100 * max(abs(f / t - 1) for f, t in zip(fitted.tiles, truth.tiles))}
 
 
-def _pairs(folder: Path) -> list[tuple[str, Path, Path]]:
-    out = []
-    for r in sorted(folder.iterdir()):
-        if r.suffix.lower() in IMAGE_SUFFIXES and r.stem.endswith("_R"):
-            name = r.stem[:-2]
-            t = next((p for p in folder.iterdir() if p.stem == f"{name}_T" and p.suffix.lower() in IMAGE_SUFFIXES), None)
-            if t is not None:
-                out.append((name, r, t))
-    return out
-
-
 def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, extra: list[str], as_json: bool) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="fit-bench-") as tmp:
@@ -77,9 +66,9 @@ def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, ext
                 jobs.append(("synthetic", case["name"], gdir / f"{case['name']}_R.png", gdir / f"{case['name']}_T.png",
                              FabricParams.from_interchange(case["params"])))
         if real:
-            for name, r, t in _pairs(Path(real)):
-                if not cases or name in cases:
-                    jobs.append(("real", name, r, t, None))
+            for pair in find_pairs(Path(real))[0]:
+                if not cases or pair.name in cases:
+                    jobs.append(("real", pair.name, pair.reflection, pair.transmission, None))
         for kind, name, r, t, truth in jobs:
             result = _run_fit(r, t, Path(tmp) / f"{kind}_{name}", extra)
             row = {"kind": kind, "name": name, "wall_s": round(result["wall_s"], 1)}

@@ -65,6 +65,8 @@ from typing import Sequence, Union  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..core.formats import RAW_SUFFIXES  # noqa: E402
+
 PathLike = Union[str, os.PathLike]
 Box = tuple[int, int, int, int]
 
@@ -89,9 +91,7 @@ MIN_PEAK_POWER = 0.05
 MIN_PEAK_PROMINENCE = 10.0
 HARMONIC_RATIOS = (2.0, 1.5, 4 / 3, 3 / 4, 2 / 3, 0.5)
 
-RAW_EXTENSIONS = frozenset(
-    ".dng .cr2 .cr3 .crw .nef .nrw .arw .srf .sr2 .orf .rw2 .raf .pef .srw .3fr .iiq .erf .kdc .dcr "
-    ".mrw .x3f .raw .rwl .mos .mef".split())
+RAW_EXTENSIONS = frozenset(RAW_SUFFIXES)
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _JPEG_SIGNATURE = b"\xff\xd8\xff"
