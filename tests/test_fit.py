@@ -12,7 +12,8 @@ import torch
 
 from backend import lattice, search
 from backend.texture.features import LatticeProbe, describe, descriptor_terms
-from backend.fit.pipeline import FitSettings, fit
+from backend.fit.pipeline import fit
+from backend.fit.settings import FitSettings
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.model.param_tensors import ParamTensors

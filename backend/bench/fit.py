@@ -81,7 +81,8 @@ def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, ext
                     for key, value in result["metrics"][tag].items():
                         row[f"{key}_{tag[0].upper()}"] = round(value, 4)
                 if truth is not None:
-                    row.update({k: (round(v, 4) if isinstance(v, float) else v) for k, v in _errors(result["params"], truth).items()})
+                    errors = _errors(result["params"], truth)
+                    row.update({k: (round(v, 4) if isinstance(v, float) else v) for k, v in errors.items()})
             rows.append(row)
             print(json.dumps(row) if as_json else _format(row), flush=True)
     summary = _summary(rows)
@@ -92,9 +93,11 @@ def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, ext
 def _format(row: dict) -> str:
     if "error" in row:
         return f"{row['kind']:9s} {row['name']:16s} ERROR {row['error']}"
-    text = (f"{row['kind']:9s} {row['name']:16s} {row['pattern']:7s} tiles {row['tiles'][0]:6.1f} {row['tiles'][1]:6.1f}"
+    text = (f"{row['kind']:9s} {row['name']:16s} {row['pattern']:7s} "
+            f"tiles {row['tiles'][0]:6.1f} {row['tiles'][1]:6.1f}"
             f"  FLIP {row['flip_R']:.3f}/{row['flip_T']:.3f}  colour {row['colour_l1_R']:.4f}/{row['colour_l1_T']:.4f}"
-            f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}  blur {row['camera_blur_px'] or 0:.2f}"
+            f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}"
+            f"  blur {row['camera_blur_px'] or 0:.2f}"
             f"  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB")
     if "roughness_mae" in row:
         text += (f"  pattern {'ok' if row['pattern_ok'] else 'WRONG'}  roughness {row['roughness_mae']:.3f}"
@@ -121,18 +124,19 @@ def _summary(rows: list[dict]) -> dict:
 
 
 def _format_summary(s: dict) -> str:
-    lines = [f"summary: {s['pairs']} pairs, {s['failed']} failed, wall time mean {s['wall_s_mean']} s, max {s['wall_s_max']} s "
-             f"(target <= {TARGETS['wall_s']:.0f} s)"]
+    lines = [f"summary: {s['pairs']} pairs, {s['failed']} failed, wall time mean {s['wall_s_mean']} s, "
+             f"max {s['wall_s_max']} s (target <= {TARGETS['wall_s']:.0f} s)"]
     for kind in ("real", "synthetic"):
         k = s[kind]
         if k.get("flip_R") is None:
             continue
-        lines.append(f"  {kind}: FLIP {k['flip_R']}/{k['flip_T']} (<= {TARGETS['flip']}), colour L1 {k['colour_l1_R']}/"
-                     f"{k['colour_l1_T']} (<= {TARGETS['colour_l1']}), spectrum {k['spectrum_corr_R']}/{k['spectrum_corr_T']}"
-                     f" (>= {TARGETS['spectrum_corr']})")
+        lines.append(f"  {kind}: FLIP {k['flip_R']}/{k['flip_T']} (<= {TARGETS['flip']}), "
+                     f"colour L1 {k['colour_l1_R']}/{k['colour_l1_T']} (<= {TARGETS['colour_l1']}), "
+                     f"spectrum {k['spectrum_corr_R']}/{k['spectrum_corr_T']} (>= {TARGETS['spectrum_corr']})")
     syn = s["synthetic"]
     if "pattern_accuracy" in syn:
-        lines.append(f"  synthetic parameters: pattern {syn['pattern_accuracy']:.0%} right, roughness MAE {syn['roughness_mae']}"
-                     f" (<= {TARGETS['roughness_mae']}), thickness MAE {syn['thickness_mae']} (<= {TARGETS['thickness_mae']}),"
+        lines.append(f"  synthetic parameters: pattern {syn['pattern_accuracy']:.0%} right, "
+                     f"roughness MAE {syn['roughness_mae']} (<= {TARGETS['roughness_mae']}), "
+                     f"thickness MAE {syn['thickness_mae']} (<= {TARGETS['thickness_mae']}),"
                      f" worst tiles error {syn['tiles_error_pct_max']}% (<= {TARGETS['tiles_error_pct']}%)")
     return "\n".join(lines)

@@ -24,12 +24,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from ..init import network as init_net
 from ..core import priors
-from ..core.params import SPECS, FabricParams
+from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG
+from ..fit.pipeline import fit
+from ..fit.settings import FitSettings
+from ..image.photos import load_pair
+from ..init import network as init_net
+from ..init.train import EXACT_ROW, load_arrays
+from ..texture.candidates import propose
 
 REPORTED = init_net.TARGETS
 
@@ -53,7 +57,6 @@ def _prior_start(pattern: str, tiles) -> FabricParams:
 
 # -- 1. held-out synthetic set ---------------------------------------------------------------------
 def evaluate_heldout(model: init_net.InitModel, folder: str | Path) -> dict:
-    from ..init.train import EXACT_ROW, load_arrays
 
     arrays = load_arrays(folder)
     targets, logits = model.predict(arrays.features[:, :EXACT_ROW])
@@ -86,15 +89,11 @@ def golden_cases(folder: str | Path) -> list[tuple[str, Path, Path, FabricParams
 
 
 def _load(reflection: Path, transmission: Path):
-    from ..cli.fit import OUTPUT_SIZE
-    from ..image.photos import load_pair
-
-    photos = load_pair(reflection, transmission, size=OUTPUT_SIZE)
+    photos = load_pair(reflection, transmission, size=DEFAULT_RIG.film_size)
     return photos.reflection, photos.transmission
 
 
 def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stderr) -> dict:
-    from ..texture.candidates import propose
 
     rows, net_rows, prior_rows = [], [], []
     for name, r_path, t_path, truth in golden_cases(folder):
@@ -114,9 +113,10 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
             row.update({"network": {k: round(v, 4) for k, v in errors.items()},
                         "prior": {k: round(v, 4) for k, v in prior.items()}})
         rows.append(row)
+        network_mae, prior_mae = row.get("network", {}), row.get("prior", {})
         print(f"evaluate-init: golden {name}: predicted {row['predicted_pattern']} ({row['probability']}), "
-              f"roughness MAE {row.get('network', {}).get('roughness')} (prior {row.get('prior', {}).get('roughness')}), "
-              f"thickness MAE {row.get('network', {}).get('thickness')} (prior {row.get('prior', {}).get('thickness')})",
+              f"roughness MAE {network_mae.get('roughness')} (prior {prior_mae.get('roughness')}), "
+              f"thickness MAE {network_mae.get('thickness')} (prior {prior_mae.get('thickness')})",
               file=log, flush=True)
     return {"cases": rows, "pattern_accuracy": float(np.mean([r["pattern"] == r["predicted_pattern"] for r in rows])),
             "network_mae": _mean_errors(net_rows), "prior_mae": _mean_errors(prior_rows)}
@@ -124,7 +124,6 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
 
 # -- 3. fits from the prior and from the network ---------------------------------------------------
 def _timed_fit(reflection, transmission, settings, use_network: bool, model) -> dict:
-    from ..fit.pipeline import fit
 
     trace: list[tuple[float, int, float]] = []
     started = time.perf_counter()
@@ -149,7 +148,6 @@ def _reach(trace, level: float) -> tuple[int | None, float | None]:
 
 def evaluate_fits(model: init_net.InitModel, folder: str | Path, names: list[str] | None, iterations: int | None,
                   log=sys.stderr) -> dict:
-    from ..fit.pipeline import FitSettings
 
     settings = FitSettings() if iterations is None else FitSettings(iterations=iterations)
     rows = []
@@ -188,42 +186,9 @@ def evaluate_fits(model: init_net.InitModel, folder: str | Path, names: list[str
 
 
 # -- command line ----------------------------------------------------------------------------------
-def _print_table(title: str, section: dict) -> None:
+def print_table(title: str, section: dict) -> None:
     print(f"\n{title}: pattern accuracy {section['pattern_accuracy']:.3f}")
     print(f"  {'parameter':24s} {'network MAE':>12s} {'prior MAE':>12s}")
     for name in REPORTED:
         if name in section.get("network_mae", {}):
             print(f"  {name:24s} {section['network_mae'][name]:12.4f} {section['prior_mae'][name]:12.4f}")
-
-
-def run_evaluate(args) -> int:
-    torch.set_num_threads(args.threads)
-    model = init_net.InitModel.load(args.weights)
-    report: dict = {"weights": str(args.weights), "training": model.info.get("training")}
-    if args.heldout:
-        report["heldout"] = evaluate_heldout(model, args.heldout)
-        _print_table(f"held-out synthetic ({report['heldout']['items']} items)", report["heldout"])
-    if args.golden:
-        report["golden"] = evaluate_golden(model, args.golden)
-        _print_table(f"golden targets ({len(report['golden']['cases'])} cases)", report["golden"])
-        if not args.no_fits:
-            report["fits"] = evaluate_fits(model, args.golden, args.fit_cases, args.iterations)
-            print(f"\nfits ({report['fits']['iterations']} iterations), means over cases:")
-            for label, values in report["fits"]["summary"].items():
-                print(f"  {label:8s} " + ", ".join(f"{k} {v:.4f}" for k, v in values.items() if v is not None))
-    if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
-    return 0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("evaluate-init", help="evaluate the initialisation network (raw predictions and fits)")
-    p.add_argument("--weights", default=str(init_net.DEFAULT_WEIGHTS))
-    p.add_argument("--heldout", help="a held-out dataset folder (made with another --seed)")
-    p.add_argument("--golden", help="a folder with cases.json and <name>_R/_T.png targets")
-    p.add_argument("--fit-cases", nargs="*", help="golden cases to fit both ways (default: all)")
-    p.add_argument("--no-fits", action="store_true", help="raw predictions only")
-    p.add_argument("--iterations", type=int, help="fit iterations (default: the fit's default)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
-    p.add_argument("--json", help="write every number to this JSON file")
-    p.set_defaults(run=run_evaluate)

@@ -15,15 +15,15 @@ all continuous parameters requiring gradients):
 from __future__ import annotations
 
 import json
-import resource
 import statistics
 import sys
 import time
 
 import torch
 
-from ..model.param_tensors import ParamTensors
 from ..core.params import PARAMETERS, FabricParams
+from ..model.memory import peak_memory_mb
+from ..model.param_tensors import ParamTensors
 from ..model.render import Renderer
 
 EXAMPLE = ("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,0.286,0.279,0.0"
@@ -63,13 +63,8 @@ def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dic
             "warmup_s": warm}
 
 
-def peak_memory_mb(device) -> float:
-    if device.type == "cuda":
-        return torch.cuda.max_memory_allocated(device) / 2**20
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
-
-
-def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = False, device=torch.device("cpu")) -> int:
+def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = False,
+                 device=torch.device("cpu")) -> int:
     params = FabricParams.from_interchange(EXAMPLE)
     optimised = [s.name for s in PARAMETERS if s.optimised]
     fabric = ParamTensors.from_params(params, device, requires_grad=optimised)
@@ -107,9 +102,10 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
         print(json.dumps(result))
     else:
         print(f"render {size}x{size} @ {spp} spp, R+T pair, {device}, {result['threads']} threads, median of {runs}:")
-        print(f"  forward           {result['forward_s'] * 1000:8.1f} ms  (eager {result['eager_forward_s'] * 1000:.1f} ms,"
-              f" x{result['speedup_forward']})")
-        print(f"  forward+backward  {result['backward_s'] * 1000:8.1f} ms  (eager {result['eager_backward_s'] * 1000:.1f} ms)")
+        print(f"  forward           {result['forward_s'] * 1000:8.1f} ms  "
+              f"(eager {result['eager_forward_s'] * 1000:.1f} ms, x{result['speedup_forward']})")
+        print(f"  forward+backward  {result['backward_s'] * 1000:8.1f} ms  "
+              f"(eager {result['eager_backward_s'] * 1000:.1f} ms)")
         print(f"  cold render       {result['cold_s'] * 1000:8.1f} ms  (camera samples + geometry + BSDF, eager)")
         if result["compiled"]:
             print(f"  first compiled call {result['compile_s']:.1f} s (compile; cached on disk)")

@@ -2,17 +2,17 @@
 
     fit REFLECTION TRANSMISSION --out DIR [--pattern auto|plain|twill0|twill1|satin0|satin1]
         [--iterations N] [--size N] [--device cpu|cuda] [--json-progress] [--rig RIG.json]
-        [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior] [--vgg-weights PATH]
-        [--output-spp N] [--overwrite]
+        [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior]
+        [--vgg-weights PATH] [--camera-blur auto|PX] [--output-spp N] [--overwrite]
     fit --example --out DIR      (renders a known fabric, then fits it)
 
 Writes DIR/params.json (spec names, plus the interchange string, rig, fit details), DIR/reflection.png
-and DIR/transmission.png (16-bit re-renders of the fit, 512 x 512 at 64 spp, the photos' framing),
-DIR/report.png and DIR/metrics.json (FLIP, 16 x 16 colour L1 and spectrum correlation for both
-images, wall time). Progress goes to the terminal, or as JSON lines with --json-progress
-(:mod:`backend.core.protocol`). SIGINT/SIGTERM stop the fit: the best parameters so far are written to
-DIR/params.partial.json and the exit code is 130. An existing fit in DIR is never overwritten
-without --overwrite.
+and DIR/transmission.png (16-bit re-renders of the fit at the rig's film size (512) and 64 spp, the
+photos' framing), DIR/report.png and DIR/metrics.json (FLIP, 16 x 16 colour L1 and spectrum
+correlation for both images, wall time). Progress goes to the terminal, or as JSON lines with
+--json-progress (:mod:`backend.core.protocol`). SIGINT/SIGTERM stop the fit: the best parameters so
+far are written to DIR/params.partial.json and the exit code is 130. An existing fit in DIR is never
+overwritten without --overwrite.
 """
 from __future__ import annotations
 
@@ -21,21 +21,31 @@ import dataclasses
 import json
 import signal
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import __version__
-from ..fit.pipeline import FitCancelled, FitSettings, fit
-from ..fit.gram import GramWeightsError
 from ..core.params import FabricParams
-from ..image.photos import PhotoError, load_pair
+from ..core.priors import PATTERNS
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig, RigError
+from ..fit.gram import GramWeightsError
+from ..fit.pipeline import fit
+from ..fit.report import write_report
+from ..fit.settings import FitCancelled, FitSettings
+from ..image.metrics import compare
+from ..image.photos import PhotoError, load_pair
+from ..image.png import write_png
+from ..init.network import fit_initialiser
+from ..model.memory import peak_memory_mb
+from ..model.render import render_pair
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
-OUTPUT_SIZE, OUTPUT_SPP = 512, 64
+OUTPUT_SPP = 64
 
 
 class FitInputError(ValueError):
@@ -44,13 +54,10 @@ class FitInputError(ValueError):
         self.file = file
 
 
-def make_example(folder: Path) -> tuple[Path, Path, FabricParams]:
+def make_example(folder: Path, rig: CaptureRig = DEFAULT_RIG) -> tuple[Path, Path, FabricParams]:
     """Renders the bundled example fabric as a photo pair (8-bit, like a phone's) into ``folder``."""
-    from ..image.png import write_png
-    from ..model.render import render_pair
-
     params = FabricParams.from_interchange(EXAMPLE_PARAMS)
-    pair = render_pair(params, DEFAULT_RIG, size=OUTPUT_SIZE, spp=16, seed=12345)
+    pair = render_pair(params, rig, size=rig.film_size, spp=16, seed=12345)
     folder.mkdir(parents=True, exist_ok=True)
     reflection = write_png(folder / "example_R.png", pair.reflection, bits=8)
     transmission = write_png(folder / "example_T.png", pair.transmission, bits=8)
@@ -66,14 +73,8 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
-def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
-    from ..model.render import render_pair
-
-    pair = render_pair(params, rig, size=OUTPUT_SIZE, spp=spp, seed=1, device=device, progress=progress)
-    return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
-
-
 def run_fit(args) -> int:
+    """The command: signals stop the fit cleanly, every failure becomes one protocol error line."""
     reporter = Reporter(json_lines=args.json_progress)
     reporter.start("fit", device=args.device)
     stop = {"requested": False}
@@ -84,10 +85,11 @@ def run_fit(args) -> int:
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     out = Path(args.out)
     try:
-        return _fit(args, reporter, out, lambda: stop["requested"])
+        return fit_to_folder(args, reporter, out, lambda: stop["requested"])
     except FitCancelled as cancelled:
         if cancelled.params is not None and out.is_dir():
-            (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True) + "\n")
+            (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True)
+                                                     + "\n")
         reporter.error("cancelled", "the fit was cancelled; the best parameters so far are in params.partial.json"
                        if cancelled.params is not None else "the fit was cancelled before any result")
         return EXIT_CANCELLED
@@ -95,8 +97,6 @@ def run_fit(args) -> int:
         reporter.error("input", str(exc), getattr(exc, "file", None))
         return EXIT_INPUT
     except Exception as exc:  # the caller gets a readable line, never a silent death
-        import traceback
-
         traceback.print_exc()
         reporter.error("internal", f"{type(exc).__name__}: {exc}")
         return EXIT_INTERNAL
@@ -105,9 +105,8 @@ def run_fit(args) -> int:
             signal.signal(sig, handler)
 
 
-def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
-    import torch
-
+def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
+    """Loads the photos, fits them and writes the results folder (see the module docstring)."""
     started = time.perf_counter()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise FitInputError(f"--device {args.device}: CUDA is not available in this PyTorch build or on this machine")
@@ -115,13 +114,13 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     rig = CaptureRig.load(args.rig) if args.rig else DEFAULT_RIG
     truth = None
     if args.example:
-        reflection_path, transmission_path, truth = make_example(out / "example_photos")
+        reflection_path, transmission_path, truth = make_example(out / "example_photos", rig)
     else:
         if not args.reflection or not args.transmission:
             raise FitInputError("fit needs REFLECTION and TRANSMISSION photos (or --example)")
         reflection_path, transmission_path = Path(args.reflection), Path(args.transmission)
     reporter.progress("load", 0, 1)
-    photos = load_pair(reflection_path, transmission_path, size=OUTPUT_SIZE, crop=args.crop,
+    photos = load_pair(reflection_path, transmission_path, size=rig.film_size, crop=args.crop,
                        flat_field=args.flat_field, strict=args.strict)
     for warning in photos.warnings:
         reporter.warning(warning)
@@ -130,8 +129,6 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
                            device=args.device, vgg_weights=args.vgg_weights,
                            camera_blur=_given_blur(args.camera_blur, rig))
-    from ..init.network import fit_initialiser
-
     initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
@@ -148,20 +145,14 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
         reporter.progress("render", done, total)
 
     renders = _final_renders(result.params, rig, settings.device, args.output_spp, render_progress)
-    from ..image.png import write_png
-    from ..image.metrics import compare
-    from ..fit.report import write_report
-
     files = {"reflection": str(write_png(out / "reflection.png", renders[0])),
              "transmission": str(write_png(out / "transmission.png", renders[1]))}
     reporter.progress("report", 0, 1)
     metrics = {"reflection": compare(photos.reflection, renders[0]),
                "transmission": compare(photos.transmission, renders[1])}
     wall = time.perf_counter() - started
-    import resource
-
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": round(peak_mb, 1),
+    peak_mb = peak_memory_mb(torch.device(settings.device))
+    summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": None if peak_mb is None else round(peak_mb, 1),
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
                "camera_blur_px": rig.camera_blur_px}
@@ -182,6 +173,11 @@ def _fit(args, reporter: Reporter, out: Path, should_stop) -> int:
     reporter.info(f"wrote {out}: params.json, reflection.png, transmission.png, report.png, metrics.json")
     reporter.result(out_dir=str(out), params=files["params"], files=files, metrics=metrics)
     return 0
+
+
+def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
+    pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress)
+    return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 
 def _given_blur(option: str, rig: CaptureRig) -> float | None:
@@ -206,8 +202,6 @@ def _camera_blur(text: str) -> str:
 
 
 def add_parser(sub) -> None:
-    from ..core.priors import PATTERNS
-
     p = sub.add_parser("fit", help="fit fabric parameters to a reflection/transmission photo pair")
     p.add_argument("reflection", nargs="?", help="photo lit from the front")
     p.add_argument("transmission", nargs="?", help="photo lit from behind")
@@ -229,6 +223,7 @@ def add_parser(sub) -> None:
     p.add_argument("--init", choices=("network", "prior"), default="network",
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")
-    p.add_argument("--output-spp", type=int, default=OUTPUT_SPP, help="samples per pixel of the re-renders (default 64)")
+    p.add_argument("--output-spp", type=int, default=OUTPUT_SPP,
+                   help="samples per pixel of the re-renders (default 64)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier fit in --out")
     p.set_defaults(run=run_fit)

@@ -18,6 +18,7 @@ import dataclasses
 import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Iterable
 
 from .jsonfile import read_json
@@ -306,9 +307,7 @@ def _is_file(path) -> bool:
 
 def load_params(source: str) -> FabricParams:
     """Reads parameters from a JSON file path or an interchange string."""
-    import pathlib
-
-    path = pathlib.Path(source)
+    path = Path(source)
     if source.endswith(".json") or _is_file(path):
         data = read_json(source, ParamError)
         try:

@@ -26,6 +26,8 @@ import sys
 import time
 from typing import IO, Any
 
+from .. import __version__
+
 STAGES = ("load", "init", "search", "optimise", "render", "report")
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_CANCELLED = 0, 1, 2, 130
 
@@ -67,8 +69,6 @@ class Reporter:
         self.stream.flush()
 
     def start(self, command: str, **fields):
-        from .. import __version__
-
         if self.json_lines:
             self._emit("start", command=command, version=__version__, **fields)
 

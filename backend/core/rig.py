@@ -29,7 +29,6 @@ from pathlib import Path
 
 from .jsonfile import read_json
 
-
 MAX_CAMERA_BLUR_PX = 4.0
 
 

@@ -1,10 +1,12 @@
 """The fitting objective: photos as a target, and the loss of a parameter set against them.
 
-    loss = sum over R, T of [ w_c L1(colour16) + w_h L1(log harmonic magnitudes) + w_q L1(quantiles) ]
+    loss = sum over R, T of [ w_c L1(colour16) + w_h L1(log harmonic magnitudes)
+                              + w_a aligned complex harmonics + w_q L1(quantiles) ]
            + w_p * prior(height_scale, gap_scale)
 
-(see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL, :func:`backend.core.priors.prior_nll`),
-plus, when the user supplies VGG-19 weights, the paper's Gram loss (:mod:`backend.fit.gram`).
+(see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL,
+:func:`backend.core.priors.prior_nll`), plus, when the user supplies VGG-19 weights, the paper's
+Gram loss (:mod:`backend.fit.gram`).
 Photos are compared at a working size (256 by default) after an area downsample in linear light,
 which is exactly what the renderer's box filter does, so a 256-pixel render with 16 samples per
 pixel sees the same thing as the photo; 16 samples keep sharp highlights unbiased where 4 do not.
@@ -16,27 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
-from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms
-from ..model.param_tensors import ParamTensors
+from ..core.params import FabricParams
 from ..core.priors import prior_nll
-from ..model.render import Renderer
 from ..core.rig import CaptureRig
-
-
-def downsample_linear(image: torch.Tensor, size: int, gamma: float = 2.2) -> torch.Tensor:
-    """Area downsample of a display-space (H, W, 3) image, averaged in linear light."""
-    if image.shape[0] == size:
-        return image
-    linear = image.clamp_min(0).pow(gamma).permute(2, 0, 1)[None]
-    return F.adaptive_avg_pool2d(linear, size)[0].permute(1, 2, 0).pow(1 / gamma)
-
-
-def lattice_of(tiles, rig: CaptureRig) -> tuple[float, float]:
-    """Tiles across and down the image for a tiles pair."""
-    scale = rig.view_size / rig.plane_size
-    return tiles[0] * scale, tiles[1] * scale
+from ..model.imaging import downsample_linear
+from ..model.param_tensors import ParamTensors
+from ..model.render import Renderer
+from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms
+from ..texture.lattice import lattice_of
+from .gram import gram_loss
 
 
 @dataclass
@@ -81,10 +72,11 @@ class Objective:
             self._probe_key = key
         return self._probe, self._photo
 
-    def terms(self, fabric: ParamTensors) -> dict[str, torch.Tensor]:
-        """Weighted loss terms (and their sum under 'loss')."""
+    def terms(self, fabric: ParamTensors, camera_blur_px: float | None = None) -> dict[str, torch.Tensor]:
+        """Weighted loss terms (and their sum under 'loss') of ``fabric`` rendered with the camera
+        blur ``camera_blur_px`` (film pixels; None: the rig's)."""
         probe, (photo_r, photo_t) = self._probes(fabric.scalar("tiles"))
-        pair = self.renderer.render(fabric)
+        pair = self.renderer.render(fabric, camera_blur_px=camera_blur_px)
         size = self.target.size
         out: dict[str, torch.Tensor] = {}
         for tag, image, photo in (("R", pair.reflection, photo_r), ("T", pair.transmission, photo_t)):
@@ -92,14 +84,19 @@ class Objective:
             for name, value in descriptor_terms(render, photo).items():
                 out[f"{name}_{tag}"] = getattr(self.weights, name) * value
             if self.gram is not None:
-                from .gram import gram_loss
-
                 photo_grams = self._photo_grams[0 if tag == "R" else 1]
-                out[f"gram_{tag}"] = self.gram_weight * gram_loss(self.gram(downsample_linear(image, size, self.rig.gamma)),
-                                                                  photo_grams)
+                working = downsample_linear(image, size, self.rig.gamma)
+                out[f"gram_{tag}"] = self.gram_weight * gram_loss(self.gram(working), photo_grams)
         out["prior"] = self.prior_weight * prior_nll(fabric.pattern, fabric.height_scale, fabric.gap_scale)
         out["loss"] = sum(out.values())
         return out
 
-    def __call__(self, fabric: ParamTensors) -> torch.Tensor:
-        return self.terms(fabric)["loss"]
+    def __call__(self, fabric: ParamTensors, camera_blur_px: float | None = None) -> torch.Tensor:
+        return self.terms(fabric, camera_blur_px)["loss"]
+
+    def value(self, params: FabricParams | ParamTensors, camera_blur_px: float | None = None) -> float:
+        """The loss as a number (no gradients)."""
+        if isinstance(params, FabricParams):
+            params = ParamTensors.from_params(params, self.renderer.device)
+        with torch.no_grad():
+            return float(self(params, camera_blur_px))

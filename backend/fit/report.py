@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..core.params import FabricParams
@@ -12,8 +13,6 @@ HEADER = 96
 
 
 def _to_bgr8(image: np.ndarray, size: int) -> np.ndarray:
-    import cv2
-
     rgb = np.clip(np.asarray(image, np.float32), 0, 1)
     rgb = cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
     return (rgb[..., ::-1] * 255 + 0.5).astype(np.uint8)
@@ -21,24 +20,18 @@ def _to_bgr8(image: np.ndarray, size: int) -> np.ndarray:
 
 def _error_map(photo: np.ndarray, render: np.ndarray, size: int) -> np.ndarray:
     """Mean absolute difference over RGB, x4 so that 0.25 saturates, as an inferno colour map."""
-    import cv2
-
     err = np.abs(np.asarray(photo, np.float32) - np.asarray(render, np.float32)).mean(-1)
     err = cv2.resize(err, (size, size), interpolation=cv2.INTER_AREA)
     return cv2.applyColorMap((np.clip(err * 4, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
 
 
 def _text(canvas, text: str, x: int, y: int, scale: float = 0.5, colour=(235, 235, 235)):
-    import cv2
-
     cv2.putText(canvas, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
                  metrics: dict[str, dict[str, float]], params: FabricParams, wall_s: float) -> Path:
     """Writes report.png: rows reflection and transmission; columns photo, render, |error| x 4."""
-    import cv2
-
     width = 3 * PANEL
     canvas = np.full((HEADER + 2 * (PANEL + 24), width, 3), 32, np.uint8)
     _text(canvas, f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
@@ -54,7 +47,8 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
         m = metrics[name]
         _text(canvas, f"{name}: FLIP {m['flip']:.3f}   colour L1 {m['colour_l1']:.4f}   "
                       f"spectrum corr {m['spectrum_corr']:.3f}", 10, top + 17)
-        panels = [_to_bgr8(photos[row], PANEL), _to_bgr8(renders[row], PANEL), _error_map(photos[row], renders[row], PANEL)]
+        panels = [_to_bgr8(photos[row], PANEL), _to_bgr8(renders[row], PANEL),
+                  _error_map(photos[row], renders[row], PANEL)]
         for col, (panel, label) in enumerate(zip(panels, ("photo", "render", "|error| x4"))):
             canvas[top + 24: top + 24 + PANEL, col * PANEL:(col + 1) * PANEL] = panel
             _text(canvas, label, col * PANEL + 8, top + 24 + PANEL - 10, 0.5)

@@ -34,12 +34,12 @@ is a function of (seed, pattern, index) and the settings: the same bytes whateve
 """
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import math
 import os
 import random
+import subprocess
 import sys
 import time
 import zipfile
@@ -49,12 +49,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from . import network as init_net
-from ..texture import lattice
 from ..core import priors
-from ..model import rng
 from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
+from ..model import rng
+from ..model.render import Renderer
+from ..texture import lattice
+from ..texture.candidates import signatures as pattern_signatures
+from . import network as init_net
 
 LATTICE_ERROR = 0.003    # relative s.d. of the lattice estimator's tiles (checked on the golden pairs)
 LATTICE_ERROR_MAX = 0.01
@@ -100,8 +102,8 @@ def confusable_tiles(maps: list[np.ndarray], signature, true_tiles, pattern: str
             if not (ulo <= tu <= uhi and vlo <= tv <= vhi):
                 continue
             a, b = np.array([[tu * scale]]), np.array([[tv * scale]])
-            # lattice._score is the estimator's own signature score (what lattice.candidates ranks by).
-            score = float(lattice._score(maps, signature, a, b, size)[0, 0])
+            # lattice.signature_score is the estimator's own signature score (what lattice.candidates ranks by).
+            score = float(lattice.signature_score(maps, signature, a, b, size)[0, 0])
             if best is None or score > best[0]:
                 best = (score, (tu, tv))
     return best[1] if best else priors.typical(pattern).tiles
@@ -164,8 +166,6 @@ class ItemMaker:
     def renderer(self):
         """Built on first use (an update of old items' features renders nothing)."""
         if self._renderer is None:
-            from ..model.render import Renderer
-
             rig, size, spp, seed, compile = self._renderer_args
             self._renderer = Renderer(rig, size, spp, seed=seed, compile=compile)
         return self._renderer
@@ -230,8 +230,6 @@ def make_items(out: Path, jobs: list[tuple[str, int]], settings: DatasetSettings
 def _shard_main() -> None:
     """Entry point of a worker process: its job list and settings come as JSON on stdin."""
     job = json.loads(sys.stdin.read())
-    from ..texture.candidates import signatures as pattern_signatures
-
     make_items(Path(job["out"]), [tuple(j) for j in job["jobs"]], DatasetSettings(**job["settings"]),
                pattern_signatures(DEFAULT_RIG), job["compile"])
 
@@ -240,8 +238,6 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
     """Splits the jobs over ``workers`` Python processes (plain subprocesses: the command line's
     ``__main__`` must not be re-run the way multiprocessing's spawn would) and reports progress by
     watching the finished files appear."""
-    import subprocess
-
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     procs = []
@@ -340,9 +336,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
                   f"eta {eta / 60:.1f} min", file=log, flush=True)
 
     if workers <= 1:
-        from ..texture.candidates import signatures as pattern_signatures
-
-        make_items(out, jobs, settings, signatures or pattern_signatures(DEFAULT_RIG), compile, report)
+            make_items(out, jobs, settings, signatures or pattern_signatures(DEFAULT_RIG), compile, report)
     else:
         _run_shards(out, jobs, settings, compile, workers, report)
     return done
@@ -355,34 +349,3 @@ def load_items(folder: str | Path, limit: int | None = None) -> list[Path]:
 
 
 # -- command line ----------------------------------------------------------------------------------
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
-def run_dataset(args) -> int:
-    settings = DatasetSettings(size=args.size, spp=args.spp, seed=args.seed)
-    try:
-        generate(args.out, args.per_pattern, args.workers, settings,
-                 compile={"auto": None, "on": True, "off": False}[args.compile], patterns=tuple(args.patterns))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("dataset", help="render synthetic R/T pairs and network features from the dataset priors")
-    p.add_argument("--out", required=True, help="dataset folder (created; an existing one is completed)")
-    p.add_argument("--per-pattern", type=_positive, required=True, help="items per weave preset")
-    p.add_argument("--workers", type=_positive, default=1, help="processes (one core each)")
-    p.add_argument("--seed", type=int, default=0, help="dataset seed (use another for a held-out set)")
-    p.add_argument("--size", type=_positive, default=DatasetSettings.size, help="render size (default 256)")
-    p.add_argument("--spp", type=_positive, default=DatasetSettings.spp, help="samples per pixel (default 16)")
-    p.add_argument("--patterns", nargs="+", default=list(priors.PATTERNS), choices=priors.PATTERNS,
-                   help="presets to draw (default: all)")
-    p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",
-                   help="torch.compile the renderer (auto: where a C++ compiler is found)")
-    p.set_defaults(run=run_dataset)

@@ -19,7 +19,7 @@ candidate the network sees
   highlight distribution, pooled so that pixel noise does not widen it;
 
 of the reflection and of the transmission photo, both at the fit's working size (256, after
-:func:`backend.fit.objective.downsample_linear`), plus the candidate's pattern (one-hot) and its tiles
+:func:`backend.model.imaging.downsample_linear`), plus the candidate's pattern (one-hot) and its tiles
 relative to the pattern's base density (log): 2,599 numbers (:data:`FEATURE_DIM`), stored by the
 dataset. The network's input (:func:`network_input`) averages the harmonics over RGB: 1,159 numbers.
 
@@ -56,10 +56,11 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..core import priors
-from ..texture.features import LatticeProbe, luminance_quantiles
-from ..fit.objective import downsample_linear, lattice_of
 from ..core.params import SPECS, FabricParams, unflatten
 from ..core.rig import CaptureRig
+from ..model.imaging import downsample_linear
+from ..texture.features import LatticeProbe, luminance_quantiles
+from ..texture.lattice import lattice_of
 
 FEATURE_VERSION = 2
 WORK_SIZE = 256          # the fit's working size: features are read where the fit compares
@@ -145,7 +146,7 @@ def candidate_features(pair: WorkingPair, pattern: str, tiles: Sequence[float], 
     with torch.no_grad():
         a, b = lattice_of(tiles, rig)
         probe = LatticeProbe(WORK_SIZE, a, b)
-        parts = _image_features(pair.reflection, probe, rig.gamma) + _image_features(pair.transmission, probe, rig.gamma)
+        parts = [f for image in (pair.reflection, pair.transmission) for f in _image_features(image, probe, rig.gamma)]
         one_hot = torch.zeros(len(PATTERNS))
         one_hot[PATTERNS.index(pattern)] = 1.0
         base = priors.BASE_TILES[pattern]
@@ -241,8 +242,8 @@ class InitModel:
         except Exception as exc:  # a truncated or foreign file: say which, the caller falls back
             raise InitNetError(f"{path}: cannot read the weights ({type(exc).__name__}: {exc})") from None
         expected = header(info.get("hidden", 0))
-        for key in ("feature_version", "work_size", "harmonic_eps", "colour_grid", "quantile_pool", "feature_dim", "input_dim",
-                    "patterns", "targets"):
+        for key in ("feature_version", "work_size", "harmonic_eps", "colour_grid", "quantile_pool", "feature_dim",
+                    "input_dim", "patterns", "targets"):
             if info.get(key) != expected[key]:
                 raise InitNetError(f"{path}: made for {key} = {info.get(key)!r}, this code uses {expected[key]!r}")
         net = InitNet(INPUT_DIM, hidden=int(info["hidden"]))

@@ -21,8 +21,6 @@ Items whose ``feature_version`` differs from the code's are re-described from th
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 import time
@@ -34,10 +32,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from . import network as init_net
 from ..core import priors
+from . import network as init_net
 from .dataset import load_items, redescribed
-from ..core.rig import DEFAULT_RIG
 
 CE_WEIGHT = 0.2
 EXACT_ROW = len(priors.PATTERNS)  # index of the exact-tiles row of an item's features
@@ -200,38 +197,3 @@ def train(arrays: Arrays, settings: TrainSettings = TrainSettings(), log=sys.std
             "validation": {k: round(v, 5) for k, v in final_val.items()},
             "settings": settings.__dict__}
     return net, info
-
-
-def run_train(args) -> int:
-    torch.set_num_threads(args.threads)
-    settings = TrainSettings(epochs=args.epochs, batch=args.batch, lr=args.lr, hidden=args.hidden,
-                             seed=args.seed, validation=args.validation)
-    try:
-        arrays = load_arrays(args.dataset, args.limit)
-    except (OSError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    net, info = train(arrays, settings)
-    dataset = json.loads((Path(args.dataset) / "dataset.json").read_text()) if (Path(args.dataset) / "dataset.json").exists() else {}
-    info["dataset"] = {k: dataset.get(k) for k in ("size", "spp", "seed")}
-    path = init_net.save(net, args.out, {"training": info})
-    size_mb = path.stat().st_size / 1e6
-    print(f"train: wrote {path} ({size_mb:.1f} MB); validation L1 {info['validation']['l1']:.4f}, "
-          f"pattern accuracy {info['validation']['accuracy']:.3f}", file=sys.stderr)
-    return 0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("train", help="train the initialisation network on a synthetic dataset")
-    p.add_argument("dataset", help="a folder made by `python -m backend dataset`")
-    p.add_argument("--out", required=True, help="weights file to write (the shipped one: backend/data/init_net.pt)")
-    p.add_argument("--epochs", type=int, default=TrainSettings.epochs)
-    p.add_argument("--batch", type=int, default=TrainSettings.batch)
-    p.add_argument("--lr", type=float, default=TrainSettings.lr)
-    p.add_argument("--hidden", type=int, default=TrainSettings.hidden)
-    p.add_argument("--seed", type=int, default=TrainSettings.seed)
-    p.add_argument("--validation", type=float, default=TrainSettings.validation,
-                   help="fraction of items held back to choose the best epoch")
-    p.add_argument("--limit", type=int, help="use only the first N items (by name)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: a shared machine)")
-    p.set_defaults(run=run_train)

@@ -23,12 +23,11 @@ from dataclasses import dataclass
 
 import torch
 
-from . import sggx
-from . import spongecake
+from ..core.options import RenderOptions
+from . import sggx, spongecake
 from .camera import LightSamples, SampleChunk
 from .frames import dot
 from .geometry import LayerGeometry, SampleGeometry
-from ..core.options import RenderOptions
 from .param_tensors import ParamTensors
 from .spongecake import safe_cos
 from .yarn import scale_height

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import torch
 
+from ..core.rig import CaptureRig
 from . import rng
 from .frames import dot, normalize
-from ..core.rig import CaptureRig
 
 
 @dataclass

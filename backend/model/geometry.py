@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import torch
 
+from ..core.rig import CaptureRig
 from . import rng
 from .camera import SampleChunk
 from .layers import GAP, WARP, WEFT, Layer, WeaveLookup
-from ..core.rig import CaptureRig
 from .yarn import local_frame
 
 

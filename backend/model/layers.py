@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..core.weave import BACK, WARP, WEFT, Weave
+from ..core.weave import WARP, WEFT, Weave
 
 GAP = 2  # yarn id of a gap (WARP = 0, WEFT = 1)
 

@@ -19,7 +19,6 @@ the environment overrides the automatic choice.
 """
 from __future__ import annotations
 
-import math
 import os
 import shutil
 import warnings
@@ -27,17 +26,17 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from torch.utils.checkpoint import checkpoint
 
+from ..core.options import RenderOptions
+from ..core.params import FabricParams
+from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_pair
 from .camera import CameraSamples, SampleChunk
 from .geometry import GeometryKey, SampleGeometry, sample_geometry
+from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
-from ..core.options import RenderOptions
 from .param_tensors import ParamTensors
-from ..core.params import FabricParams
-from ..core.rig import DEFAULT_RIG, CaptureRig
 
 
 @dataclass
@@ -58,36 +57,6 @@ def compile_available() -> bool:
     return any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "c++", "clang++"))
 
 
-def display_transform(radiance: torch.Tensor, gamma: float, clamp: float, vignette: torch.Tensor | None) -> torch.Tensor:
-    """min(radiance, clamp) ** (1 / gamma) * vignette, with a finite gradient at 0.
-
-    The exact power is used in the forward pass; the gradient is that of the power of
-    max(radiance, 1e-6), so black pixels do not produce infinite gradients.
-    """
-    clipped = radiance.clamp(0.0, clamp)
-    exact = clipped.pow(1.0 / gamma)
-    safe = clipped.clamp_min(1e-6).pow(1.0 / gamma)
-    out = safe + (exact - safe).detach()
-    return out * vignette[..., None] if vignette is not None else out
-
-
-def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Separable Gaussian blur of an (H, W, C) image, standard deviation ``sigma`` pixels, with
-    mirrored borders (differentiable; the identity for sigma <= 0)."""
-    if sigma <= 1e-3:
-        return image
-    radius = max(1, min(int(math.ceil(3.0 * sigma)), image.shape[0] - 1, image.shape[1] - 1))
-    x = torch.arange(-radius, radius + 1, device=image.device, dtype=image.dtype)
-    kernel = torch.exp(-0.5 * (x / sigma) ** 2)
-    kernel = kernel / kernel.sum()
-    channels = image.shape[2]
-    planes = image.permute(2, 0, 1)[None]
-    planes = F.pad(planes, (radius, radius, radius, radius), mode="reflect")
-    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
-    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
-    return planes[0].permute(1, 2, 0)
-
-
 class Renderer:
     """Renders (reflection, transmission) pairs of one rig, size, sample count and jitter seed."""
 
@@ -98,7 +67,6 @@ class Renderer:
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
         self.size, self.spp = size, spp
-        self.camera_blur_px = rig.camera_blur_px  # a fit may adjust it (it does not touch the caches)
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
@@ -205,11 +173,14 @@ class Renderer:
             t = t + (self.glow[chunk.row0:chunk.row1] * open_fraction)[None]
         return r.permute(1, 2, 0), t.permute(1, 2, 0)
 
-    def render(self, fabric: ParamTensors | FabricParams, progress=None) -> RenderedPair:
+    def render(self, fabric: ParamTensors | FabricParams, progress=None,
+               camera_blur_px: float | None = None) -> RenderedPair:
+        """Displayed images of ``fabric``; ``camera_blur_px`` (film pixels) overrides the rig's."""
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         r, t = self.radiance(fabric, progress)
-        sigma = self.camera_blur_px * self.size / self.rig.film_size
+        blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
+        sigma = blur * self.size / self.rig.film_size
         r, t = gaussian_blur(r, sigma), gaussian_blur(t, sigma)
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(r, g, c, self.vignette), display_transform(t, g, c, self.vignette), r, t)

@@ -19,8 +19,7 @@ from __future__ import annotations
 
 import torch
 
-from . import asggx
-from . import sggx
+from . import asggx, sggx
 from .frames import dot, normalize
 
 

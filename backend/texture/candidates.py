@@ -17,10 +17,10 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from . import lattice
 from ..core import priors
-from ..model.render import Renderer
 from ..core.rig import CaptureRig
+from ..model.render import Renderer
+from . import lattice
 
 SIGNATURE_DENSITY = 20.0  # tiles across the image for the signature renders: every harmonic below Nyquist
 

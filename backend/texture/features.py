@@ -17,9 +17,7 @@ descriptor of an (H, W, 3) display-space image is:
   their lattices differ slightly. On a pixel grid a frequency past Nyquist is automatically folded,
   exactly as in the image. Each region also gets a noise floor: the median magnitude at the
   off-lattice frequencies (m + 1/2, n + 1/2);
-- ``quantiles``: 24 luminance quantiles (the highlight distribution);
-- ``spectrum`` (diagnostics, :func:`log_spectrum`): the smoothed, standardised log power spectrum of
-  the high-passed luminance, as the project's spectrum metric computes it.
+- ``quantiles``: 24 luminance quantiles (the highlight distribution).
 
 :func:`descriptor_terms` compares two descriptors: L1 of the 16 x 16 colours, L1 of the log
 harmonic amplitudes above a noise floor, L1 of the quantiles.
@@ -178,37 +176,3 @@ def descriptor_terms(render: Descriptor, photo: Descriptor, significance: float 
             "harmonics": (log_diff * keep).sum() / keep.sum().clamp_min(1.0),
             "aligned": aligned_difference(render, photo, keep, floor),
             "quantiles": (render.quantiles - photo.quantiles).abs().mean()}
-
-
-def descriptor_loss(render: Descriptor, photo: Descriptor, weights: LossWeights = LossWeights()) -> torch.Tensor:
-    terms = descriptor_terms(render, photo)
-    return sum(getattr(weights, name) * value for name, value in terms.items())
-
-
-def log_spectrum(image: torch.Tensor, keep: float = 0.5) -> torch.Tensor:
-    """Standardised, smoothed log power spectrum of the high-passed luminance (central band)."""
-    y = luminance(image)
-    h, w = y.shape
-    blur = _gaussian_blur(y, h / 32)
-    y = y - blur
-    window = torch.outer(torch.hann_window(h, periodic=False, dtype=y.dtype, device=y.device),
-                         torch.hann_window(w, periodic=False, dtype=y.dtype, device=y.device))
-    power = torch.fft.fftshift(torch.fft.fft2(y * window)).abs().square()
-    power = F.avg_pool2d(power[None, None], 3, stride=1, padding=1, count_include_pad=False)[0, 0]
-    ch, cw = int(h * keep / 2), int(w * keep / 2)
-    band = torch.log(power[h // 2 - ch: h // 2 + ch, w // 2 - cw: w // 2 + cw] + 1e-10)
-    mask = torch.ones_like(band, dtype=torch.bool)
-    mask[ch - 2: ch + 3, cw - 2: cw + 3] = False  # the DC neighbourhood carries only lighting
-    values = band[mask]
-    return (values - values.mean()) / (values.std() + 1e-8)
-
-
-def _gaussian_blur(plane: torch.Tensor, sigma: float) -> torch.Tensor:
-    radius = max(1, int(math.ceil(3 * sigma)))
-    x = torch.arange(-radius, radius + 1, dtype=plane.dtype, device=plane.device)
-    k = torch.exp(-x * x / (2 * sigma * sigma))
-    k = (k / k.sum())
-    p = plane[None, None]
-    p = F.conv2d(F.pad(p, (radius, radius, 0, 0), mode="reflect"), k.view(1, 1, 1, -1))
-    p = F.conv2d(F.pad(p, (0, 0, radius, radius), mode="reflect"), k.view(1, 1, -1, 1))
-    return p[0, 0]

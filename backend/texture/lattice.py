@@ -3,23 +3,30 @@
 The camera looks straight down at a plane parallel to its film, so a woven fabric is an exactly
 periodic texture in the image, modulated only by slowly varying lighting. With ``tiles = (tu, tv)``
 repeats over the plane of side P, one tile spans P / tu scene units, and the visible square of side
-V holds ``a = tu V / P`` tiles across and ``b = tv V / P`` down. The luminance spectrum therefore
-concentrates on the lattice ``(m a, n b)`` cycles per image (integers m, n), folded back by aliasing
-beyond Nyquist (f -> N - f for an N-pixel image) and attenuated by the pixel's box filter
-(sinc^2 of f / N).
+V holds ``a = tu V / P`` tiles across and ``b = tv V / P`` down (:func:`lattice_of`). The luminance
+spectrum therefore concentrates on the lattice ``(m a, n b)`` cycles per image (integers m, n),
+folded back by aliasing beyond Nyquist (f -> N - f for an N-pixel image) and attenuated by the
+pixel's box filter (sinc^2 of f / N).
 
-Which harmonics (m, n) carry the energy depends on the weave (and on the BSDF); a pattern's
-*signature* is measured once from a render at a low density, where every significant harmonic is
-below Nyquist. :func:`search` then scores candidate (a, b) on a log grid by the signature-weighted
-spectral peakness of the image at the predicted (folded) positions, and :func:`refine` maximises the
-exact Fourier power at the lattice harmonics over continuous (a, b). No rendering is needed to read
-a photo's density; only the pattern signatures come from renders.
+What runs:
+1. :func:`estimate`: the spectral peaks of both images (:func:`spectral_peaks`, sub-bin positions
+   on a zero-padded *peakness* map: log power above its local background) and, per axis, a harmonic
+   sieve (:func:`comb_scores`): the spacing whose folded multiples explain the strongest peaks, minus
+   a cost per comb tooth so that the coarsest comb that explains them wins. This pins the lattice
+   up to small sub- and super-multiples, without knowing the weave.
+2. :func:`candidates`: for one pattern, that lattice times small ratios per axis (:data:`RATIOS`),
+   each polished (:func:`polish`) and scored by the pattern's *signature*
+   (:func:`signature_score`): which harmonics (m, n) carry the energy depends on the weave (and on
+   the BSDF), measured once from a render at a low density where every significant harmonic is
+   below Nyquist (:func:`signature`).
+No rendering is needed to read a photo's density; only the pattern signatures come from renders.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -44,9 +51,13 @@ class Lattice:
         return self.a * plane_size / view_size, self.b * plane_size / view_size
 
 
-def _highpassed_luminance(image: np.ndarray) -> np.ndarray:
-    import cv2
+def lattice_of(tiles, rig) -> tuple[float, float]:
+    """(a, b): tiles across and down the image of ``rig`` (a CaptureRig) for a ``tiles`` pair."""
+    scale = rig.view_size / rig.plane_size
+    return tiles[0] * scale, tiles[1] * scale
 
+
+def _highpassed_luminance(image: np.ndarray) -> np.ndarray:
     y = np.asarray(image, dtype=np.float64) @ LUMA
     y = y - cv2.GaussianBlur(y, (0, 0), y.shape[0] / 64)
     window = np.outer(np.hanning(y.shape[0]), np.hanning(y.shape[1]))
@@ -54,49 +65,15 @@ def _highpassed_luminance(image: np.ndarray) -> np.ndarray:
 
 
 def harmonic_spectrum(image: np.ndarray, a: float, b: float, m: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """|DFT|^2 of the windowed, high-passed luminance at the frequencies (m a, n b), cycles per image."""
-    return _HarmonicProbe(image).power(a, b, m, n)
-
-
-class _HarmonicProbe:
-    """Exact DFT of one image at lattice frequencies; separable, so 1D scans over a or b are cheap."""
-
-    def __init__(self, image: np.ndarray):
-        self.y = _highpassed_luminance(image)
-        self.h, self.w = self.y.shape
-
-    def _ex(self, freqs):
-        return np.exp(-2j * np.pi * np.outer(freqs, np.arange(self.w)) / self.w)
-
-    def _ey(self, freqs):
-        return np.exp(-2j * np.pi * np.outer(freqs, np.arange(self.h)) / self.h)
-
-    def power(self, a, b, m, n):
-        um, un = np.unique(m), np.unique(n)
-        full = self._ey(un * b) @ self.y @ self._ex(um * a).T
-        return np.abs(full[np.searchsorted(un, n), np.searchsorted(um, m)]) ** 2
-
-    def scan_a(self, a_values, b, sig: "Signature") -> np.ndarray:
-        """Signature-weighted power for each a (b fixed)."""
-        un = np.unique(sig.n)
-        rows = self._ey(un * b) @ self.y                                  # (N, w)
-        ni = np.searchsorted(un, sig.n)
-        out = []
-        for a in a_values:
-            values = np.einsum("kw,kw->k", rows[ni], self._ex(sig.m * a))
-            out.append(float((sig.weight * np.abs(values) ** 2).sum()))
-        return np.array(out)
-
-    def scan_b(self, a, b_values, sig: "Signature") -> np.ndarray:
-        """Signature-weighted power for each b (a fixed)."""
-        um = np.unique(sig.m)
-        cols = self.y @ self._ex(um * a).T                                # (h, M)
-        mi = np.searchsorted(um, sig.m)
-        out = []
-        for b in b_values:
-            values = np.einsum("hk,kh->k", cols[:, mi], self._ey(sig.n * b))
-            out.append(float((sig.weight * np.abs(values) ** 2).sum()))
-        return np.array(out)
+    """|DFT|^2 of the windowed, high-passed luminance at the frequencies (m a, n b), cycles per image
+    (exact: the separable DFT at those frequencies, not the FFT grid)."""
+    y = _highpassed_luminance(image)
+    h, w = y.shape
+    um, un = np.unique(m), np.unique(n)
+    ex = np.exp(-2j * np.pi * np.outer(um * a, np.arange(w)) / w)
+    ey = np.exp(-2j * np.pi * np.outer(un * b, np.arange(h)) / h)
+    full = ey @ y @ ex.T
+    return np.abs(full[np.searchsorted(un, n), np.searchsorted(um, m)]) ** 2
 
 
 def signature(image: np.ndarray, a: float, b: float, order: int = 6, keep: int = 24) -> Signature:
@@ -117,8 +94,6 @@ def signature(image: np.ndarray, a: float, b: float, order: int = 6, keep: int =
 def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
     """log power minus its local background (clipped at 0), on a pad-times zero-padded FFT grid,
     blurred by ``blur`` original bins so a lattice grid of finite step cannot step over a peak."""
-    import cv2
-
     y = _highpassed_luminance(image)
     h, w = y.shape
     spectrum = np.abs(np.fft.fft2(y, s=(h * pad, w * pad))) ** 2
@@ -146,32 +121,7 @@ def _lookup(q: np.ndarray, fx: np.ndarray, fy: np.ndarray, size: int) -> np.ndar
             + (1 - tx) * ty * q[y0 + 1, x0] + tx * ty * q[y0 + 1, x0 + 1])
 
 
-def search(images: list[np.ndarray], signatures: list[Signature], a_range: tuple[float, float],
-           b_range: tuple[float, float], step: float = 0.003, square: bool = False, top: int = 24,
-           blur: float = 1.5) -> list[Lattice]:
-    """Best lattices (a, b) for images and their patterns' signatures (scores summed over images).
-
-    a, b are searched on log grids of relative step ``step``; ``square`` ties b = a (plain weaves of
-    equal density). Returns up to ``top`` distinct local maxima, best first.
-    """
-    size = images[0].shape[0]
-    maps = [peakness(img, blur=blur) for img in images]
-    a_grid = np.exp(np.arange(math.log(a_range[0]), math.log(a_range[1]), step))
-    b_grid = a_grid if square else np.exp(np.arange(math.log(b_range[0]), math.log(b_range[1]), step))
-    # Peakness measures how far a harmonic stands above the local background, not its power:
-    # square-root weights keep one dominant harmonic from deciding alone, and harmonics that fold
-    # past Nyquist count less (photos are anti-aliased more than renders). See _score.
-    total = _score(maps, signatures, a_grid[None, :], b_grid[:, None], size)
-    if square:
-        total = np.diag(total)[None, :]
-        b_grid = a_grid[:1]
-    coarse = _local_maxima(total, a_grid, b_grid, square, top)
-    # Re-centre each candidate on the sharp (unblurred) map, where the true lattice stands out.
-    sharp = [peakness(img, blur=0.0) for img in images]
-    return sorted((_polish(sharp, signatures, c, size, square) for c in coarse), key=lambda l: -l.score)
-
-
-def _score(maps, signatures, a, b, size) -> np.ndarray:
+def signature_score(maps, signatures, a, b, size) -> np.ndarray:
     """Search score of lattices (a, b) (arrays of equal shape) on peakness maps."""
     total = np.zeros(np.broadcast(a, b).shape)
     for q, sig in zip(maps, signatures):
@@ -180,58 +130,22 @@ def _score(maps, signatures, a, b, size) -> np.ndarray:
         for m, n, weight in zip(sig.m, sig.n, weights):
             folded = (np.abs(m * a) > size / 2) | (np.abs(n * b) > size / 2)
             fx, fy = np.broadcast_arrays(_fold(m * a, size), _fold(n * b, size))
-            total = total + weight * np.where(folded, 0.5, 1.0) * _lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
+            looked_up = _lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
+            total = total + weight * np.where(folded, 0.5, 1.0) * looked_up
     return total
 
 
-def _polish(maps, signatures, start: "Lattice", size: int, square: bool, span: float = 0.006, step: float = 0.0003) -> "Lattice":
+def polish(maps, signatures, start: Lattice, size: int, square: bool, span: float = 0.006,
+           step: float = 0.0003) -> Lattice:
     factors = np.exp(np.arange(-span, span + step / 2, step))
     a = start.a * factors[None, :]
     b = (start.a * factors[None, :]) if square else start.b * factors[:, None]
-    scores = _score(maps, signatures, np.broadcast_to(a, np.broadcast(a, b).shape), np.broadcast_to(b, np.broadcast(a, b).shape), size)
+    shape = np.broadcast(a, b).shape
+    scores = signature_score(maps, signatures, np.broadcast_to(a, shape), np.broadcast_to(b, shape), size)
     row, col = np.unravel_index(int(np.argmax(scores)), scores.shape)
     a_best = float(np.broadcast_to(a, scores.shape)[row, col])
     b_best = float(np.broadcast_to(b, scores.shape)[row, col])
     return Lattice(a_best, b_best, float(scores[row, col]))
-
-
-def _local_maxima(score: np.ndarray, a_grid, b_grid, square: bool, top: int) -> list[Lattice]:
-    import cv2
-
-    peaks = score >= cv2.dilate(score.astype(np.float32), np.ones((5, 5), np.uint8)).astype(score.dtype) - 1e-12
-    rows, cols = np.nonzero(peaks)
-    order = np.argsort(-score[rows, cols])[:top]
-    out = []
-    for k in order:
-        a = float(a_grid[cols[k]])
-        b = a if square else float(b_grid[rows[k]])
-        out.append(Lattice(a, b, float(score[rows[k], cols[k]])))
-    return out
-
-
-def refine(images: list[np.ndarray], signatures: list[Signature], start: Lattice, square: bool = False,
-           span: float = 0.01, steps: int = 41, rounds: int = 3) -> Lattice:
-    """Maximise the signature-weighted exact Fourier power over (a, b) near ``start``.
-
-    Alternating 1D scans of a and b (both together when ``square``) with a span shrinking each round.
-    """
-    probes = [_HarmonicProbe(img) for img in images]
-    a, b = start.a, start.b
-    best = 0.0
-    for r in range(rounds):
-        factors = np.linspace(1 - span, 1 + span, steps)
-        if square:
-            scores = sum(np.array([p.scan_a([a * f], a * f, sig)[0] for f in factors])
-                         for p, sig in zip(probes, signatures))
-            a = b = a * factors[int(np.argmax(scores))]
-        else:
-            scores = sum(p.scan_a(a * factors, b, sig) for p, sig in zip(probes, signatures))
-            a = a * factors[int(np.argmax(scores))]
-            scores = sum(p.scan_b(a, b * factors, sig) for p, sig in zip(probes, signatures))
-            b = b * factors[int(np.argmax(scores))]
-        best = float(np.max(scores))
-        span /= 8
-    return Lattice(a, b, best)
 
 
 @dataclass(frozen=True)
@@ -243,8 +157,6 @@ class Peak:
 
 def spectral_peaks(image: np.ndarray, count: int = 24, threshold: float = 2.5, pad: int = 4) -> list[Peak]:
     """The strongest isolated spectral peaks (half plane), with sub-bin positions."""
-    import cv2
-
     q = peakness(image, pad=pad, blur=0.0).astype(np.float32)
     size = image.shape[0]
     local_max = q >= cv2.dilate(q, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
@@ -253,14 +165,21 @@ def spectral_peaks(image: np.ndarray, count: int = 24, threshold: float = 2.5, p
     peaks = []
     for r, c in zip(rows, cols):
         fx, fy = (c - cx) / pad, (r - cy) / pad
-        if fy < 0 or (fy == 0 and fx <= 0) or math.hypot(fx, fy) < 4 or not (0 < r < q.shape[0] - 1 and 0 < c < q.shape[1] - 1):
+        inside = 0 < r < q.shape[0] - 1 and 0 < c < q.shape[1] - 1
+        if fy < 0 or (fy == 0 and fx <= 0) or math.hypot(fx, fy) < 4 or not inside:
             continue
         # Parabolic interpolation of the log-power excess along each axis.
-        dx = 0.5 * (q[r, c - 1] - q[r, c + 1]) / max(q[r, c - 1] - 2 * q[r, c] + q[r, c + 1], -1e9) if q[r, c - 1] - 2 * q[r, c] + q[r, c + 1] < 0 else 0.0
-        dy = 0.5 * (q[r - 1, c] - q[r + 1, c]) / max(q[r - 1, c] - 2 * q[r, c] + q[r + 1, c], -1e9) if q[r - 1, c] - 2 * q[r, c] + q[r + 1, c] < 0 else 0.0
+        dx = _vertex_offset(q[r, c - 1], q[r, c], q[r, c + 1])
+        dy = _vertex_offset(q[r - 1, c], q[r, c], q[r + 1, c])
         peaks.append(Peak(fx + dx / pad, fy + dy / pad, float(q[r, c])))
     peaks.sort(key=lambda p: -p.strength)
     return [p for p in peaks if abs(p.fx) < size / 2 - 1 and p.fy < size / 2 - 1][:count]
+
+
+def _vertex_offset(left: float, centre: float, right: float) -> float:
+    """Offset of the vertex of the parabola through three equally spaced samples (0 unless it is a maximum)."""
+    curvature = left - 2 * centre + right
+    return 0.5 * (left - right) / max(curvature, -1e9) if curvature < 0 else 0.0
 
 
 def comb_scores(freqs: np.ndarray, strengths: np.ndarray, periods: np.ndarray, size: int,
@@ -326,5 +245,5 @@ def candidates(images: list[np.ndarray], comb: Lattice, signatures: list[Signatu
             if key in seen:
                 continue
             seen.add(key)
-            out.append(_polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002))
-    return sorted(out, key=lambda l: -l.score)[:top]
+            out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002))
+    return sorted(out, key=lambda lat: -lat.score)[:top]

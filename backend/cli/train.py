@@ -1,0 +1,47 @@
+"""``python -m backend train``: the initialisation network from a dataset (:mod:`backend.init.train`)."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+from ..init import network
+from ..init.train import TrainSettings, load_arrays, train
+
+
+def run_train(args) -> int:
+    torch.set_num_threads(args.threads)
+    settings = TrainSettings(epochs=args.epochs, batch=args.batch, lr=args.lr, hidden=args.hidden,
+                             seed=args.seed, validation=args.validation)
+    try:
+        arrays = load_arrays(args.dataset, args.limit)
+    except (OSError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    net, info = train(arrays, settings)
+    settings_file = Path(args.dataset) / "dataset.json"
+    dataset = json.loads(settings_file.read_text()) if settings_file.exists() else {}
+    info["dataset"] = {k: dataset.get(k) for k in ("size", "spp", "seed")}
+    path = network.save(net, args.out, {"training": info})
+    size_mb = path.stat().st_size / 1e6
+    print(f"train: wrote {path} ({size_mb:.1f} MB); validation L1 {info['validation']['l1']:.4f}, "
+          f"pattern accuracy {info['validation']['accuracy']:.3f}", file=sys.stderr)
+    return 0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("train", help="train the initialisation network on a synthetic dataset")
+    p.add_argument("dataset", help="a folder made by `python -m backend dataset`")
+    p.add_argument("--out", required=True, help="weights file to write (the shipped one: backend/data/init_net.pt)")
+    p.add_argument("--epochs", type=int, default=TrainSettings.epochs)
+    p.add_argument("--batch", type=int, default=TrainSettings.batch)
+    p.add_argument("--lr", type=float, default=TrainSettings.lr)
+    p.add_argument("--hidden", type=int, default=TrainSettings.hidden)
+    p.add_argument("--seed", type=int, default=TrainSettings.seed)
+    p.add_argument("--validation", type=float, default=TrainSettings.validation,
+                   help="fraction of items held back to choose the best epoch")
+    p.add_argument("--limit", type=int, help="use only the first N items (by name)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: a shared machine)")
+    p.set_defaults(run=run_train)

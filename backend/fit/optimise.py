@@ -1,0 +1,161 @@
+"""One optimisation run: Adam on the continuous parameters, parabolic steps on the discrete ones.
+
+- Adam on :data:`backend.fit.settings.OPTIMISED` (roughness, thickness, their multiple-scattering
+  twins, height scale, albedos, diffuse weight, multiple weight), each with a learning rate
+  ``lr * (hi - lo)`` of its declared range, halved at 50, 70 and 85 % of the run; every parameter is
+  clamped into its range after each step.
+- :meth:`Run.discrete_search` (every ``search_every`` iterations): a joint coarse step on gap scale,
+  then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, and on the camera
+  blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
+  than the paper's random +/- steps.
+- The best parameters seen (with their loss, loss terms and camera blur) are kept.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+
+from ..core.params import SPECS, FabricParams
+from ..core.rig import MAX_CAMERA_BLUR_PX
+from ..model.param_tensors import ParamTensors
+from .objective import Objective
+from .settings import OPTIMISED, FitSettings
+
+LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
+
+
+def _number(value) -> float:
+    """A loss term as a float (a tensor is detached first: it may carry the graph)."""
+    return float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
+
+
+class Run:
+    """Parameters (as tensors), their Adam state and the best parameters seen.
+
+    ``camera_blur_px`` is the camera blur the run renders with; with a ``blur_floor`` the discrete
+    search also moves it (never below the floor), with None it stays fixed. ``total`` is the number
+    of Adam steps the learning-rate schedule spans.
+    """
+
+    def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
+                 camera_blur_px: float, blur_floor: float | None = None):
+        self.objective, self.settings, self.total = objective, settings, total
+        self.camera_blur_px, self.blur_floor = camera_blur_px, blur_floor
+        self.base_lr = [settings.lr * (SPECS[n].hi - SPECS[n].lo) for n in OPTIMISED]
+        self.step_count = 0
+        self.best_loss = math.inf
+        self.best, self.best_blur = params, camera_blur_px
+        self.best_terms: dict[str, float] = {}
+        self.history: list[tuple[int, float]] = []
+        self._start_from(params)
+
+    def _start_from(self, params: FabricParams) -> None:
+        self.fabric = ParamTensors.from_params(params, self.objective.renderer.device, requires_grad=OPTIMISED)
+        self.optimiser = torch.optim.Adam([{"params": [self.fabric.values[n]], "lr": lr, "name": n}
+                                           for n, lr in zip(OPTIMISED, self.base_lr)], eps=1e-6)
+
+    def restart_from_best(self) -> None:
+        """Fresh tensors and Adam state at the best parameters seen (the schedule goes on)."""
+        if self.history:
+            self._start_from(self.best)
+
+    def _schedule(self):
+        progress = self.step_count / max(self.total, 1)
+        factor = 0.5 ** sum(progress >= p for p in LR_MILESTONES)
+        for group, lr in zip(self.optimiser.param_groups, self.base_lr):
+            group["lr"] = lr * factor
+
+    def step(self) -> float:
+        """One Adam step; returns the loss of the parameters before the step."""
+        self._schedule()
+        self.optimiser.zero_grad(set_to_none=True)
+        terms = self.objective.terms(self.fabric, self.camera_blur_px)
+        loss = terms["loss"]
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(_number(v)))
+            raise FloatingPointError(f"the fit's loss is not finite ({bad}) at "
+                                     f"{self.fabric.to_params().to_interchange()}")
+        loss.backward()
+        if value < self.best_loss:  # the parameters that produced this loss (before the step)
+            self._keep_best(value, {k: _number(v) for k, v in terms.items()})
+        self.optimiser.step()
+        self.fabric.clamp_()
+        self.history.append((self.step_count, value))
+        self.step_count += 1
+        return value
+
+    def _keep_best(self, loss: float, terms: dict[str, float] | None = None) -> None:
+        self.best_loss, self.best, self.best_blur = loss, self.fabric.to_params(), self.camera_blur_px
+        if terms is not None:
+            self.best_terms = terms
+
+    def _loss(self, fabric: ParamTensors) -> float:
+        return self.objective.value(fabric, self.camera_blur_px)
+
+    def discrete_search(self, round_index: int) -> None:
+        """A joint coarse step in gap scale, then parabolic steps on gap scale and twist per yarn
+        (and on the camera blur when it is estimated), with spans halving each round."""
+        current = self._loss(self.fabric)
+        gap = self.fabric.values["gap_scale"]
+        spec = SPECS["gap_scale"]
+        best_gap = None
+        for offset in (-0.1, -0.05, 0.05, 0.1):
+            candidate = (gap.detach() + offset).clamp(spec.lo, spec.hi)
+            value = self._loss(self.fabric.with_values(gap_scale=candidate))
+            if value < current:
+                current, best_gap = value, candidate
+        if best_gap is not None:
+            with torch.no_grad():
+                gap.copy_(best_gap)
+        spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
+        for name, span in spans.items():
+            spec = SPECS[name]
+            for yarn in (0, 1):
+                values = self.fabric.values[name]
+
+                def clamped(v, spec=spec):
+                    return min(spec.hi, max(spec.lo, v))
+
+                def loss_at(v, values=values, yarn=yarn, name=name):
+                    candidate = values.detach().clone()
+                    candidate[yarn] = v
+                    return self._loss(self.fabric.with_values(**{name: candidate}))
+
+                x, current = parabolic_step(loss_at, float(values[yarn]), current, span, clamped)
+                with torch.no_grad():
+                    values[yarn] = x
+        if self.blur_floor is not None:
+            current = self._blur_step(current, 0.4 / 2 ** round_index)
+        if current < self.best_loss:
+            self._keep_best(current)
+
+    def _blur_step(self, current: float, span: float) -> float:
+        """The parabolic step of the discrete parameters, on the camera blur."""
+        def clamped(blur):
+            return min(MAX_CAMERA_BLUR_PX, max(self.blur_floor, blur))
+
+        def loss_at(blur):
+            return self.objective.value(self.fabric, blur)
+
+        self.camera_blur_px, current = parabolic_step(loss_at, self.camera_blur_px, current, span, clamped)
+        return current
+
+
+def parabolic_step(loss_at: Callable[[float], float], x: float, current: float, span: float,
+                   clamped: Callable[[float], float]) -> tuple[float, float]:
+    """One deterministic step on a discrete parameter: evaluate x - d and x + d (d = ``span``),
+    then the minimum of the parabola through the three losses (at most 2 d away); returns the
+    best of those points and x itself (``current`` is the loss at x), as (value, loss). Every
+    value is passed through ``clamped`` before it is evaluated."""
+    lo, hi = loss_at(clamped(x - span)), loss_at(clamped(x + span))
+    curvature = lo + hi - 2 * current
+    step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
+    step = max(-2 * span, min(2 * span, step))
+    best_dx, best = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
+    value = loss_at(clamped(x + step))
+    if value < best:
+        best_dx, best = step, value
+    return (clamped(x + best_dx), best) if best_dx != 0.0 else (x, current)

@@ -1,0 +1,183 @@
+"""The search stage of a fit: which weave, at what density, from where, with how much camera blur.
+
+1. Candidates: one (pattern, tiles) per preset from the photos' spectra
+   (:func:`backend.texture.candidates.propose`); an initialisation network may rate them, and those
+   it gives less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`).
+2. Starting points (:func:`starting_points`): the network's guess for a candidate, or the
+   pattern's typical parameters with the albedos scaled to the photos' mean colour
+   (:func:`colour_matched`) and the best of a few gap scales (:func:`best_gap`); ranked by loss.
+3. Camera blur (:func:`camera_blur`): fixed when given; none for photos whose noise is as white as a
+   render's (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`best_blur`),
+   never below the blur the photos' noise shows, which also becomes the optimiser's lower bound.
+4. Trials (:func:`trial_runs`): the best ``trials`` starts get a short fit each; the pattern is the
+   one whose trial ends lowest in loss + ``spectrum_weight`` x (1 - spectrum correlation of render
+   and photo): the loss reads harmonics at each candidate's own lattice, so a lattice twice too
+   coarse would not be charged for the photo's odd harmonics; the spectrum sees every peak.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import torch
+
+from ..core import priors
+from ..core.params import PARAMETERS, FabricParams
+from ..core.rig import MAX_CAMERA_BLUR_PX
+from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
+from ..image.metrics import spectrum_corr
+from ..texture.candidates import Candidate
+from .objective import Objective
+from .optimise import Run
+from .settings import FitSettings
+
+GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
+BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
+
+
+@dataclass
+class Start:
+    loss: float
+    order: int              # the candidate's place in the proposal (breaks ties)
+    candidate: Candidate
+    params: FabricParams
+
+
+@dataclass
+class Trial:
+    run: Run
+    summary: dict           # what params.json's fit.candidates records for it
+    selection: float        # trial loss + spectrum mismatch: the lowest wins
+
+
+def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float
+                     ) -> tuple[list[Candidate], dict[int, float], list[dict]]:
+    """(kept candidates, probability by id(candidate), summaries of those ruled out)."""
+    if pattern_probabilities is None or len(found) <= 1:
+        return found, {}, []
+    probabilities = pattern_probabilities(found)
+    if probabilities is None:
+        return found, {}, []
+    rated = {id(c): p for c, p in zip(found, probabilities)}
+    kept = [c for c, p in zip(found, probabilities) if p >= threshold]
+    ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score, "probability": p}
+                 for c, p in zip(found, probabilities) if p < threshold]
+    return kept or [found[int(np.argmax(probabilities))]], rated, ruled_out
+
+
+def colour_matched(params: FabricParams, objective: Objective, camera_blur_px: float) -> FabricParams:
+    """Scales the albedos so the render's mean linear colour matches the photos' (per channel)."""
+    with torch.no_grad():
+        pair = objective.renderer.render(params, camera_blur_px=camera_blur_px)
+    gamma = objective.rig.gamma
+
+    def ratio(render, photo):
+        r = render.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+        p = photo.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+        return (p / r.clamp_min(1e-4)).clamp(0.05, 20.0).tolist()
+
+    r_ratio = ratio(pair.reflection, objective.target.reflection)
+    t_ratio = ratio(pair.transmission, objective.target.transmission)
+
+    def scaled(rgb, factors):
+        return tuple(min(1.0, max(0.0, c * f)) for c, f in zip(rgb, factors))
+
+    return FabricParams.clamped_from(
+        pattern=params.pattern, weave=params.weave,
+        **{**{s.name: getattr(params, s.name) for s in PARAMETERS},
+           "diffuse_reflection": scaled(params.diffuse_reflection, r_ratio),
+           "specular_albedo": tuple(scaled(yarn, r_ratio) for yarn in params.specular_albedo),
+           "diffuse_transmission": scaled(params.diffuse_transmission, t_ratio)})
+
+
+def best_gap(params: FabricParams, objective: Objective, camera_blur_px: float) -> tuple[float, FabricParams]:
+    """The starting gap scale (same for warp and weft) with the lowest loss among GAP_SCAN and the
+    current one, as (loss, params): gaps change the transmission image more than anything."""
+    best = None
+    for gap in (params.gap_scale,) + tuple((g, g) for g in GAP_SCAN):
+        trial = params.replace(gap_scale=gap)
+        loss = objective.value(trial, camera_blur_px)
+        if best is None or loss < best[0]:
+            best = (loss, trial)
+    return best
+
+
+def starting_points(candidates: list[Candidate], objective: Objective, camera_blur_px: float,
+                    initial_for: Callable[[Candidate], FabricParams | None] | None,
+                    on_start: Callable[[int, float], None]) -> list[Start]:
+    """One start per candidate, lowest loss first; ``on_start(count, loss)`` after each."""
+    starts = []
+    for k, cand in enumerate(candidates):
+        guess = initial_for(cand) if initial_for is not None else None
+        if guess is not None:
+            params = guess.replace(tiles=cand.tiles)
+            loss = objective.value(params, camera_blur_px)
+        else:
+            params = colour_matched(priors.typical(cand.pattern).replace(tiles=cand.tiles), objective, camera_blur_px)
+            loss, params = best_gap(params, objective, camera_blur_px)
+        starts.append(Start(loss, k, cand, params))
+        on_start(k + 1, loss)
+    return sorted(starts, key=lambda s: (s.loss, s.order))
+
+
+def best_blur(params: FabricParams, objective: Objective, floor: float) -> float:
+    """The camera blur among ``floor`` and the BLUR_SCAN values above it with the lowest loss."""
+    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
+    losses = [objective.value(params, blur) for blur in scan]
+    return scan[int(np.argmin(losses))]
+
+
+def camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int,
+                best_start: FabricParams, objective: Objective) -> tuple[float, float | None]:
+    """(camera blur to fit with, its lower bound while fitting, or None when it stays fixed)."""
+    if settings.camera_blur is not None:
+        return settings.camera_blur, None
+    photo_blur = photo_blur_px(reflection, transmission, film_size)
+    if photo_blur < SOFT_PHOTO_PX:
+        return 0.0, None  # as sharp as a render: a blur would only hide model error
+    floor = min(photo_blur, MAX_CAMERA_BLUR_PX)
+    return best_blur(best_start, objective, floor), floor
+
+
+def reranked(starts: list[Start], objective: Objective, camera_blur_px: float) -> list[Start]:
+    """The starts ranked again by their loss at another camera blur."""
+    rescored = [Start(objective.value(s.params, camera_blur_px), s.order, s.candidate, s.params) for s in starts]
+    return sorted(rescored, key=lambda s: (s.loss, s.order))
+
+
+def spectrum_similarity(params: FabricParams, objective: Objective, camera_blur_px: float) -> float:
+    """Mean over R and T of the log-power-spectrum correlation between a render and the photo."""
+    with torch.no_grad():
+        pair = objective.renderer.render(params, camera_blur_px=camera_blur_px)
+    target = objective.target
+    return 0.5 * sum(spectrum_corr(photo.cpu().numpy(), render.cpu().numpy())
+                     for photo, render in ((target.reflection, pair.reflection),
+                                           (target.transmission, pair.transmission)))
+
+
+def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings, camera_blur_px: float,
+               blur_floor: float | None, rated: dict[int, float], check_stop: Callable[[Run], None],
+               on_trial: Callable[[int, int, float], None]) -> list[Trial]:
+    """A short fit for each of the best ``settings.trials`` starts (none when only one is left).
+
+    The runs' learning-rate schedules span the trial and the final iterations: the winner goes on.
+    """
+    shortlisted = starts[: max(1, settings.trials)]
+    compare = len(shortlisted) > 1
+    total = settings.iterations + settings.trial_iterations
+    trials = []
+    for index, start in enumerate(shortlisted):
+        run = Run(start.params, objective, settings, total, camera_blur_px, blur_floor)
+        for _ in range(settings.trial_iterations if compare else 0):
+            run.step()
+            check_stop(run)
+        trial_loss = run.best_loss if run.history else start.loss
+        similarity = spectrum_similarity(run.best, objective, camera_blur_px) if compare else 1.0
+        selection = trial_loss + settings.spectrum_weight * (1.0 - similarity)
+        on_trial(index + 1, len(shortlisted), selection)
+        cand = start.candidate
+        trials.append(Trial(run, {"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
+                                  "start_loss": start.loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
+                                  "selection": selection, "probability": rated.get(id(cand))}, selection))
+    return trials

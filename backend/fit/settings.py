@@ -1,0 +1,52 @@
+"""What a fit is asked to do and what it returns."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from ..core.params import PARAMETERS, FabricParams
+from ..texture.features import LossWeights
+
+OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
+Progress = Callable[[str, int, int, float | None, float | None], None]  # stage, iteration, total, loss, eta_s
+
+
+class FitCancelled(Exception):
+    """Raised from inside the loop when the caller asks to stop; carries the best parameters so far."""
+
+    def __init__(self, params: FabricParams | None):
+        super().__init__("cancelled")
+        self.params = params
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    pattern: str = "auto"            # a preset name, or "auto" to choose by comparing fits
+    iterations: int = 150
+    size: int = 256                  # working size of the loss (photos are area-downsampled to it)
+    spp: int = 16
+    seed: int = 0
+    trials: int = 5                  # candidates given a short fit in the search stage
+    trial_iterations: int = 20
+    spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
+    min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
+    search_every: int = 25
+    lr: float = 0.02                 # Adam step as a fraction of each parameter's range
+    weights: LossWeights = LossWeights()
+    prior_weight: float = 0.002
+    device: str = "cpu"
+    compile: bool | None = None      # None: torch.compile where a C++ compiler is found
+    vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
+    gram_weight: float = 1.0
+    camera_blur: float | None = None  # film pixels; None: estimated from the photos
+
+
+@dataclass
+class FitResult:
+    params: FabricParams
+    loss: float
+    terms: dict[str, float]
+    candidates: list[dict]
+    history: list[tuple[int, float]]
+    timings: dict[str, float] = field(default_factory=dict)
+    camera_blur_px: float = 0.0
