@@ -208,7 +208,8 @@ class InitNet(nn.Module):
 def header(hidden: int, **extra) -> dict:
     """The JSON header saved beside the weights: what the features and outputs mean."""
     return {"feature_version": FEATURE_VERSION, "work_size": WORK_SIZE, "harmonic_eps": HARMONIC_EPS,
-            "colour_grid": COLOUR_GRID, "quantile_pool": QUANTILE_POOL, "feature_dim": FEATURE_DIM, "input_dim": INPUT_DIM, "patterns": list(PATTERNS),
+            "colour_grid": COLOUR_GRID, "quantile_pool": QUANTILE_POOL, "feature_dim": FEATURE_DIM,
+            "input_dim": INPUT_DIM, "patterns": list(PATTERNS),
             "targets": list(TARGETS), "target_size": TARGET_SIZE, "hidden": hidden, **extra}
 
 
