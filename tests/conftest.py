@@ -1,10 +1,9 @@
-"""Shared fixtures. ``../shared`` (beside the checkout) holds the golden renders and checkers; CI has
-it. Tests that need it fail with a clear message when it is missing, unless WFC_ALLOW_NO_SHARED=1
-is set, in which case they are skipped with that reason (never silently)."""
+"""Shared fixtures. ``../shared`` (beside the checkout) holds the golden renders, the real photo
+pairs and the team's checkers; CI has it. Tests that need it fail with a clear message when it is
+missing (the product never reads it)."""
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -21,12 +20,9 @@ def _require_shared(*parts: str) -> Path:
 
 
 def require_path(path: Path) -> Path:
-    """A shared file or folder, or a failure (a skip with the reason under WFC_ALLOW_NO_SHARED=1)."""
+    """A shared file or folder, or a failure that says where it should be."""
     if not path.exists():
-        message = f"{path} is missing: the shared data must sit beside the checkout (../shared)"
-        if os.environ.get("WFC_ALLOW_NO_SHARED") == "1":
-            pytest.skip(message)
-        pytest.fail(message)
+        pytest.fail(f"{path} is missing: the shared data must sit beside the checkout (../shared)")
     return path
 
 

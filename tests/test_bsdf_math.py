@@ -3,8 +3,9 @@ import math
 
 import pytest
 import torch
+from oracles import reference
 
-from backend import asggx, reference, sggx
+from backend.model import asggx, sggx
 from backend.model.spongecake import eval_layer, slab_g
 from backend.model.yarn import scale_height
 

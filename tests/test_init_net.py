@@ -1,14 +1,20 @@
 """The initialisation network: shipped weights, features, predictions, dataset and training (fast)."""
+import argparse
 import json
+import random
 
 import numpy as np
 import pytest
 import torch
 
-from backend import dataset, init_net, lattice, priors, train
+from backend.cli.fit import add_parser
+from backend.core import priors
 from backend.core.params import PARAMETERS, FabricParams
-from backend.model.render import render_pair
 from backend.core.rig import DEFAULT_RIG
+from backend.init import dataset, train
+from backend.init import network as init_net
+from backend.model.render import render_pair
+from backend.texture import lattice
 from backend.texture.candidates import Candidate
 
 TINY = dataset.DatasetSettings(size=32, spp=1, seed=3)
@@ -58,7 +64,7 @@ def test_features_are_finite_and_sized(small_pair):
 
 
 def test_one_prediction_per_preset_candidate_is_valid(small_pair):
-    hook = init_net.initialiser(*small_pair, DEFAULT_RIG)
+    hook = init_net.NetworkStart(*small_pair, DEFAULT_RIG)
     for pattern in priors.PATTERNS:
         tiles = priors.typical(pattern).tiles
         guess = hook(Candidate(pattern, tiles, 0.0))
@@ -75,7 +81,7 @@ def test_one_prediction_per_preset_candidate_is_valid(small_pair):
 
 
 def test_target_vector_round_trip():
-    params = priors.sample("satin0", __import__("random").Random(5))
+    params = priors.sample("satin0", random.Random(5))
     again = init_net.params_from_vector(init_net.target_vector(params), "satin0", params.tiles)
     for name in init_net.TARGETS:
         assert again.flat(name) == pytest.approx(params.flat(name), abs=1e-5)
@@ -95,14 +101,9 @@ def test_fit_initialiser_falls_back_to_the_prior_with_a_warning(small_pair, tmp_
 
 
 def test_fit_command_defaults_to_the_network():
-    import argparse
-
-    from backend.cli.fit import add_parser
-
     parser = argparse.ArgumentParser()
     add_parser(parser.add_subparsers())
     assert parser.parse_args(["fit", "--out", "x"]).init == "network"
-    assert parser.parse_args(["fit", "--out", "x", "--init", "prior"]).init == "prior"
 
 
 @pytest.fixture(scope="module")

@@ -2,20 +2,22 @@
 gradcheck, chunking, compilation, determinism, glow and noise."""
 import dataclasses
 import random
+import zlib
 
 import pytest
 import torch
+from oracles import reference
 
-from backend import reference
+from backend.core.options import RenderOptions
+from backend.core.params import PARAMETERS, FabricParams
+from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model.bsdf import eval_pair
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
+from backend.model.imaging import display_transform, gaussian_blur
 from backend.model.layers import WeaveLookup
-from backend.core.options import RenderOptions
 from backend.model.param_tensors import ParamTensors
-from backend.core.params import PARAMETERS, SPECS, FabricParams
-from backend.model.render import Renderer, compile_available, display_transform, gaussian_blur
-from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.model.render import Renderer, compile_available
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
 VARIANTS = {"full": {}, "one_layer": {"layers": 1}, "sggx": {"multiple_lobe": "sggx"},
@@ -46,7 +48,8 @@ def random_params(rng: random.Random, pattern: str, extreme: bool = False) -> Fa
 def fast_points(params: FabricParams, xs, ys, options: RenderOptions, tensors: ParamTensors, rig=DEFAULT_RIG):
     camera = CameraSamples(rig, 512, 1, dtype=torch.float64)
     chunk = camera.at_points(torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64))
-    key = GeometryKey(params.pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, options.tension, options.layers)
+    key = GeometryKey(params.pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, options.tension,
+                      options.layers)
     geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), rig, key, torch.float64)
     r, t = eval_pair(chunk, geometry, tensors, options)
     return r.radiance(), t.radiance(), geometry.no_yarn
@@ -55,7 +58,7 @@ def fast_points(params: FabricParams, xs, ys, options: RenderOptions, tensors: P
 @pytest.mark.parametrize("variant", list(VARIANTS))
 @pytest.mark.parametrize("pattern", ["plain", "twill0", "twill1", "satin0", "satin1"])
 def test_fast_path_matches_the_literal_reference(pattern, variant):
-    rng = random.Random(hash((pattern, variant)) & 0xFFFF)
+    rng = random.Random(zlib.crc32(f"{pattern}/{variant}".encode()))  # the same draw in every process
     options = RenderOptions.from_flags(VARIANTS[variant])
     params = random_params(rng, pattern).replace(gap_scale=(rng.uniform(0.6, 1.0), rng.uniform(0.6, 1.0)))
     V = DEFAULT_RIG.view_size

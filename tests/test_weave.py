@@ -4,10 +4,10 @@ import random
 
 import pytest
 import torch
+from oracles import reference
 
-from backend import reference
-from backend.model.layers import GAP, WeaveLookup
 from backend.core.weave import BACK, FRONT, PRESETS, WARP, WEFT, Weave, WeaveError, weave_from_matrix
+from backend.model.layers import GAP, WeaveLookup
 
 
 def shapes(weave, yarn, layer):

@@ -132,7 +132,7 @@ def _timed_fit(reflection, transmission, settings, use_network: bool, model) -> 
         if stage == "optimise" and loss is not None:
             trace.append((time.perf_counter() - started, iteration, float(loss)))
 
-    hook = init_net.initialiser(reflection, transmission, DEFAULT_RIG, model) if use_network else None
+    hook = init_net.NetworkStart(reflection, transmission, DEFAULT_RIG, model) if use_network else None
     result = fit(reflection, transmission, DEFAULT_RIG, settings, progress=progress, initial_for=hook,
                  pattern_probabilities=hook.pattern_probabilities if hook is not None else None)
     return {"result": result, "trace": trace, "seconds": time.perf_counter() - started}

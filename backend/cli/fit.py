@@ -39,7 +39,7 @@ from ..fit.settings import FitCancelled, FitSettings
 from ..image.metrics import compare
 from ..image.photos import PhotoError, load_pair
 from ..image.png import write_png
-from ..init.network import fit_initialiser
+from ..init.network import INIT_CHOICES, fit_initialiser
 from ..model.memory import peak_memory_mb
 from ..model.render import render_pair
 
@@ -220,7 +220,7 @@ def add_parser(sub) -> None:
     p.add_argument("--camera-blur", default="auto", type=_camera_blur, metavar="auto|PX",
                    help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's "
                         "non-zero camera_blur_px is kept) or fixed")
-    p.add_argument("--init", choices=("network", "prior"), default="network",
+    p.add_argument("--init", choices=INIT_CHOICES, default="network",
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")
     p.add_argument("--output-spp", type=int, default=OUTPUT_SPP,

@@ -299,21 +299,6 @@ class NetworkStart:
         return [p for _, p in self.model.guesses(self.pair, candidates, self.rig)]
 
 
-def initialiser(reflection, transmission, rig: CaptureRig, model: InitModel | None = None) -> NetworkStart:
-    """The fit's ``initial_for`` hook for one photo pair (with its ``pattern_probabilities``)."""
-    return NetworkStart(reflection, transmission, rig, model)
-
-
-def initial_guess(reflection, transmission, rig: CaptureRig, candidate) -> FabricParams:
-    """One network guess for a (pattern, tiles) candidate of a photo pair (shipped weights)."""
-    return model_guess(load_model(), reflection, transmission, rig, candidate)
-
-
-def model_guess(model: InitModel, reflection, transmission, rig: CaptureRig, candidate) -> FabricParams:
-    pair = WorkingPair.from_images(reflection, transmission, rig.gamma)
-    return model.guess(pair, candidate.pattern, candidate.tiles, rig)
-
-
 INIT_CHOICES = ("network", "prior")
 
 
@@ -333,4 +318,4 @@ def fit_initialiser(mode: str, reflection, transmission, rig: CaptureRig, warn: 
     except InitNetError as exc:
         warn(f"{exc}; starting from the prior instead (--init prior)")
         return None
-    return initialiser(reflection, transmission, rig, model)
+    return NetworkStart(reflection, transmission, rig, model)

@@ -89,8 +89,8 @@ def _yarn_point(weave: Weave, yarn: int, index: int, along: float, across: float
     mu = tension[s] + (tension[neighbour] - tension[s]) * abs(offset) / distance
     width = weave.band(yarn)[0]
     umax = math.radians(weave.umax_deg[yarn])
-    l = -offset if yarn == WARP else offset  # up the image for a warp, right for a weft
-    u = (l / (length / 2)) * umax
+    along = -offset if yarn == WARP else offset  # up the image for a warp, right for a weft
+    u = (along / (length / 2)) * umax
     if layer == BACK:
         u = -u
     v = across * math.pi / (width * xi)
@@ -110,7 +110,8 @@ def point_layers(weave: Weave, X: float, Y: float, gap_scale) -> tuple[PointLaye
     weft, weft_gap = _yarn_point(weave, WEFT, row, xr, y_in - weave.weft_width / 2, gap_scale[1])
     gap = PointLayer(GAP)
     if in_warp and in_weft:
-        top, bottom = ((warp, warp_gap), (weft, weft_gap)) if weave.matrix[row][col] else ((weft, weft_gap), (warp, warp_gap))
+        warp_over = weave.matrix[row][col]
+        top, bottom = ((warp, warp_gap), (weft, weft_gap)) if warp_over else ((weft, weft_gap), (warp, warp_gap))
     elif in_warp:
         top, bottom = (warp, warp_gap), (gap, True)
     elif in_weft:
@@ -211,7 +212,8 @@ def radiance(params: dict, weave: Weave, layers: list[list[PointLayer]], wi, lig
     count = options.layers
     twist = [float(x) for x in params["twist_deg"]]
     ks_all = params["specular_albedo"]
-    km_all = torch.where(ks_all > 0, ks_all.clamp_min(1e-300) ** (1 / params["multiple_weight"]), torch.zeros_like(ks_all))
+    km_all = torch.where(ks_all > 0, ks_all.clamp_min(1e-300) ** (1 / params["multiple_weight"]),
+                         torch.zeros_like(ks_all))
     s_min = weave.s_min if options.tension else 1.0
     per_layer = []
     for k in range(count):
