@@ -9,7 +9,7 @@ import torch
 
 from backend.cli.fit import add_parser
 from backend.core import priors
-from backend.core.params import PARAMETERS, FabricParams
+from backend.core.params import FabricParams
 from backend.core.rig import DEFAULT_RIG
 from backend.init import dataset, train
 from backend.init import network as init_net
@@ -34,13 +34,6 @@ def trivial_signatures():
     return {p: [one, one] for p in priors.PATTERNS}
 
 
-def _in_range(params: FabricParams) -> bool:
-    for spec in PARAMETERS:
-        if not all(spec.lo <= x <= spec.hi for x in params.flat(spec.name)):
-            return False
-    return True
-
-
 def test_shipped_weights_load_with_weights_only_and_are_small():
     path = init_net.DEFAULT_WEIGHTS
     assert path.is_file(), f"{path} is missing: run `python -m backend train DATASET --out {path}`"
@@ -63,21 +56,16 @@ def test_features_are_finite_and_sized(small_pair):
     assert torch.isfinite(init_net.candidate_features(black, "plain", (173.0, 173.0), DEFAULT_RIG)).all()
 
 
-def test_one_prediction_per_preset_candidate_is_valid(small_pair):
+def test_the_network_recognises_a_rendered_twill(small_pair):
     hook = init_net.NetworkStart(*small_pair, DEFAULT_RIG)
-    for pattern in priors.PATTERNS:
-        tiles = priors.typical(pattern).tiles
-        guess = hook(Candidate(pattern, tiles, 0.0))
-        assert isinstance(guess, FabricParams) and guess.pattern == pattern
-        assert guess.tiles == pytest.approx(tiles) and guess.noise == 0.0
-        assert guess.twist_deg == priors.typical(pattern).twist_deg
-        assert _in_range(guess)
-    model = init_net.load_model()
-    cands = [Candidate(p, priors.typical(p).tiles, 0.0) for p in priors.PATTERNS]
-    probabilities = [p for _, p in model.guesses(init_net.WorkingPair.from_images(*small_pair), cands, DEFAULT_RIG)]
-    assert sum(probabilities) == pytest.approx(1.0, abs=1e-5)
-    assert hook.pattern_probabilities(cands) == pytest.approx(probabilities)
-    assert hook.pattern_probabilities(cands[:1] + [Candidate("custom", (100.0, 100.0), 0.0)]) is None
+    candidates = [Candidate(p, priors.typical(p).tiles, 0.0) for p in priors.PATTERNS]
+    probabilities = hook.pattern_probabilities(candidates)
+    assert dict(zip(priors.PATTERNS, probabilities))["twill1"] > 0.9  # small_pair is a twill1 render
+    guess = hook(Candidate("twill1", priors.typical("twill1").tiles, 0.0))
+    assert all(abs(a - b) < 0.25 for a, b in zip(guess.roughness, priors.typical("twill1").roughness))
+    # A weave the network was not trained on gets no guess and no opinion: the fit's prior start.
+    custom = Candidate("custom", (100.0, 100.0), 0.0)
+    assert hook(custom) is None and hook.pattern_probabilities(candidates[:1] + [custom]) is None
 
 
 def test_target_vector_round_trip():

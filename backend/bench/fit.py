@@ -32,7 +32,7 @@ def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) 
            "--json-progress", *extra]
     started = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[1])
+                            cwd=Path(__file__).resolve().parents[2])
     stdout, stderr = proc.communicate()
     wall = time.perf_counter() - started
     lines = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]

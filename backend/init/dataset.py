@@ -238,7 +238,7 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
     """Splits the jobs over ``workers`` Python processes (plain subprocesses: the command line's
     ``__main__`` must not be re-run the way multiprocessing's spawn would) and reports progress by
     watching the finished files appear."""
-    root = str(Path(__file__).resolve().parents[1])
+    root = str(Path(__file__).resolve().parents[2])  # holds the backend package
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     procs = []
     for k in range(workers):

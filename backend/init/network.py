@@ -68,7 +68,7 @@ HARMONIC_EPS = 0.05      # modulation depth below which a harmonic is mostly Mon
 COLOUR_GRID = 8
 QUANTILE_POOL = 2        # quantiles of the 2 x 2 (linear) pooled image: less sensitive to pixel noise
 PATTERNS = priors.PATTERNS
-DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "data" / "init_net.pt"
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "data" / "init_net.pt"
 
 # The continuous parameters the network predicts (tiles come from the lattice, twist from the prior).
 TARGETS = ("roughness", "thickness", "roughness_multiple", "thickness_multiple", "height_scale", "gap_scale",
