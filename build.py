@@ -8,8 +8,10 @@ Layout of the zip (what Blender's "Install from Disk" expects of an extension)::
     backend/               the Python package the add-on runs as a subprocess
     shaders/               woven_fabric.osl
 
-The zip is named ``<id>-<version>.zip`` from the manifest. Caches, compiled files and tests are left
-out; entries are sorted and time-stamped alike so that two builds of the same tree are identical.
+Only what runs in the add-on is bundled: the backend's development tools (benchmarks, the network's
+dataset and training, their commands; :data:`DEVELOPMENT_ONLY`) are left out, and so are caches,
+compiled files and tests. The zip is named ``<id>-<version>.zip`` from the manifest; entries are
+sorted and time-stamped alike so that two builds of the same tree are identical.
 """
 from __future__ import annotations
 
@@ -24,6 +26,11 @@ ADDON = ROOT / "blender_addon"
 BUNDLED = ("backend", "shaders")
 SKIPPED_DIRS = {"__pycache__", ".pytest_cache", "tests"}
 SKIPPED_SUFFIXES = {".pyc", ".pyo", ".blend1"}
+# Development tools of the backend (paths in the zip; a folder ends with "/"): the command line lists
+# a development command only where its module is present (backend/cli/main.py).
+DEVELOPMENT_ONLY = ("backend/bench/", "backend/init/dataset.py", "backend/init/train.py",
+                    "backend/cli/bench.py", "backend/cli/dataset.py", "backend/cli/train.py",
+                    "backend/cli/evaluate_init.py")
 # Without these the add-on installs but cannot make materials: the build warns (a test fails).
 EXPECTED = ("shaders/woven_fabric.osl", "node_group.py")
 FIXED_TIME = (2024, 1, 1, 0, 0, 0)
@@ -42,13 +49,18 @@ def _files(folder: Path):
             yield path, relative
 
 
+def _development_only(name: str) -> bool:
+    return any(name.startswith(entry) if entry.endswith("/") else name == entry for entry in DEVELOPMENT_ONLY)
+
+
 def entries() -> list[tuple[Path, str]]:
     """(source file, name in the zip) for everything the extension contains."""
     found = [(path, relative.as_posix()) for path, relative in _files(ADDON)]
     for name in BUNDLED:
         folder = ROOT / name
         if folder.is_dir():
-            found += [(path, f"{name}/{relative.as_posix()}") for path, relative in _files(folder)]
+            found += [(path, f"{name}/{relative.as_posix()}") for path, relative in _files(folder)
+                      if not _development_only(f"{name}/{relative.as_posix()}")]
     if not any(name == "backend/__init__.py" for _, name in found):
         raise SystemExit(f"build.py: {ROOT / 'backend'} is missing")
     names = {name for _, name in found}
