@@ -7,7 +7,7 @@
    per rig from a render of the preset's typical parameters at a low density).
 
 The fit then gives the best few (pattern, tiles) candidates a short optimisation each and keeps the
-one that explains the photos best (:mod:`backend.fit.pipeline`).
+one that explains the photos best (:mod:`backend.fit.search`).
 """
 from __future__ import annotations
 
