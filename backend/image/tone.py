@@ -5,7 +5,7 @@
   (a phone's sRGB output is close to this curve): :func:`to_linear` scales them to [0, 1] and raises
   them to 2.2. Linear sources (OpenEXR, float TIFF, camera RAW) are linear already; floats lose
   NaNs, infinities and negatives.
-- Luminance: the one definition of the project's image code, Rec. 709 weights
+- Luminance: the one definition in ``image/``, Rec. 709 weights
   :data:`LUMA` = (0.2126, 0.7152, 0.0722) (:func:`luminance`).
 - Auto exposure (:func:`auto_exposure`): the scale that puts the 99th percentile of linear luminance
   of the brightest of the given regions at 0.5 (0.73 encoded, a level typical of the rig's renders
