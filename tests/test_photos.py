@@ -1,4 +1,4 @@
-"""Photo input (backend/image/photos.py): formats, RAW decoding, crop/resize, flat-field, errors, pair checks.
+"""Photo input (backend/image): formats, RAW decoding, crop/resize, flat-field, errors, pair checks, spectrum.
 
 Test images are written here, in tmp dirs. The swap check is also run on the real photo pairs and the
 golden renders in ../shared (CI has it beside the checkout; where it is missing those tests fail, or
@@ -6,27 +6,34 @@ skip with the reason under WFC_ALLOW_NO_SHARED=1) and on a fresh render of the f
 """
 from __future__ import annotations
 
+import json
 import os
+import struct
+import subprocess
+import sys
+import zlib
+from pathlib import Path
 
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # before cv2 is imported anywhere
+import cv2
+import numpy as np
+import pytest
+import rawpy
+import torch
+from conftest import ROOT, SHARED, require_path
 
-import json  # noqa: E402
-import struct  # noqa: E402
-import zlib  # noqa: E402
-from pathlib import Path  # noqa: E402
+from backend.core.params import load_params
+from backend.image import metrics
+from backend.image.containers import apply_orientation
+from backend.image.pair_checks import check_order, order_cues
+from backend.image.photos import PhotoError, load_pair, load_photo, read_image
+from backend.image.spectrum import windowed_highpass
+from backend.image.tone import luminance
+from backend.model.render import render_pair
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from backend import photos  # noqa: E402
-from backend.image.photos import PhotoError, load_pair, load_photo, read_image  # noqa: E402
-from conftest import require_path  # noqa: E402
-
-SHARED = Path(__file__).resolve().parents[2] / "shared"
 REAL = SHARED / "data" / "real"
 GOLDEN = SHARED / "data" / "golden"
 REAL_PAIRS = ("satin1", "twill1", "twill2")
+EXR_SWITCH = "OPENCV_IO_ENABLE_OPENEXR"
 
 
 # -- helpers --------------------------------------------------------------------------------------
@@ -34,8 +41,11 @@ REAL_PAIRS = ("satin1", "twill1", "twill2")
 def write(path: Path, rgb: np.ndarray) -> Path:
     """Writes an RGB array (uint8/uint16/float32) with OpenCV, which wants BGR.
 
-    TIFFs are written uncompressed: OpenCV would store float TIFFs as lossy SGI LogLuv.
+    TIFFs are written uncompressed: OpenCV would store float TIFFs as lossy SGI LogLuv. OpenCV's
+    EXR codec is off unless OPENCV_IO_ENABLE_OPENEXR is set before its first use, for writing too.
     """
+    if path.suffix == ".exr":
+        os.environ.setdefault(EXR_SWITCH, "1")
     data = rgb[..., ::-1] if rgb.ndim == 3 else rgb
     options = [cv2.IMWRITE_TIFF_COMPRESSION, 1] if path.suffix == ".tif" else []
     assert cv2.imwrite(str(path), np.ascontiguousarray(data), options), path
@@ -147,7 +157,6 @@ def test_jpeg_exif_orientation_is_applied(tmp_path, orientation):
     source = read_image(jpeg_with_orientation(tmp_path / "o.jpg", stored, orientation))
     upright = ORIENTED[orientation](stored)
     assert source.pixels.shape == upright.shape
-    assert source.size == (upright.shape[1], upright.shape[0])
     assert np.abs(source.pixels.astype(int) - upright).mean() < 3  # JPEG loss only
 
 
@@ -165,7 +174,7 @@ def test_crop_box_is_in_upright_pixels(tmp_path):
 @pytest.mark.parametrize("orientation", [2, 4, 5, 7])
 def test_every_mirrored_orientation_is_applied(orientation):
     stored = blocks(8, 12, cell=1)
-    np.testing.assert_array_equal(photos.apply_orientation(stored, orientation), ORIENTED[orientation](stored))
+    np.testing.assert_array_equal(apply_orientation(stored, orientation), ORIENTED[orientation](stored))
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
@@ -210,9 +219,29 @@ def test_exr_auto_exposure_puts_the_99th_percentile_at_half(tmp_path):
     rng = np.random.default_rng(6)
     linear = rng.uniform(0, 40.0, size=(64, 64, 3)).astype(np.float32)  # an HDR scale
     photo = load_photo(write(tmp_path / "hdr.exr", linear), size=64)
-    lum = photos.luminance(as_linear(photo.image).astype(np.float32))
+    lum = luminance(as_linear(photo.image).astype(np.float32))
     assert np.percentile(lum, 99) == pytest.approx(0.5, rel=1e-3)
     np.testing.assert_allclose(photo.image, encoded(linear * photo.exposure), atol=1e-5)
+
+
+def test_exr_decodes_in_a_fresh_process_and_no_import_sets_the_environment(tmp_path):
+    """OpenCV reads OPENCV_IO_ENABLE_OPENEXR once per process: here no test has set it before."""
+    linear = np.random.default_rng(17).uniform(0, 1.5, size=(32, 32, 3)).astype(np.float32)
+    write(tmp_path / "l.exr", linear)
+    script = f"""
+import os, sys
+import numpy as np
+import backend.image.camera_blur, backend.image.metrics, backend.image.photos, backend.image.png
+assert "{EXR_SWITCH}" not in os.environ, "importing the image package set {EXR_SWITCH}"
+photo = backend.image.photos.load_photo(sys.argv[1], size=32, exposure=0.5)
+np.save(sys.argv[2], photo.image)
+"""
+    env = {k: v for k, v in os.environ.items() if k != EXR_SWITCH}
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path / "l.exr"), str(tmp_path / "out.npy")],
+                          cwd=ROOT, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    np.testing.assert_allclose(np.load(tmp_path / "out.npy"), encoded(linear * 0.5), atol=1e-5)
 
 
 def test_float_tiff_is_treated_as_linear(tmp_path):
@@ -252,7 +281,6 @@ class FakeRaw:
 
 
 def test_raw_is_decoded_linearly_through_rawpy(tmp_path, monkeypatch):
-    rawpy = pytest.importorskip("rawpy", reason="rawpy is a declared dependency of the backend")
     linear16 = random_rgb((40, 40, 3), np.uint16, seed=9)
     fake = FakeRaw(linear16)
     opened = []
@@ -272,7 +300,6 @@ def test_raw_is_decoded_linearly_through_rawpy(tmp_path, monkeypatch):
 
 
 def test_raw_decoder_failure_is_a_photo_error(tmp_path, monkeypatch):
-    rawpy = pytest.importorskip("rawpy", reason="rawpy is a declared dependency of the backend")
 
     def broken(path):
         raise rawpy.LibRawIOError("Input/output error")
@@ -444,11 +471,10 @@ def test_bad_crop_boxes(tmp_path, box, problem):
     assert problem in str(error.value)
 
 
-def test_tiff_directory_beyond_the_end_is_truncated_and_a_value_error(tmp_path):
+def test_tiff_directory_beyond_the_end_is_truncated(tmp_path):
     (tmp_path / "x.tif").write_bytes(b"II*\x00" + b"\xff" * 4)
-    with pytest.raises(ValueError, match=r"x\.tif: the file is truncated \(the TIFF directory") as error:
+    with pytest.raises(PhotoError, match=r"x\.tif: the file is truncated \(the TIFF directory"):
         load_photo(tmp_path / "x.tif")
-    assert isinstance(error.value, PhotoError)
 
 
 # -- pair checks: synthetic pairs -------------------------------------------------------------------
@@ -585,27 +611,52 @@ def golden_cases() -> list[str]:
 @pytest.mark.parametrize("name", golden_cases())
 def test_golden_renders_swap_check(name):
     r, t = need(GOLDEN / f"{name}_R.png"), need(GOLDEN / f"{name}_T.png")
-    cues_r = photos.order_cues(load_photo(r).image)
-    cues_t = photos.order_cues(load_photo(t).image)
-    assert photos.check_order(cues_r, cues_t) == []
-    swapped = photos.check_order(cues_t, cues_r)
+    cues_r = order_cues(load_photo(r).image)
+    cues_t = order_cues(load_photo(t).image)
+    assert check_order(cues_r, cues_t) == []
+    swapped = check_order(cues_t, cues_r)
     assert len(swapped) == 3  # all three tests fire on the swapped order
 
 
 def test_fresh_render_swap_check():
     """The forward model itself (spec example parameters, default rig), rendered small."""
-    torch = pytest.importorskip("torch", reason="the backend's renderer needs torch")
-    from backend.core.params import load_params
-    from backend.model.render import render_pair
-
     params = load_params("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,"
                          "0.286,0.279,0.0_G_0.99,1.0_Rm_0.65,0.62_Tm_2.66,0.79_W_0.71,1.29_Ks_0.325,0.37,0.0,"
                          "0.351,0.883,0.0_Psi_-30.5,-29.5")
     with torch.no_grad():
         pair = render_pair(params, size=96, spp=1, seed=0)
-    cues_r = photos.order_cues(pair.reflection.numpy())
-    cues_t = photos.order_cues(pair.transmission.numpy())
-    assert photos.check_order(cues_r, cues_t) == []
-    assert photos.check_order(cues_t, cues_r) != []
+    cues_r = order_cues(pair.reflection.numpy())
+    cues_t = order_cues(pair.transmission.numpy())
+    assert check_order(cues_r, cues_t) == []
+    assert check_order(cues_t, cues_r) != []
     assert cues_r["top_bias"] > 0.5 and abs(cues_t["top_bias"]) < 0.1
 
+
+
+# -- spectrum and metrics ---------------------------------------------------------------------------
+
+def test_windowed_highpass_is_the_yarn_lattices_input():
+    """Bit for bit texture/lattice.py's _highpassed_luminance (as of the layout change), sigma = N / 64."""
+    rng = np.random.default_rng(18)
+    for shape in ((96, 96, 3), (128, 80, 3)):
+        for image in (rng.random(shape), rng.random(shape).astype(np.float32)):
+            y = np.asarray(image, dtype=np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+            y = y - cv2.GaussianBlur(y, (0, 0), y.shape[0] / 64)
+            expected = y * np.outer(np.hanning(y.shape[0]), np.hanning(y.shape[1]))
+            got = windowed_highpass(image, image.shape[0] / 64)
+            assert got.dtype == np.float64
+            np.testing.assert_array_equal(got, expected)
+
+
+def test_metrics_match_the_team_checker(shared_tools):
+    """backend.image.metrics against shared/tools/imagemetrics.py, on a real photo and a changed copy."""
+    sys.path.insert(0, str(shared_tools))
+    try:
+        import imagemetrics
+    finally:
+        sys.path.remove(str(shared_tools))
+    photo = load_photo(need(REAL / "twill1_R.png")).image.astype(np.float64)
+    render = np.clip(photo * 0.9 + 0.03, 0, 1)
+    assert metrics.spectrum_corr(photo, render) == imagemetrics.spectrum_corr(photo, render)
+    assert metrics.colour_l1(photo, render) == imagemetrics.downsample_l1(photo, render)
+    assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 
@@ -15,8 +16,6 @@ def to_numpy(image) -> np.ndarray:
 
 def write_png(path: str | Path, image, bits: int = 16) -> Path:
     """Writes an RGB image in [0, 1] as an 8- or 16-bit PNG (values are clipped)."""
-    import cv2
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rgb = np.clip(to_numpy(image), 0.0, 1.0)
@@ -29,8 +28,6 @@ def write_png(path: str | Path, image, bits: int = 16) -> Path:
 
 def read_png(path: str | Path) -> np.ndarray:
     """Reads an 8/16-bit PNG written by :func:`write_png` back to float RGB in [0, 1]."""
-    import cv2
-
     data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if data is None:
         raise OSError(f"{path}: could not read the image")

@@ -1,0 +1,249 @@
+"""Pair checks: are the two photos one fabric, framed alike, and given in the right order?
+
+Computed on the working images (before any flat-field division) by :func:`.photos.load_pair`.
+
+Framing
+    The two source images must have the same pixel size (:func:`check_source_sizes`, else
+    :class:`PhotoError`). The same fabric on the same stand shows the same yarn lattice, so the peaks
+    of the two luminance power spectra (:func:`yarn_peaks`, lighting gradient removed) must coincide
+    within 5 %. When they do not, the magnification that best aligns them (:func:`best_lattice_scale`)
+    tells a framing difference: more than 20 %, with two peaks (or both photos' main peaks) agreeing
+    on it, is refused; anything less certain is a warning (:func:`check_framing_frequency`). The two
+    photos may emphasise different peaks of one lattice (a satin's diagonals in reflection, its yarn
+    gaps in transmission), hence the comparison of peak sets, not of single peaks.
+Order
+    The front light sits above the top edge of the image, so a reflection photo is brighter towards
+    the top; the back light sits behind the image centre, so a transmission photo is even from top to
+    bottom, with a centred glow (:func:`order_cues`, :func:`order_score`). :func:`check_order` gives
+    the reasons to believe the photos are swapped; the caller makes them warnings or errors.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from .errors import PhotoError
+from .spectrum import hann, highpass, power_spectrum
+from .tone import GAMMA, luminance
+
+# The rules and the values measured on real and rendered pairs are in check_order,
+# check_framing_frequency and yarn_peaks.
+TOP_BIAS_THRESHOLD = 0.35
+FREQUENCY_TOLERANCE = 0.05
+FRAMING_REFUSE = 0.20
+MIN_YARN_CYCLES = 16
+MAX_PEAKS = 8
+MIN_PEAK_POWER = 0.05
+MIN_PEAK_PROMINENCE = 10.0
+HARMONIC_RATIOS = (2.0, 1.5, 4 / 3, 3 / 4, 2 / 3, 0.5)
+
+
+def check_source_sizes(reflection_size: tuple[int, int], transmission_size: tuple[int, int], label: str) -> None:
+    """Refuses a pair whose photos, (width, height) in pixels, differ in size."""
+    if reflection_size != transmission_size:
+        raise PhotoError(f"{label}: the photos are framed differently: {reflection_size[0]} x {reflection_size[1]} "
+                         f"vs {transmission_size[0]} x {transmission_size[1]} pixels; take both from the same "
+                         "stand with the same camera settings")
+
+
+def order_cues(image: np.ndarray) -> dict[str, float]:
+    """Lighting cues of a working image, from its linear luminance.
+
+    top_bias: log(mean of the top quarter of rows / mean of the bottom quarter). The front light
+        above the top edge makes reflection photos brighter at the top (default rig: about 1/d^2 =
+        2.6x from the bottom to the top edge); the back light behind the centre leaves transmission
+        photos symmetric (about 0).
+    centre_glow: log(mean within 0.08 size of the centre / mean of the ring 0.2 .. 0.3 size). The
+        back light, and its out-of-focus glow through the gaps, peak at the centre; vignetting, the
+        same in both photos, adds the same amount to both.
+    """
+    lum = luminance(np.asarray(image, dtype=np.float32) ** np.float32(GAMMA))
+    n = lum.shape[0]
+    quarter = max(n // 4, 1)
+    eps = 1e-6
+    top_bias = math.log((lum[:quarter].mean() + eps) / (lum[-quarter:].mean() + eps))
+    yy, xx = np.mgrid[0:n, 0:n] + 0.5
+    radius = np.hypot(yy - n / 2, xx - n / 2) / n
+    centre = lum[radius < 0.08].mean()
+    ring = lum[(radius >= 0.2) & (radius < 0.3)].mean()
+    centre_glow = math.log((centre + eps) / (ring + eps))
+    return {"top_bias": top_bias, "centre_glow": centre_glow}
+
+
+def order_score(reflection_cues: dict, transmission_cues: dict) -> float:
+    """Positive when the pair reads as given: (top_bias_R - top_bias_T) + (centre_glow_T - centre_glow_R)."""
+    return ((reflection_cues["top_bias"] - transmission_cues["top_bias"])
+            + (transmission_cues["centre_glow"] - reflection_cues["centre_glow"]))
+
+
+def check_order(reflection_cues: dict, transmission_cues: dict) -> list[str]:
+    """Reasons to believe the photos are swapped (or mislabelled); empty when the order looks right.
+
+    Three tests, each from the rig's geometry:
+    - the transmission photo has top_bias >= 0.35 (top quarter 1.4x brighter than the bottom): it
+      looks lit by the front light;
+    - the reflection photo has top_bias < 0.35: it does not look lit by the front light;
+    - the order score (:func:`order_score`) is negative: the pair reads better the other way round.
+    Measured (working images): the 3 real pairs, top_bias R 0.66 .. 1.09, T -0.14 .. -0.03, score
+    >= 0.92; the 17 golden renders (512 px), R 0.70 .. 1.96, |T| <= 0.002, score >= 0.95; the golden
+    cases and 40 draws of the dataset prior (spec 5.4) rendered at 256 px, 4 spp: R >= 0.69,
+    |T| <= 0.007, score >= 0.68. No pair in order was flagged; every swapped one was, by all three.
+    """
+    reasons = []
+    ratio_t = math.exp(transmission_cues["top_bias"])
+    ratio_r = math.exp(reflection_cues["top_bias"])
+    limit = math.exp(TOP_BIAS_THRESHOLD)
+    if transmission_cues["top_bias"] >= TOP_BIAS_THRESHOLD:
+        reasons.append(f"the transmission photo is {ratio_t:.2f}x brighter at the top than at the bottom, like a "
+                       "photo lit by the front light above the top edge "
+                       f"(a back-lit photo is even: below {limit:.2f}x)")
+    if reflection_cues["top_bias"] < TOP_BIAS_THRESHOLD:
+        reasons.append(f"the reflection photo is only {ratio_r:.2f}x brighter at the top than at the bottom; "
+                       f"the front light above the top edge makes it at least {limit:.2f}x")
+    score = order_score(reflection_cues, transmission_cues)
+    if score < 0:
+        reasons.append(f"the lighting cues favour the opposite order (score {score:+.2f}: top brightness and "
+                       "centred glow of the two photos)")
+    return reasons
+
+
+def yarn_peaks(image: np.ndarray) -> list[tuple[float, float, float]]:
+    """Dominant peaks of the luminance power spectrum: (fx, fy, power relative to the strongest).
+
+    Frequencies are in cycles per image width (fx, to the right) and height (fy, downwards), one of
+    each +-f pair (fy > 0, or fy == 0 and fx > 0). The lighting gradient, glow and vignetting are
+    removed first (:func:`.spectrum.highpass` of sigma size / 64, so under about 16 cycles), the detail is
+    normalised by its local contrast (so the bright centre does not dominate) and windowed (Hann).
+    Peaks are local maxima of the lightly smoothed spectrum above 16 cycles, at most 8, each at least
+    5 % of the strongest. Empty when the strongest stands less than 10x above the median power: no
+    clear yarn pattern.
+    """
+    n = image.shape[0]
+    detail = highpass(luminance(np.asarray(image, dtype=np.float32)), n / 64)
+    contrast = np.sqrt(cv2.GaussianBlur(detail * detail, (0, 0), n / 16, borderType=cv2.BORDER_REFLECT))
+    power = power_spectrum(detail / (contrast + 1e-4) * hann(n, n))
+    freqs = np.fft.fftshift(np.fft.fftfreq(n, 1.0 / n))
+    fy, fx = np.meshgrid(freqs, freqs, indexing="ij")
+    usable = np.hypot(fx, fy) >= MIN_YARN_CYCLES
+    power = np.where(usable, power, 0.0).astype(np.float32)
+    smooth = cv2.GaussianBlur(power, (0, 0), 1.0)
+    if not usable.any() or smooth.max() <= 0:
+        return []
+    if smooth.max() < MIN_PEAK_PROMINENCE * np.median(smooth[usable]):
+        return []
+    is_max = smooth == cv2.dilate(smooth, np.ones((7, 7), np.uint8))
+    half = (fy > 0) | ((fy == 0) & (fx > 0))
+    rows, cols = np.nonzero(is_max & half & usable & (smooth >= MIN_PEAK_POWER * smooth.max()))
+    order = np.argsort(-smooth[rows, cols])[:MAX_PEAKS]
+    top = smooth[rows[order[0]], cols[order[0]]]
+    return [(float(fx[rows[i], cols[i]]), float(fy[rows[i], cols[i]]), float(smooth[rows[i], cols[i]] / top))
+            for i in order]
+
+
+def frequency_mismatch(peaks_a: Sequence, peaks_b: Sequence) -> float | None:
+    """Relative distance from one image's strongest peak to the nearest peak (+-f) of the other.
+
+    Taken both ways round, the smaller wins: the two photos light the same yarn lattice differently
+    (a reflection photo of a satin shows its diagonals, the transmission photo its yarn gaps), so it
+    is enough that one strongest peak appears in the other spectrum. None when either has no peaks.
+    """
+    if not peaks_a or not peaks_b:
+        return None
+    return float(min(_nearest_peak(peaks_a[0], peaks_b), _nearest_peak(peaks_b[0], peaks_a)))
+
+
+def _nearest_peak(peak: Sequence[float], others: Sequence, scale: float = 1.0) -> float:
+    """Relative distance |p - s q| / |p| from ``peak`` to the nearest of ``others`` (either sign)."""
+    p = np.asarray(peak[:2], dtype=float)
+    q = scale * np.asarray([o[:2] for o in others], dtype=float)
+    distances = np.minimum(np.hypot(*(q - p).T), np.hypot(*(q + p).T))
+    return float(distances.min() / max(np.hypot(*p), 1e-9))
+
+
+def lattice_match(peaks_a: Sequence, peaks_b: Sequence, scale: float) -> tuple[float, int]:
+    """How well ``peaks_a`` and ``peaks_b`` magnified by ``scale`` coincide: (score, peaks matched).
+
+    A peak of a is matched by a peak of b within 5 % (relative); the score adds min(power a, power b)
+    over the matched peaks of a, so two dominant peaks agreeing count 1.
+    """
+    score, matched = 0.0, 0
+    for peak in peaks_a:
+        hits = [min(peak[2], other[2]) for other in peaks_b
+                if _nearest_peak(peak, [other], scale) <= FREQUENCY_TOLERANCE]
+        if hits:
+            score, matched = score + max(hits), matched + 1
+    return score, matched
+
+
+def best_lattice_scale(peaks_a: Sequence, peaks_b: Sequence) -> tuple[float, float, int]:
+    """The magnification of b's lattice that best matches a's: (scale, score, peaks matched).
+
+    Candidates are the length ratios of peak pairs pointing the same way (within 3 degrees, the stand
+    does not rotate the camera), between 0.5 and 2.
+    """
+    best = (1.0, *lattice_match(peaks_a, peaks_b, 1.0))
+    for p in peaks_a:
+        for q in peaks_b:
+            angle = abs(math.atan2(p[1], p[0]) - math.atan2(q[1], q[0])) % math.pi
+            if min(angle, math.pi - angle) > math.radians(3):
+                continue
+            scale = math.hypot(p[0], p[1]) / max(math.hypot(q[0], q[1]), 1e-9)
+            if 0.5 <= scale <= 2.0:
+                candidate = (scale, *lattice_match(peaks_a, peaks_b, scale))
+                if candidate[1] > best[1] + 1e-9:
+                    best = candidate
+    return best
+
+
+def _harmonic(scale: float) -> bool:
+    """Whether ``scale`` is within 3 % of a ratio of small harmonics (2, 3/2, 4/3 or their inverses)."""
+    return any(abs(math.log(scale / ratio)) < 0.03 for ratio in HARMONIC_RATIOS)
+
+
+def _describe_peak(peak) -> str:
+    return f"{math.hypot(peak[0], peak[1]):.0f} cycles per image at ({peak[0]:+.0f}, {peak[1]:+.0f})"
+
+
+def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path]
+                            ) -> tuple[list[str], dict]:
+    """Compares the yarn lattices of the two working images.
+
+    The photos agree when their peaks coincide at scale 1 at least half as well as at the best scale
+    (:func:`best_lattice_scale`). Otherwise: when the best scale is more than 20 % away from 1 and
+    at least two peaks agree on it (or one peak with at least half the strongest power in both
+    photos, at a ratio that is not harmonic: 2, 3/2, 4/3 or their inverses, within 3 %), the photos
+    were framed at different scales (or show different fabrics):
+    :class:`PhotoError`; within 20 %, or with less evidence, a warning.
+    """
+    peaks_r, peaks_t = yarn_peaks(reflection), yarn_peaks(transmission)
+    info = {"reflection": [list(p[:2]) for p in peaks_r], "transmission": [list(p[:2]) for p in peaks_t],
+            "mismatch": frequency_mismatch(peaks_r, peaks_t), "scale": None}
+    label = f"{names[0]} / {names[1]}"
+    if not peaks_r or not peaks_t:
+        missing = [str(n) for n, p in zip(names, (peaks_r, peaks_t)) if not p]
+        return [f"{', '.join(missing)}: no clear yarn pattern in the spectrum; the framing check was skipped"], info
+    score_at_one, _ = lattice_match(peaks_r, peaks_t, 1.0)
+    scale, score, matched = best_lattice_scale(peaks_r, peaks_t)
+    info["scale"] = scale
+    if score_at_one >= 0.5 * score and score_at_one > 0:
+        return [], info
+    dominant = (f"dominant yarn frequencies {_describe_peak(peaks_r[0])} (reflection) and "
+                f"{_describe_peak(peaks_t[0])} (transmission)")
+    if matched == 0:
+        return [f"{label}: the yarn patterns share no spectral peak ({dominant}): check that both photos show the "
+                "same fabric at the same scale"], info
+    zoom = f"the transmission photo's yarn lattice matches the reflection's magnified {scale:.2f}x"
+    agree = f"{matched} matching peak{'s' if matched != 1 else ''}"
+    # Two peaks agreeing on the scale, or one with half the strongest power in both photos unless the
+    # ratio is harmonic (a photo may show 2f where the other shows f: same lattice, same framing).
+    strong = matched >= 2 or (score >= 0.5 and not _harmonic(scale))
+    if abs(math.log(scale)) <= math.log(1 + FRAMING_REFUSE) or not strong:
+        return [f"{label}: {zoom} ({agree}; {dominant}): the photos may be framed at slightly "
+                "different scales"], info
+    raise PhotoError(f"{label}: the photos are framed differently: {zoom} ({agree}; {dominant}), more "
+                     f"than {FRAMING_REFUSE:.0%} off; the same fabric on the same stand shows the same yarn density "
+                     "in both photos")
