@@ -57,7 +57,6 @@ def _prior_start(pattern: str, tiles) -> FabricParams:
 
 # -- 1. held-out synthetic set ---------------------------------------------------------------------
 def evaluate_heldout(model: init_net.InitModel, folder: str | Path) -> dict:
-
     arrays = load_arrays(folder)
     targets, logits = model.predict(arrays.features[:, :EXACT_ROW])
     predicted_pattern = logits.argmax(1)
@@ -94,7 +93,6 @@ def _load(reflection: Path, transmission: Path):
 
 
 def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stderr) -> dict:
-
     rows, net_rows, prior_rows = [], [], []
     for name, r_path, t_path, truth in golden_cases(folder):
         reflection, transmission = _load(r_path, t_path)
@@ -124,7 +122,6 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
 
 # -- 3. fits from the prior and from the network ---------------------------------------------------
 def _timed_fit(reflection, transmission, settings, use_network: bool, model) -> dict:
-
     trace: list[tuple[float, int, float]] = []
     started = time.perf_counter()
 

@@ -30,7 +30,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-LUMA = (0.2126, 0.7152, 0.0722)
+from ..image.tone import LUMA
+
 QUANTILES = 24
 ORDER = 4
 REGIONS = 3

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from ..image.spectrum import windowed_highpass
 
 
 @dataclass(frozen=True)
@@ -57,17 +57,10 @@ def lattice_of(tiles, rig) -> tuple[float, float]:
     return tiles[0] * scale, tiles[1] * scale
 
 
-def _highpassed_luminance(image: np.ndarray) -> np.ndarray:
-    y = np.asarray(image, dtype=np.float64) @ LUMA
-    y = y - cv2.GaussianBlur(y, (0, 0), y.shape[0] / 64)
-    window = np.outer(np.hanning(y.shape[0]), np.hanning(y.shape[1]))
-    return y * window
-
-
 def harmonic_spectrum(image: np.ndarray, a: float, b: float, m: np.ndarray, n: np.ndarray) -> np.ndarray:
     """|DFT|^2 of the windowed, high-passed luminance at the frequencies (m a, n b), cycles per image
     (exact: the separable DFT at those frequencies, not the FFT grid)."""
-    y = _highpassed_luminance(image)
+    y = windowed_highpass(image, image.shape[0] / 64)
     h, w = y.shape
     um, un = np.unique(m), np.unique(n)
     ex = np.exp(-2j * np.pi * np.outer(um * a, np.arange(w)) / w)
@@ -94,7 +87,7 @@ def signature(image: np.ndarray, a: float, b: float, order: int = 6, keep: int =
 def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
     """log power minus its local background (clipped at 0), on a pad-times zero-padded FFT grid,
     blurred by ``blur`` original bins so a lattice grid of finite step cannot step over a peak."""
-    y = _highpassed_luminance(image)
+    y = windowed_highpass(image, image.shape[0] / 64)
     h, w = y.shape
     spectrum = np.abs(np.fft.fft2(y, s=(h * pad, w * pad))) ** 2
     logp = np.log(np.fft.fftshift(spectrum) + 1e-12)
