@@ -1,4 +1,4 @@
-"""Writing and reading the project's images (RGB float in [0, 1] <-> 8/16-bit PNG)."""
+"""Writing the project's images: RGB float in [0, 1] -> 8/16-bit PNG."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,12 +24,3 @@ def write_png(path: str | Path, image, bits: int = 16) -> Path:
     if not cv2.imwrite(str(path), np.ascontiguousarray(data[..., ::-1])):
         raise OSError(f"{path}: could not write the image")
     return path
-
-
-def read_png(path: str | Path) -> np.ndarray:
-    """Reads an 8/16-bit PNG written by :func:`write_png` back to float RGB in [0, 1]."""
-    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if data is None:
-        raise OSError(f"{path}: could not read the image")
-    top = 65535.0 if data.dtype == np.uint16 else 255.0
-    return data[..., :3][..., ::-1].astype(np.float64) / top
