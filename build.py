@@ -25,7 +25,7 @@ BUNDLED = ("backend", "shaders")
 SKIPPED_DIRS = {"__pycache__", ".pytest_cache", "tests"}
 SKIPPED_SUFFIXES = {".pyc", ".pyo", ".blend1"}
 # Without these the add-on installs but cannot make materials: the build warns (a test fails).
-EXPECTED = ("shaders/woven_fabric.osl", "node_group.py")
+EXPECTED = ("shaders/woven_fabric.osl", "scene/node_group.py")
 FIXED_TIME = (2024, 1, 1, 0, 0, 0)
 
 

@@ -5,7 +5,7 @@ parts (backend_bridge, captures, paths) can be imported and tested without Blend
 """
 
 # The order matters: properties before the panels and operators that use them.
-_MODULE_NAMES = ("preferences", "properties", "operators", "panels", "batch")
+_MODULE_NAMES = ("ui.preferences", "ui.properties", "ui.operators", "ui.panels", "batch")
 
 
 def _modules():

@@ -31,7 +31,8 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_bridge, backend_setup, captures, materials
+from .core import backend_bridge, backend_setup, captures
+from .scene import materials
 
 CLI_COMMAND = "fabric_fit"
 MAX_EXIT = 125
@@ -207,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _backend(args) -> backend_bridge.Backend:
-    from . import preferences
+    from .ui import preferences
 
     python, script = args.python, args.backend_script
     try:

@@ -116,8 +116,8 @@ def test_build_makes_an_extension_zip_with_backend_and_shaders(tmp_path):
     path = Path(done.stdout.strip())
     assert path.parent == tmp_path and path.name == "woven_fabric-0.1.0.zip"
     names = zipfile.ZipFile(path).namelist()
-    for required in ("blender_manifest.toml", "__init__.py", "backend_bridge.py", "operators.py", "batch.py",
-                     "paths.py", "backend/__init__.py", "backend/core/protocol.py", "backend/core/params.py"):
+    for required in ("blender_manifest.toml", "__init__.py", "core/backend_bridge.py", "ui/operators.py", "batch.py",
+                     "core/paths.py", "backend/__init__.py", "backend/core/protocol.py", "backend/core/params.py"):
         assert required in names, required
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
     validator = next(Path(importlib.util.find_spec("bpy").origin).parent.glob(
@@ -135,7 +135,7 @@ def test_build_makes_an_extension_zip_with_backend_and_shaders(tmp_path):
 def test_build_bundles_the_shader(extension_zip):
     names = zipfile.ZipFile(extension_zip).namelist()
     assert "shaders/woven_fabric.osl" in names, "shaders/woven_fabric.osl is not written yet"
-    assert "node_group.py" in names, "blender_addon/node_group.py is not written yet"
+    assert "scene/node_group.py" in names, "blender_addon/node_group.py is not written yet"
 
 
 # -- registration -----------------------------------------------------------------------------------
@@ -160,7 +160,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         bpy.ops.fabric.reset_rig()
         assert settings.rig.fov_deg == 53.0
         assert registered_commands["fabric_fit"] is ext.batch.main
-        backend = ext.preferences.selected_backend(detect=False)
+        backend = ext.ui.preferences.selected_backend(detect=False)
         assert backend.python == sys.executable and backend.script == os.environ["WOVEN_FABRIC_BACKEND_SCRIPT"]
         # A fit without photos is refused with a readable message, nothing started.
         try:
@@ -196,14 +196,14 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         type(prefs).draw(PreferencesView(), bpy.context)
         assert ("prop", "camera_height") in drawn and ("operator", "fabric.fit") in drawn
         # (Background mode has no icons: icon_id stays 0, but the preview image must load.)
-        previews = list(ext.panels._previews.values())
+        previews = list(ext.ui.panels._previews.values())
         assert len(previews) == 1 and tuple(previews[0].image_size) == (16, 16), previews
 
         # While a fit runs the Fit panel shows a progress bar and the Cancel button.
         os.environ["FAKE_BACKEND_MODE"] = "slow"
-        fit = ext.backend_bridge.FitProcess.fit(ext.preferences.selected_backend(), ext.backend_bridge.FitRequest(
+        fit = ext.core.backend_bridge.FitProcess.fit(ext.ui.preferences.selected_backend(), ext.core.backend_bridge.FitRequest(
             Path(settings.reflection_path), Path(settings.reflection_path), Path("run"))).start()
-        ext.operators.ActiveFit.process = fit
+        ext.ui.operators.ActiveFit.process = fit
         drawn.clear()
         panels[2].draw(SimpleNamespace(layout=Layout()), bpy.context)
         assert ("operator", "fabric.cancel_fit") in drawn and "progress" in [d[0] for d in drawn], drawn
@@ -234,7 +234,7 @@ def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
             raise AssertionError("the check passed for a Python without torch")
         assert "The backend cannot run yet" in message, message
         assert "PyTorch (torch) is not installed for {python}" in message, message
-        assert ext.preferences.last_check[-1].problems
+        assert ext.ui.preferences.last_check[-1].problems
         print("CHECK OK")
     """)
     assert "CHECK OK" in output
@@ -263,8 +263,8 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
             assert (results / folder / "params.json").is_file() and (results / folder / "rig.json").is_file()
         assert json.loads((results / "linen_002" / "rig.json").read_text())["width_cm"] == 5.0
         fitted = bpy.data.materials["linen.001"]
-        assert fitted.use_fake_user and ext.materials.is_fabric_material(fitted)
-        values = ext.node_group.read_params(fitted)
+        assert fitted.use_fake_user and ext.scene.materials.is_fabric_material(fitted)
+        values = ext.scene.node_group.read_params(fitted)
         assert values["pattern"] == "twill1" and abs(values["roughness"][1] - 0.66) < 1e-4, values
 
         # Asked to, a fit updates the active object's fabric material in place.
@@ -303,7 +303,7 @@ def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zi
         settings = bpy.context.scene.woven_fabric
         settings.reflection_path = str(photos / "wool_R.png")
         settings.transmission_path = str(photos / "wool_T.png")
-        operator_class = ext.operators.FABRIC_OT_fit
+        operator_class = ext.ui.operators.FABRIC_OT_fit
 
         class Operator:  # the modal operator's state; Blender cannot make one without an event loop
             _timer, _scene_name, _warned, reports = None, bpy.context.scene.name, 0, []
@@ -317,7 +317,7 @@ def test_modal_fit_polls_without_blocking_and_esc_cancels(tmp_path, extension_zi
             os.environ["FAKE_BACKEND_MODE"] = mode
             op = Operator()
             fit = operator_class._prepare(op, bpy.context, settings).start()
-            ext.operators.ActiveFit.process = fit
+            ext.ui.operators.ActiveFit.process = fit
             started, slowest, ticks = time.monotonic(), 0.0, 0
             while True:
                 t = time.monotonic()
@@ -389,7 +389,7 @@ def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
         import importlib.util
         spec = importlib.util.spec_from_file_location("fake", {str(FAKE_BACKEND)!r})
         fake = importlib.util.module_from_spec(spec); spec.loader.exec_module(fake)
-        material = ext.materials.new_fit_material("denim", fake.fake_params("denim"), 5.0)
+        material = ext.scene.materials.new_fit_material("denim", fake.fake_params("denim"), 5.0)
         before = set(bpy.context.scene.objects.keys())
         bpy.context.scene.woven_fabric.last_material = material.name
         assert bpy.ops.fabric.add_drape_preview(resolution=10, frames=12) == {{"FINISHED"}}
@@ -436,8 +436,8 @@ def test_installed_extension_batch_fits_with_the_real_backend_and_renders_both_e
         bpy.ops.wm.open_mainfile(filepath={str(library)!r})
         material = bpy.data.materials["cotton"]
         assert material.asset_data is not None
-        print("VALUES", json.dumps(ext.node_group.read_params(material)))
-        rig_scene = importlib.import_module(ext.__name__ + ".rig_scene")
+        print("VALUES", json.dumps(ext.scene.node_group.read_params(material)))
+        rig_scene = importlib.import_module(ext.__name__ + ".scene.rig_scene")
         means = {{}}
         for engine, osl in (("CYCLES", True), ("BLENDER_EEVEE", False)):
             scene = rig_scene.build_scene(material, size=16, samples=1, osl=osl, scene=bpy.data.scenes.new(engine),

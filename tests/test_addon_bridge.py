@@ -19,9 +19,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from blender_addon import backend_bridge as bridge  # noqa: E402
-from blender_addon import backend_setup as setup  # noqa: E402
-from blender_addon import captures  # noqa: E402
+from blender_addon.core import backend_bridge as bridge  # noqa: E402
+from blender_addon.core import backend_setup as setup  # noqa: E402
+from blender_addon.core import captures  # noqa: E402
 
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
 BACKEND_SCRIPT = str(FAKE_BACKEND)  # "" runs the real backend (python -m backend)

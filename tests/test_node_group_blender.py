@@ -20,7 +20,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     blend = tmp_path / "fabric.blend"
     result = run_blender(f"""
         from backend.core.params import FabricParams
-        from wf_addon import shader_params
+        from wf_addon.core import shader_params
         group = node_group.ensure_node_group()
         again = node_group.ensure_node_group()
         inputs = [(i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None))
@@ -58,7 +58,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
               "targets": targets, "bytecode": has_bytecode, "atlases": atlases, "header_px": px,
               "groups": sorted(g.name for g in bpy.data.node_groups)}})
     """, tmp_path)
-    sp = addon("shader_params")
+    sp = addon("core.shader_params")
     specs = sp.socket_specs()
     assert [i[0] for i in result["inputs"]] == [s.name for s in specs]
     for (name, socket_type, lo, hi), s in zip(result["inputs"], specs):
@@ -93,7 +93,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["uv_scale"] == pytest.approx(120.0 * V / (10 * 5.0), rel=1e-5)
     assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("header", "matrix", "warp", "weft")}
     assert all(packed for packed, _ in result["atlases"].values())
-    sw = addon("shader_weave")
+    sw = addon("core.shader_weave")
     w, h, px = sw.fallback_atlases()["header"]
     assert result["header_px"][:3] == pytest.approx(px[:3]) and result["header_px"][4:7] == pytest.approx(px[3:6])
     assert {"Woven Fabric", "Woven Fabric fallback"} <= set(result["groups"])

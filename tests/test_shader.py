@@ -47,8 +47,8 @@ def run_blender(script: str, tmp_path: Path, timeout: int = 300) -> dict:
         _pkg = types.ModuleType("wf_addon")
         _pkg.__path__ = [{str(ADDON)!r}]
         sys.modules["wf_addon"] = _pkg
-        rig_scene = importlib.import_module("wf_addon.rig_scene")
-        node_group = importlib.import_module("wf_addon.node_group")
+        rig_scene = importlib.import_module("wf_addon.scene.rig_scene")
+        node_group = importlib.import_module("wf_addon.scene.node_group")
         def emit(obj):
             print("RESULT " + json.dumps(obj), flush=True)
     """)
@@ -66,8 +66,8 @@ blender = pytest.mark.skipif(not have_bpy(), reason="needs the bpy module")
 
 # -- declaration agreement (no bpy) ---------------------------------------------------------
 def test_sockets_follow_the_declaration():
-    sp = addon("shader_params")
-    paths = addon("paths")
+    sp = addon("core.shader_params")
+    paths = addon("core.paths")
     specs = {s.name: s for s in sp.socket_specs()}
     presets = list(paths.weave_presets())
     assert specs["pattern"].kind == "INT" and (specs["pattern"].lo, specs["pattern"].hi) == (0, len(presets) - 1)
@@ -88,8 +88,8 @@ def test_sockets_follow_the_declaration():
 
 def test_osl_parameters_match_the_sockets():
     """Fails when shaders/woven_fabric.osl and backend/core/params.py drift apart (names, ranges, defaults)."""
-    sp = addon("shader_params")
-    source = addon("paths").shader_path().read_text()
+    sp = addon("core.shader_params")
+    source = addon("core.paths").shader_path().read_text()
     params = sp.osl_parameters(source)
     specs = sp.socket_specs()
     osl_type = {"INT": "int", "FLOAT": "float", "COLOR": "color"}
@@ -111,14 +111,14 @@ def test_osl_parameters_match_the_sockets():
 
 
 def test_osl_weave_tables_are_generated_from_the_backend():
-    sw = addon("shader_weave")
-    source = addon("paths").shader_path().read_text()
+    sw = addon("core.shader_weave")
+    source = addon("core.paths").shader_path().read_text()
     assert sw.table_block_of(source) == sw.osl_table_block(), \
         "run `python blender_addon/shader_weave.py` to regenerate the OSL weave tables"
 
 
 def test_pack_weave_layout():
-    sw = addon("shader_weave")
+    sw = addon("core.shader_weave")
     from backend.core.weave import PRESETS, WARP, WEFT
 
     bases, data = sw.packed_presets()
@@ -137,7 +137,7 @@ def test_pack_weave_layout():
 
 
 def test_params_socket_round_trip():
-    sp = addon("shader_params")
+    sp = addon("core.shader_params")
     from backend.core.params import FabricParams
 
     for pattern in ("plain", "twill0", "twill1", "satin0", "satin1"):
@@ -155,7 +155,7 @@ def test_params_socket_round_trip():
 
 
 def test_tiles_to_real_world_scale():
-    sp = addon("shader_params")
+    sp = addon("core.shader_params")
     V = 2 * 8 * math.tan(math.radians(26.5))
     assert sp.view_size() == pytest.approx(V) and V == pytest.approx(7.977, abs=1e-3)  # the brief says 7.9787
     width_cm, cloth_cm = 4.0, 150.0
@@ -187,7 +187,7 @@ def test_fallback_geometry_matches_the_backend():
     from backend.core.weave import PRESETS
     from backend.model.yarn import local_frame, scale_height
 
-    fb = addon("shader_fallback")
+    fb = addon("core.shader_fallback")
     rng = np.random.default_rng(1)
     S = 4000
     for index, name in enumerate(PRESETS):
@@ -230,7 +230,7 @@ def test_osl_compiles_with_cycles(tmp_path):
         emit({{"ok": bool(ok), "names": names}})
     """, tmp_path)
     assert result["ok"]
-    sp = addon("shader_params")
+    sp = addon("core.shader_params")
     assert set(result["names"]) == {s.osl for s in sp.socket_specs()} | set(sp.OSL_INTERNAL_INPUTS) | \
         set(sp.OSL_OUTPUTS)
 

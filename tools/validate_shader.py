@@ -118,8 +118,8 @@ def main(argv=None) -> int:
     import bpy  # noqa: F401  (the bpy module of the venv)
 
     pkg = addon_package()
-    rig_scene = importlib.import_module(f"{pkg}.rig_scene")
-    node_group = importlib.import_module(f"{pkg}.node_group")
+    rig_scene = importlib.import_module(f"{pkg}.scene.rig_scene")
+    node_group = importlib.import_module(f"{pkg}.scene.node_group")
     metrics = load_metrics()
 
     cases = select_cases(Path(args.golden), args.cases)

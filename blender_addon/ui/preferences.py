@@ -8,14 +8,17 @@ from __future__ import annotations
 
 import bpy
 
-from . import backend_bridge, backend_setup
+from ..core import backend_bridge, backend_setup
+
+# Preferences belong to the add-on's package, not to this ui sub-package.
+ADDON_PACKAGE = __package__.rpartition(".")[0]
 
 # The outcome of the last "Check Backend" (a BackendCheck), shown under the button; not saved.
 last_check: list = []
 
 
 class WovenFabricPreferences(bpy.types.AddonPreferences):
-    bl_idname = __package__
+    bl_idname = ADDON_PACKAGE
 
     python_path: bpy.props.StringProperty(
         name="Backend Python", subtype="FILE_PATH",
@@ -62,7 +65,7 @@ class WovenFabricPreferences(bpy.types.AddonPreferences):
 def preferences(context=None):
     """The add-on's preferences, or None when the add-on runs unregistered (batch from a checkout)."""
     context = context or bpy.context
-    addon = context.preferences.addons.get(__package__)
+    addon = context.preferences.addons.get(ADDON_PACKAGE)
     return addon.preferences if addon else None
 
 
@@ -80,7 +83,7 @@ def selected_device(context=None) -> str | None:
 
 
 def results_parent(context=None):
-    from . import captures
+    from ..core import captures
 
     prefs = preferences(context)
     if prefs and prefs.results_folder:

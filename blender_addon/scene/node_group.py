@@ -35,7 +35,7 @@ import sys
 
 import bpy
 
-from . import paths, shader_fallback, shader_params, shader_weave
+from ..core import paths, shader_fallback, shader_params, shader_weave
 
 NODE_GROUP_NAME = "Woven Fabric"
 FALLBACK_GROUP_NAME = "Woven Fabric fallback"

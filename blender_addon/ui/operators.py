@@ -14,7 +14,9 @@ from pathlib import Path
 
 import bpy
 
-from . import backend_bridge, backend_setup, captures, materials, preferences, properties
+from ..core import backend_bridge, backend_setup, captures
+from ..scene import materials
+from . import preferences, properties
 
 TIMER_INTERVAL_S = 0.1
 
@@ -372,7 +374,7 @@ class FABRIC_OT_add_drape_preview(bpy.types.Operator):
                                    description="Keep the draped shape and drop the simulation")
 
     def execute(self, context):
-        from . import drape
+        from ..scene import drape
 
         material = bpy.data.materials.get(self.material) if self.material else _last_material(context)
         if material is None:

@@ -9,7 +9,8 @@ import os
 
 import bpy
 
-from . import captures, operators
+from ..core import captures
+from . import operators
 
 _previews = None
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import backend_bridge, captures
+from ..core import backend_bridge, captures
 
 PATTERN_ITEMS = (
     ("auto", "Automatic", "Let the fit choose the weave"),

@@ -16,25 +16,25 @@ import importlib.util
 import sys
 from pathlib import Path
 
-_HERE = Path(__file__).resolve().parent
+_ADDON = Path(__file__).resolve().parent.parent  # blender_addon/ (the extension folder when installed)
 _ALIAS = "_woven_fabric_backend"
 
 
 def backend_root() -> Path:
     """The folder that contains the ``backend`` package (put it on PYTHONPATH for the subprocess)."""
-    for root in (_HERE, _HERE.parent):
+    for root in (_ADDON, _ADDON.parent):
         if (root / "backend" / "__init__.py").is_file():
             return root
-    raise FileNotFoundError(f"the fabric backend was not found next to {_HERE}; reinstall the add-on")
+    raise FileNotFoundError(f"the fabric backend was not found next to {_ADDON}; reinstall the add-on")
 
 
 def shader_path() -> Path:
     """The OSL source of the Woven Fabric shader."""
-    for root in (_HERE, _HERE.parent):
+    for root in (_ADDON, _ADDON.parent):
         path = root / "shaders" / "woven_fabric.osl"
         if path.is_file():
             return path
-    raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_HERE}; reinstall the add-on")
+    raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_ADDON}; reinstall the add-on")
 
 
 def backend_module(name: str):
