@@ -2,77 +2,40 @@
 (in Blender subprocesses) OSL compilation, Cycles / EEVEE renders and a cheap validation."""
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import os
 import subprocess
 import sys
 import textwrap
-import types
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-ADDON = ROOT / "blender_addon"
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-PKG = "woven_fabric_addon_tests"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from addon_support import run_blender  # noqa: E402
 
-def addon(module: str):
-    """A blender_addon module, imported as part of a package without running its __init__."""
-    if PKG not in sys.modules:
-        package = types.ModuleType(PKG)
-        package.__path__ = [str(ADDON)]
-        sys.modules[PKG] = package
-    return importlib.import_module(f"{PKG}.{module}")
-
-
-def have_bpy() -> bool:
-    try:
-        return importlib.util.find_spec("bpy") is not None
-    except (ImportError, ValueError):
-        return False
-
-
-def run_blender(script: str, tmp_path: Path, timeout: int = 300) -> dict:
-    """Runs `script` with the bpy module in a fresh interpreter; returns the JSON it prints last."""
-    path = tmp_path / "script.py"
-    prelude = textwrap.dedent(f"""
-        import sys, types, importlib, json
-        sys.path.insert(0, {str(ROOT)!r})
-        import bpy
-        _pkg = types.ModuleType("wf_addon")
-        _pkg.__path__ = [{str(ADDON)!r}]
-        sys.modules["wf_addon"] = _pkg
-        rig_scene = importlib.import_module("wf_addon.scene.rig_scene")
-        node_group = importlib.import_module("wf_addon.scene.node_group")
-        def emit(obj):
-            print("RESULT " + json.dumps(obj), flush=True)
-    """)
-    path.write_text(prelude + textwrap.dedent(script))
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"), PYTHONUNBUFFERED="1")
-    done = subprocess.run([sys.executable, str(path)], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=timeout)
-    results = [line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")]
-    assert done.returncode == 0 and results, f"blender script failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
-    return json.loads(results[-1])
-
-
-blender = pytest.mark.skipif(not have_bpy(), reason="needs the bpy module")
+from backend.core.params import FabricParams  # noqa: E402
+from backend.core.rig import DEFAULT_RIG  # noqa: E402
+from backend.core.weave import PRESETS, WARP, WEFT  # noqa: E402
+from backend.model.geometry import tile_coordinates  # noqa: E402
+from backend.model.layers import GAP, WeaveLookup  # noqa: E402
+from backend.model.yarn import local_frame, scale_height  # noqa: E402
+from blender_addon.core import declarations, paths, shader_fallback, shader_params, shader_weave  # noqa: E402
 
 
 # -- declaration agreement (no bpy) ---------------------------------------------------------
 def test_sockets_follow_the_declaration():
-    sp = addon("core.shader_params")
-    paths = addon("core.paths")
-    specs = {s.name: s for s in sp.socket_specs()}
-    presets = list(paths.weave_presets())
+    specs = {s.name: s for s in shader_params.socket_specs()}
+    presets = declarations.preset_names()
     assert specs["pattern"].kind == "INT" and (specs["pattern"].lo, specs["pattern"].hi) == (0, len(presets) - 1)
     expected = {"pattern"}
-    for spec in paths.parameter_declaration():
+    for spec in declarations.parameters():
         names = [f"{spec.name} {y}" for y in ("warp", "weft")] if spec.per_yarn else [spec.name]
         for name in names:
             s = specs[name]
@@ -88,10 +51,9 @@ def test_sockets_follow_the_declaration():
 
 def test_osl_parameters_match_the_sockets():
     """Fails when shaders/woven_fabric.osl and backend/core/params.py drift apart (names, ranges, defaults)."""
-    sp = addon("core.shader_params")
-    source = addon("core.paths").shader_path().read_text()
-    params = sp.osl_parameters(source)
-    specs = sp.socket_specs()
+    source = paths.shader_path().read_text()
+    params = shader_params.osl_parameters(source)
+    specs = shader_params.socket_specs()
     osl_type = {"INT": "int", "FLOAT": "float", "COLOR": "color"}
     for s in specs:
         assert s.osl in params, f"OSL shader lacks the parameter {s.osl}"
@@ -99,95 +61,77 @@ def test_osl_parameters_match_the_sockets():
         assert p["type"] == osl_type[s.kind] and not p["output"], s.osl
         assert p["meta"].get("label") == s.name, s.osl
         assert p["meta"].get("min") == pytest.approx(s.lo) and p["meta"].get("max") == pytest.approx(s.hi), s.osl
-        default = sp.osl_default(p["default"])
+        default = shader_params.osl_default(p["default"])
         if s.kind == "COLOR":
             assert default == pytest.approx(tuple(s.default)), s.osl
         else:
             assert default == pytest.approx(float(s.default)), s.osl
     inputs = {n for n, p in params.items() if not p["output"]}
     outputs = {n for n, p in params.items() if p["output"]}
-    assert inputs == {s.osl for s in specs} | set(sp.OSL_INTERNAL_INPUTS)
-    assert outputs == set(sp.OSL_OUTPUTS)
+    assert inputs == {s.osl for s in specs} | set(shader_params.OSL_INTERNAL_INPUTS)
+    assert outputs == set(shader_params.OSL_OUTPUTS)
 
 
 def test_osl_weave_tables_are_generated_from_the_backend():
-    sw = addon("core.shader_weave")
-    source = addon("core.paths").shader_path().read_text()
-    assert sw.table_block_of(source) == sw.osl_table_block(), \
-        "run `python blender_addon/shader_weave.py` to regenerate the OSL weave tables"
+    source = paths.shader_path().read_text()
+    assert shader_weave.table_block_of(source) == shader_weave.osl_table_block(), \
+        "run `python -m blender_addon.core.shader_weave` to regenerate the OSL weave tables"
 
 
 def test_pack_weave_layout():
-    sw = addon("core.shader_weave")
-    from backend.core.weave import PRESETS, WARP, WEFT
-
-    bases, data = sw.packed_presets()
+    bases, data = shader_weave.packed_presets()
     for base, weave in zip(bases, PRESETS.values()):
         assert data[base:base + 2] == [weave.cols, weave.rows]
         assert data[base + 11:base + 13] == [weave.tile_width, weave.tile_height]
-        matrix = data[base + sw.HEADER:base + sw.HEADER + weave.rows * weave.cols]
+        matrix = data[base + shader_weave.HEADER:base + shader_weave.HEADER + weave.rows * weave.cols]
         assert matrix == [float(c) for row in weave.matrix for c in row]
         warp0, weft0 = int(data[base + 13]), int(data[base + 14])
         e = weave.interval_table(WARP)[weave.cols - 1][2 * weave.rows - 1]
-        off = base + warp0 + ((weave.cols - 1) * 2 * weave.rows + 2 * weave.rows - 1) * sw.ENTRY
+        off = base + warp0 + ((weave.cols - 1) * 2 * weave.rows + 2 * weave.rows - 1) * shader_weave.ENTRY
         assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
         e = weave.interval_table(WEFT)[0][1]
-        off = base + weft0 + 1 * sw.ENTRY
+        off = base + weft0 + 1 * shader_weave.ENTRY
         assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
 
 
 def test_params_socket_round_trip():
-    sp = addon("core.shader_params")
-    from backend.core.params import FabricParams
-
     for pattern in ("plain", "twill0", "twill1", "satin0", "satin1"):
         p = FabricParams(pattern=pattern, tiles=(120.5, 80.25), roughness=(0.3, 0.7), twist_deg=(-30.0, 12.5),
                          specular_albedo=((0.1, 0.2, 0.3), (0.4, 0.5, 0.6)), diffuse_reflection=(0.7, 0.1, 0.2),
                          multiple_weight=1.3, noise=1.0)
         data = p.to_dict()
         data["rig"] = {"width_cm": 3.0}
-        back = sp.params_from_sockets(sp.socket_values(data))
+        back = shader_params.params_from_sockets(shader_params.socket_values(data))
         assert FabricParams.from_dict(back) == p
     with pytest.raises(ValueError):
-        sp.socket_values({"pattern": "custom"})
-    clamped = sp.socket_values({"pattern": "plain", "roughness": [5.0, -1.0]})
+        shader_params.socket_values({"pattern": "custom"})
+    clamped = shader_params.socket_values({"pattern": "plain", "roughness": [5.0, -1.0]})
     assert clamped["roughness warp"] == 1.0 and clamped["roughness weft"] == 0.01
 
 
 def test_tiles_to_real_world_scale():
-    sp = addon("core.shader_params")
     V = 2 * 8 * math.tan(math.radians(26.5))
-    assert sp.view_size() == pytest.approx(V) and V == pytest.approx(7.977, abs=1e-3)  # the brief says 7.9787
+    assert shader_params.view_size() == pytest.approx(V)
     width_cm, cloth_cm = 4.0, 150.0
     unit = 10 * width_cm / V                      # cm per UV unit of the rig plane
-    assert sp.uv_unit_cm(width_cm) == pytest.approx(unit)
-    assert sp.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
+    assert shader_params.uv_unit_cm(width_cm) == pytest.approx(unit)
+    assert shader_params.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
     tiles = [121.8, 168.9]
-    cloth = sp.cloth_tiles(tiles, width_cm, cloth_cm)
+    cloth = shader_params.cloth_tiles(tiles, width_cm, cloth_cm)
     assert cloth == pytest.approx([t * cloth_cm / unit for t in tiles])
     # same physical density: repeats per cm on the cloth = repeats per cm in the rig
-    assert [c / cloth_cm for c in cloth] == pytest.approx(sp.repeats_per_cm(tiles, width_cm))
-    assert sp.uv_scale(None, cloth_cm) == 1.0 and sp.uv_scale(width_cm, None) == 1.0
+    assert [c / cloth_cm for c in cloth] == pytest.approx(shader_params.repeats_per_cm(tiles, width_cm))
+    assert shader_params.uv_scale(None, cloth_cm) == 1.0 and shader_params.uv_scale(width_cm, None) == 1.0
     rig = {"camera_height": 10.0, "fov_deg": 40.0, "plane_size": 12.0}
     V2 = 2 * 10 * math.tan(math.radians(20))
-    assert sp.uv_scale(width_cm, cloth_cm, rig) == pytest.approx(cloth_cm / (12 * width_cm / V2))
+    assert shader_params.uv_scale(width_cm, cloth_cm, rig) == pytest.approx(cloth_cm / (12 * width_cm / V2))
     with pytest.raises(ValueError):
-        sp.uv_scale(-1.0, cloth_cm)
+        shader_params.uv_scale(-1.0, cloth_cm)
 
 
 def test_fallback_geometry_matches_the_backend():
     """The standard-node fallback program (evaluated with numpy) gives the backend's visible layer,
     yarn normal and fiber direction."""
-    import numpy as np
-    import torch
-    from backend.model.geometry import tile_coordinates
-    from backend.model.layers import GAP, WeaveLookup
-    from backend.core.params import FabricParams
-    from backend.core.rig import DEFAULT_RIG
-    from backend.core.weave import PRESETS
-    from backend.model.yarn import local_frame, scale_height
-
-    fb = addon("core.shader_fallback")
     rng = np.random.default_rng(1)
     S = 4000
     for index, name in enumerate(PRESETS):
@@ -198,7 +142,7 @@ def test_fallback_geometry_matches_the_backend():
                    gap_scale_weft=0.9, twist_deg_warp=-20.0, twist_deg_weft=15.0, height_scale_warp=1.5,
                    height_scale_weft=0.7, UV=np.stack([x / 10, y / 10 + 1, np.zeros(S)]),
                    Tangent=np.tile([[1.0], [0.0], [0.0]], S), Normal=np.tile([[0.0], [0.0], [1.0]], S))
-        out = fb.run(fb.NumpyBuilder(), env)
+        out = shader_fallback.run(shader_fallback.NumpyBuilder(), env)
         lookup = WeaveLookup(PRESETS[name])
         X, Y, _, _ = tile_coordinates(torch.tensor(x), torch.tensor(y), DEFAULT_RIG, p.tiles, lookup)
         front, back = lookup.layers(X, Y, p.gap_scale)
@@ -218,21 +162,20 @@ def test_fallback_geometry_matches_the_backend():
 
 
 # -- Blender (subprocesses) -----------------------------------------------------------------
-@blender
 @pytest.mark.blender
 def test_osl_compiles_with_cycles(tmp_path):
     result = run_blender(f"""
         import os
-        rig_scene.ensure_oslquery()
+        from blender_addon.scene import cycles_osl
+        cycles_osl.ensure_oslquery()
         import _cycles, oslquery
         ok = _cycles.osl_compile({str(ROOT / 'shaders' / 'woven_fabric.osl')!r}, "out.oso")
         names = [p.name for p in oslquery.OSLQuery("out.oso").parameters] if ok else []
         emit({{"ok": bool(ok), "names": names}})
     """, tmp_path)
     assert result["ok"]
-    sp = addon("core.shader_params")
-    assert set(result["names"]) == {s.osl for s in sp.socket_specs()} | set(sp.OSL_INTERNAL_INPUTS) | \
-        set(sp.OSL_OUTPUTS)
+    assert set(result["names"]) == ({s.osl for s in shader_params.socket_specs()}
+                                    | set(shader_params.OSL_INTERNAL_INPUTS) | set(shader_params.OSL_OUTPUTS))
 
 
 RENDER_PAIR = textwrap.dedent("""
@@ -259,7 +202,6 @@ RENDER_PAIR = textwrap.dedent("""
 """)
 
 
-@blender
 @pytest.mark.blender
 def test_light_calibration_matches_the_backend_convention(tmp_path):
     """A Lambertian fabric renders to k / pi * cos * intensity / distance^2 (the backend's units)."""
@@ -273,8 +215,8 @@ def test_light_calibration_matches_the_backend_convention(tmp_path):
         tree.links.new(bsdf.outputs[0], out.inputs["Surface"])
         scene = rig_scene.build_scene(mat, size=16, samples=16, osl=False, scene=bpy.context.scene, threads=1)
         img = rig_scene.render_linear(scene, "front")[..., 0]
-        rig = rig_scene.rig_values()
-        V = rig_scene.view_size(rig)
+        from blender_addon.core import shader_params
+        V = shader_params.view_size()
         c = (np.arange(16) + 0.5) * V / 16
         x, y = c[None, :], -c[:, None]
         lx, ly, lz = V / 2 + 0, -V / 2 + 8, 8
@@ -285,7 +227,6 @@ def test_light_calibration_matches_the_backend_convention(tmp_path):
     assert result["ratio"] == pytest.approx(1.0, rel=0.01)
 
 
-@blender
 @pytest.mark.blender
 def test_cycles_osl_and_fallback_renders(tmp_path):
     """Tiny Cycles renders: the OSL shader and the fallback (OSL off) are not black, differ between
@@ -315,7 +256,6 @@ def test_cycles_osl_and_fallback_renders(tmp_path):
     assert result["back_side"][0] and min(result["back_side"][1:]) > 1e-3  # seen from behind
 
 
-@blender
 @pytest.mark.blender
 @pytest.mark.slow
 def test_eevee_renders_the_fallback(tmp_path):
@@ -331,7 +271,6 @@ def test_eevee_renders_the_fallback(tmp_path):
     assert result["difference"] > 1e-3
 
 
-@blender
 @pytest.mark.blender
 @pytest.mark.slow
 def test_cheap_validation_against_the_backend(tmp_path):

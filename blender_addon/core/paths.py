@@ -1,17 +1,17 @@
-"""Where the add-on finds the backend and the shader, and the parameter declaration (no bpy, no torch).
+"""Where the add-on finds the backend and the shader, and how it loads the backend's plain modules.
 
 Two layouts are supported:
 - installed extension (built by build.py): ``<extension>/backend/`` and ``<extension>/shaders/``
   sit inside the add-on folder;
 - the repository: ``blender_addon/``, ``backend/`` and ``shaders/`` are siblings.
 
-The parameter declaration (names, ranges, labels) is read from ``backend/core/params.py``, which is
-plain Python: the node group's sockets and the OSL inputs therefore come from the same table as the
-backend's clamping and JSON. The backend package is loaded under a private module name so that no
-top-level ``backend`` module is added to Blender's Python.
+:func:`backend_module` imports a torch-free backend module (``core.params``, ``core.rig``, ...)
+under a private package name, so that no top-level ``backend`` module is added to Blender's Python;
+declarations.py says which facts the add-on reads that way.
 """
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import sys
 from pathlib import Path
@@ -38,7 +38,7 @@ def shader_path() -> Path:
 
 
 def backend_module(name: str):
-    """Imports ``backend.<name>`` (a torch-free module such as params or weave) under a private alias."""
+    """Imports ``backend.<name>`` (a torch-free module such as core.params) under a private alias."""
     if _ALIAS not in sys.modules:
         package = backend_root() / "backend"
         spec = importlib.util.spec_from_file_location(_ALIAS, package / "__init__.py",
@@ -47,13 +47,3 @@ def backend_module(name: str):
         sys.modules[_ALIAS] = module
         spec.loader.exec_module(module)
     return importlib.import_module(f"{_ALIAS}.{name}")
-
-
-def parameter_declaration():
-    """The backend's ``PARAMETERS`` tuple of ParamSpec (name, lo, hi, per_yarn, rgb, label, doc, unit)."""
-    return backend_module("core.params").PARAMETERS
-
-
-def weave_presets() -> dict:
-    """The backend's preset weaves (name -> Weave with matrix, bands, umax_deg, s_min)."""
-    return backend_module("core.weave").PRESETS

@@ -6,11 +6,11 @@ weave geometry (spec section 3, like ``backend/model/layers.py``) from UV: band 
 matrix and the backend's interval tables (read from the float atlases of
 :func:`shader_weave.fallback_atlases`), gap scaling, the visible yarn (front layer, or the back
 layer through a gap in front), its bent-cylinder normal and twisted fiber direction with height
-scaling. It skips the tension and noise and shades with standard BSDFs (see node_group.py).
+scaling. It skips the tension and noise and shades with standard BSDFs (see scene/node_group.py).
 
 The program is plain text, one assignment per line, in a tiny expression language (Python
 syntax): ``+ - * / **``, unary ``-``, numbers, names, and the functions listed in
-:data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``node_group.py`` passes one that
+:data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``scene/node_group.py`` passes one that
 creates shader nodes; :class:`NumpyBuilder` evaluates it on arrays, so the tests can check the
 fallback geometry against the backend without Blender.
 """
@@ -19,10 +19,7 @@ from __future__ import annotations
 import ast
 import math
 
-try:  # inside the installed extension / the blender_addon package
-    from . import shader_weave
-except ImportError:  # pragma: no cover - loaded as a plain module
-    import shader_weave  # type: ignore
+from . import shader_weave
 
 # name -> (number of arguments, kind): "math" ops map to the Math node, "vec" ops to Vector Math.
 FUNCTIONS = {
@@ -133,9 +130,13 @@ def program() -> list[tuple[str, str]]:
     atlases = shader_weave.fallback_atlases()
     sizes = {f"A_{name}_w": w for name, (w, h, _) in atlases.items()}
     sizes.update({f"A_{name}_h": h for name, (w, h, _) in atlases.items()})
-    text = _PROGRAM.format(presets=atlases["header"][0], head_rows=atlases["header"][1],
-                           pi=repr(math.pi), deg=repr(math.pi / 180.0),
-                           **{k: v for k, v in sizes.items() if not k.startswith("A_header")})
+    return parse(_PROGRAM.format(presets=atlases["header"][0], head_rows=atlases["header"][1],
+                                 pi=repr(math.pi), deg=repr(math.pi / 180.0),
+                                 **{k: v for k, v in sizes.items() if not k.startswith("A_header")}))
+
+
+def parse(text: str) -> list[tuple[str, str]]:
+    """(name, expression) of each ``name = expression`` line of a program."""
     out = []
     for line in text.strip().splitlines():
         name, expr = line.split("=", 1)

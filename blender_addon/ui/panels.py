@@ -9,7 +9,7 @@ import os
 
 import bpy
 
-from ..core import captures
+from ..core import declarations, rig_settings
 from . import operators
 
 _previews = None
@@ -20,12 +20,19 @@ def photo_icon(path: str) -> int:
     if _previews is None or not path:
         return 0
     filepath = bpy.path.abspath(path)
-    if not os.path.isfile(filepath) or os.path.splitext(filepath)[1].lower() in captures.RAW_EXTENSIONS:
+    if not os.path.isfile(filepath) or declarations.is_raw(os.path.splitext(filepath)[1]):
         return 0
     key = f"{filepath}:{os.path.getmtime(filepath)}"
     if key not in _previews:
         _previews.load(key, filepath, "IMAGE")
     return _previews[key].icon_id
+
+
+def _property_style(layout):
+    """Labels left of the values, no animation decorators: how the sidebar shows settings."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
 
 
 class FabricPanel:
@@ -39,9 +46,7 @@ class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
 
     def draw(self, context):
         settings = context.scene.woven_fabric
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = _property_style(self.layout)
         for prop in ("reflection_path", "transmission_path"):
             layout.prop(settings, prop)
             icon = photo_icon(getattr(settings, prop))
@@ -58,10 +63,8 @@ class VIEW3D_PT_woven_fabric_rig(FabricPanel, bpy.types.Panel):
 
     def draw(self, context):
         rig = context.scene.woven_fabric.rig
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        for field in captures.rig_fields():
+        layout = _property_style(self.layout)
+        for field in rig_settings.rig_fields():
             if field.name != "width_cm":
                 layout.prop(rig, field.name)
         layout.operator("fabric.reset_rig", icon="LOOP_BACK")
@@ -75,9 +78,7 @@ class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
         settings = context.scene.woven_fabric
         layout = self.layout
         fit = operators.active_fit()
-        column = layout.column()
-        column.use_property_split = True
-        column.use_property_decorate = False
+        column = _property_style(layout.column())
         column.enabled = fit is None
         column.prop(settings, "iterations")
         column.prop(settings, "size")
