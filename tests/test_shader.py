@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -27,6 +28,55 @@ from backend.model.geometry import tile_coordinates  # noqa: E402
 from backend.model.layers import GAP, WeaveLookup  # noqa: E402
 from backend.model.yarn import local_frame, scale_height  # noqa: E402
 from blender_addon.core import declarations, paths, shader_fallback, shader_params, shader_weave  # noqa: E402
+
+# The OSL shader's parameters that are not group sockets (wired inside the group or diagnostic only).
+OSL_INTERNAL_INPUTS = ("UV", "Tangent", "lobes")
+OSL_OUTPUTS = ("BSDF", "OSLActive")
+
+# -- reading the OSL shader's parameter list --------------------------------------------------------
+_PARAM = re.compile(
+    r"^\s*(?P<output>output\s+)?(?P<type>int|float|color|point|vector|normal|closure\s+color)\s+"
+    r"(?P<name>\w+)\s*=\s*(?P<default>\w+\s*\([^)]*\)|[^\[,()]+?)\s*(?:\[\[(?P<meta>.*?)\]\])?\s*[,)]?\s*(?://.*)?$")
+_META = re.compile(r"(?P<type>int|float|string)\s+(?P<key>\w+)\s*=\s*(?P<value>\"[^\"]*\"|[-+.\deE]+)")
+
+
+def osl_parameters(source: str, shader: str = "woven_fabric") -> dict[str, dict]:
+    """Parameters of ``shader <name>(...)`` in OSL source: name -> type, output, default, metadata.
+
+    Expects one parameter per line (as ``shaders/woven_fabric.osl`` is written).
+    """
+    match = re.search(r"\bshader\s+" + shader + r"\s*\(", source)
+    if not match:
+        raise ValueError(f"no 'shader {shader}(' in the OSL source")
+    body = source[match.end():]
+    depth, end = 1, 0
+    for end, ch in enumerate(body):
+        depth += ch == "("
+        depth -= ch == ")"
+        if depth == 0:
+            break
+    out: dict[str, dict] = {}
+    for line in body[:end + 1].splitlines():
+        m = _PARAM.match(line)
+        if not m:
+            continue
+        meta = {}
+        for mm in _META.finditer(m.group("meta") or ""):
+            value = mm.group("value")
+            meta[mm.group("key")] = value.strip('"') if mm.group("type") == "string" else float(value)
+        out[m.group("name")] = {"type": " ".join(m.group("type").split()), "output": bool(m.group("output")),
+                                "default": m.group("default").strip(), "meta": meta}
+    return out
+
+
+def osl_default(text: str):
+    """Number or colour tuple of an OSL default expression like ``0.5`` or ``color(1, 0.5, 0)``."""
+    text = text.strip()
+    m = re.fullmatch(r"(?:color|point|vector)\s*\((.*)\)", text)
+    if m:
+        parts = [float(p) for p in m.group(1).split(",")]
+        return tuple(parts * 3 if len(parts) == 1 else parts)
+    return float(text)
 
 
 # -- declaration agreement (no bpy) ---------------------------------------------------------
@@ -52,7 +102,7 @@ def test_sockets_follow_the_declaration():
 def test_osl_parameters_match_the_sockets():
     """Fails when shaders/woven_fabric.osl and backend/core/params.py drift apart (names, ranges, defaults)."""
     source = paths.shader_path().read_text()
-    params = shader_params.osl_parameters(source)
+    params = osl_parameters(source)
     specs = shader_params.socket_specs()
     osl_type = {"INT": "int", "FLOAT": "float", "COLOR": "color"}
     for s in specs:
@@ -61,15 +111,15 @@ def test_osl_parameters_match_the_sockets():
         assert p["type"] == osl_type[s.kind] and not p["output"], s.osl
         assert p["meta"].get("label") == s.name, s.osl
         assert p["meta"].get("min") == pytest.approx(s.lo) and p["meta"].get("max") == pytest.approx(s.hi), s.osl
-        default = shader_params.osl_default(p["default"])
+        default = osl_default(p["default"])
         if s.kind == "COLOR":
             assert default == pytest.approx(tuple(s.default)), s.osl
         else:
             assert default == pytest.approx(float(s.default)), s.osl
     inputs = {n for n, p in params.items() if not p["output"]}
     outputs = {n for n, p in params.items() if p["output"]}
-    assert inputs == {s.osl for s in specs} | set(shader_params.OSL_INTERNAL_INPUTS)
-    assert outputs == set(shader_params.OSL_OUTPUTS)
+    assert inputs == {s.osl for s in specs} | set(OSL_INTERNAL_INPUTS)
+    assert outputs == set(OSL_OUTPUTS)
 
 
 def test_osl_weave_tables_are_generated_from_the_backend():
@@ -116,11 +166,11 @@ def test_tiles_to_real_world_scale():
     unit = 10 * width_cm / V                      # cm per UV unit of the rig plane
     assert shader_params.uv_unit_cm(width_cm) == pytest.approx(unit)
     assert shader_params.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
-    tiles = [121.8, 168.9]
-    cloth = shader_params.cloth_tiles(tiles, width_cm, cloth_cm)
-    assert cloth == pytest.approx([t * cloth_cm / unit for t in tiles])
-    # same physical density: repeats per cm on the cloth = repeats per cm in the rig
-    assert [c / cloth_cm for c in cloth] == pytest.approx(shader_params.repeats_per_cm(tiles, width_cm))
+    # Same physical density: the repeats per cm on the cloth (tiles * uv scale per cloth_cm) are the
+    # repeats per cm in the rig (tiles per UV unit of the rig plane, uv_unit_cm wide).
+    tiles = 121.8
+    assert tiles * shader_params.uv_scale(width_cm, cloth_cm) / cloth_cm == \
+        pytest.approx(tiles / shader_params.uv_unit_cm(width_cm))
     assert shader_params.uv_scale(None, cloth_cm) == 1.0 and shader_params.uv_scale(width_cm, None) == 1.0
     rig = {"camera_height": 10.0, "fov_deg": 40.0, "plane_size": 12.0}
     V2 = 2 * 10 * math.tan(math.radians(20))
@@ -175,7 +225,7 @@ def test_osl_compiles_with_cycles(tmp_path):
     """, tmp_path)
     assert result["ok"]
     assert set(result["names"]) == ({s.osl for s in shader_params.socket_specs()}
-                                    | set(shader_params.OSL_INTERNAL_INPUTS) | set(shader_params.OSL_OUTPUTS))
+                                    | set(OSL_INTERNAL_INPUTS) | set(OSL_OUTPUTS))
 
 
 RENDER_PAIR = textwrap.dedent("""

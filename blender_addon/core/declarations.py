@@ -51,11 +51,6 @@ def rig():
     return backend_module("core.rig")
 
 
-def photo_suffixes() -> tuple[str, ...]:
-    """The file suffixes of the photos the backend reads (encoded images and camera RAW)."""
-    return backend_module("core.formats").PHOTO_SUFFIXES
-
-
 def is_raw(suffix: str) -> bool:
     """Whether a file suffix (``.dng``, any case) names a camera RAW photo."""
     return backend_module("core.formats").is_raw(suffix)

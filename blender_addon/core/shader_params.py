@@ -33,7 +33,6 @@ and the shader multiplies ``tiles`` by it (the tiles sockets keep the params.jso
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,9 +42,6 @@ YARNS = ("warp", "weft")
 MAP_SUFFIX = " map"
 UV_SCALE = "uv scale"
 PATTERN = "pattern"
-# OSL parameters that are not group sockets (wired inside the group or diagnostic only).
-OSL_INTERNAL_INPUTS = ("UV", "Tangent", "lobes")
-OSL_OUTPUTS = ("BSDF", "OSLActive")
 
 
 @dataclass(frozen=True)
@@ -179,61 +175,3 @@ def uv_scale(width_cm: float | None, cloth_size_cm: float | None, rig: dict | No
     if not (width_cm > 0 and cloth_size_cm > 0):
         raise ValueError(f"width_cm and cloth_size_cm must be positive (got {width_cm}, {cloth_size_cm})")
     return float(cloth_size_cm) / uv_unit_cm(width_cm, rig)
-
-
-def cloth_tiles(tiles, width_cm: float, cloth_size_cm: float, rig: dict | None = None) -> list[float]:
-    """Repeats per UV unit on the cloth: tiles * cloth_size_cm / (plane_size * width_cm / V)."""
-    k = uv_scale(width_cm, cloth_size_cm, rig)
-    return [float(t) * k for t in tiles]
-
-
-def repeats_per_cm(tiles, width_cm: float, rig: dict | None = None) -> list[float]:
-    """Pattern repeats per centimetre of real fabric (tiles per UV unit / UV unit in cm)."""
-    unit = uv_unit_cm(width_cm, rig)
-    return [float(t) / unit for t in tiles]
-
-
-# -- OSL parameter list ---------------------------------------------------------------------
-_PARAM = re.compile(
-    r"^\s*(?P<output>output\s+)?(?P<type>int|float|color|point|vector|normal|closure\s+color)\s+"
-    r"(?P<name>\w+)\s*=\s*(?P<default>\w+\s*\([^)]*\)|[^\[,()]+?)\s*(?:\[\[(?P<meta>.*?)\]\])?\s*[,)]?\s*(?://.*)?$")
-_META = re.compile(r"(?P<type>int|float|string)\s+(?P<key>\w+)\s*=\s*(?P<value>\"[^\"]*\"|[-+.\deE]+)")
-
-
-def osl_parameters(source: str, shader: str = "woven_fabric") -> dict[str, dict]:
-    """Parameters of ``shader <name>(...)`` in OSL source: name -> type, output, default, metadata.
-
-    Expects one parameter per line (as ``shaders/woven_fabric.osl`` is written).
-    """
-    match = re.search(r"\bshader\s+" + shader + r"\s*\(", source)
-    if not match:
-        raise ValueError(f"no 'shader {shader}(' in the OSL source")
-    body = source[match.end():]
-    depth, end = 1, 0
-    for end, ch in enumerate(body):
-        depth += ch == "("
-        depth -= ch == ")"
-        if depth == 0:
-            break
-    out: dict[str, dict] = {}
-    for line in body[:end + 1].splitlines():
-        m = _PARAM.match(line)
-        if not m:
-            continue
-        meta = {}
-        for mm in _META.finditer(m.group("meta") or ""):
-            value = mm.group("value")
-            meta[mm.group("key")] = value.strip('"') if mm.group("type") == "string" else float(value)
-        out[m.group("name")] = {"type": " ".join(m.group("type").split()), "output": bool(m.group("output")),
-                                "default": m.group("default").strip(), "meta": meta}
-    return out
-
-
-def osl_default(text: str):
-    """Number or colour tuple of an OSL default expression like ``0.5`` or ``color(1, 0.5, 0)``."""
-    text = text.strip()
-    m = re.fullmatch(r"(?:color|point|vector)\s*\((.*)\)", text)
-    if m:
-        parts = [float(p) for p in m.group(1).split(",")]
-        return tuple(parts * 3 if len(parts) == 1 else parts)
-    return float(text)

@@ -107,20 +107,24 @@ def osl_table_block() -> str:
     return "\n".join(lines)
 
 
-def replace_table_block(source: str, block: str | None = None) -> str:
-    """`source` with its generated block replaced by `block` (default: freshly generated)."""
-    block = osl_table_block() if block is None else block
+def _block_span(source: str) -> tuple[int, int]:
+    """(start, end) of the generated block in ``source``, markers included."""
     start, end = source.find(BEGIN_MARK), source.find(END_MARK)
     if start < 0 or end < start:
         raise ValueError("the OSL source has no generated weave table block")
-    return source[:start] + block + source[end + len(END_MARK):]
+    return start, end + len(END_MARK)
+
+
+def replace_table_block(source: str, block: str | None = None) -> str:
+    """`source` with its generated block replaced by `block` (default: freshly generated)."""
+    start, end = _block_span(source)
+    return source[:start] + (osl_table_block() if block is None else block) + source[end:]
 
 
 def table_block_of(source: str) -> str:
-    start, end = source.find(BEGIN_MARK), source.find(END_MARK)
-    if start < 0 or end < start:
-        raise ValueError("the OSL source has no generated weave table block")
-    return source[start:end + len(END_MARK)]
+    """The generated block of ``source``, markers included."""
+    start, end = _block_span(source)
+    return source[start:end]
 
 
 def update_osl_source(path: str | Path | None = None) -> bool:
