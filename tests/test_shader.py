@@ -79,6 +79,58 @@ def osl_default(text: str):
     return float(text)
 
 
+# -- the fallback program on numpy arrays ---------------------------------------------------------
+class NumpyBuilder:
+    """Evaluates the program on numpy arrays (scalars: (S,), vectors: (3, S)), like the nodes do."""
+
+    def __init__(self):
+        self.atlases = {name: (w, h, np.asarray(px, dtype=np.float64).reshape(h, w, 3))
+                        for name, (w, h, px) in shader_weave.fallback_atlases().items()}
+
+    def const(self, x):
+        return np.float64(x)
+
+    def math(self, op, *a):
+        f = {
+            "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q, "MULTIPLY": lambda p, q: p * q,
+            "DIVIDE": lambda p, q: np.where(q != 0, p / np.where(q != 0, q, 1), 0.0),
+            "POWER": lambda p, q: np.power(p, q), "FLOOR": np.floor, "FRACT": lambda p: p - np.floor(p),
+            "ABSOLUTE": np.abs, "SQRT": lambda p: np.sqrt(np.maximum(p, 0)), "SINE": np.sin, "COSINE": np.cos,
+            "EXPONENT": np.exp, "MINIMUM": np.minimum, "MAXIMUM": np.maximum,
+            "FLOORED_MODULO": lambda p, q: np.where(q != 0, p - q * np.floor(p / np.where(q != 0, q, 1)), 0.0),
+            "LESS_THAN": lambda p, q: (p < q).astype(np.float64),
+            "GREATER_THAN": lambda p, q: (p > q).astype(np.float64),
+        }[op]
+        return f(*a)
+
+    def vec(self, op, *a):
+        def normalize(v):
+            n = np.sqrt((v * v).sum(0))
+            return np.where(n > 0, v / np.where(n > 0, n, 1), 0.0)
+
+        f = {
+            "DOT_PRODUCT": lambda p, q: (p * q).sum(0),
+            "CROSS_PRODUCT": lambda p, q: np.stack([p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2],
+                                                    p[0] * q[1] - p[1] * q[0]]),
+            "NORMALIZE": normalize, "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q,
+            "MULTIPLY": lambda p, q: p * q, "SCALE": lambda p, s: p * s, "POWER": lambda p, q: np.power(p, q),
+        }[op]
+        return f(*a)
+
+    def combine(self, x, y, z):
+        return np.stack(np.broadcast_arrays(x, y, z)).astype(np.float64)
+
+    def separate(self, v, i):
+        return v[i]
+
+    def lookup(self, name, u, v):
+        w, h, img = self.atlases[name]
+        u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+        px = np.clip(np.floor(u * w), 0, w - 1).astype(int)
+        py = np.clip(np.floor(v * h), 0, h - 1).astype(int)
+        return np.moveaxis(img[py, px], -1, 0)
+
+
 # -- declaration agreement (no bpy) ---------------------------------------------------------
 def test_sockets_follow_the_declaration():
     specs = {s.name: s for s in shader_params.socket_specs()}
@@ -192,7 +244,7 @@ def test_fallback_geometry_matches_the_backend():
                    gap_scale_weft=0.9, twist_deg_warp=-20.0, twist_deg_weft=15.0, height_scale_warp=1.5,
                    height_scale_weft=0.7, UV=np.stack([x / 10, y / 10 + 1, np.zeros(S)]),
                    Tangent=np.tile([[1.0], [0.0], [0.0]], S), Normal=np.tile([[0.0], [0.0], [1.0]], S))
-        out = shader_fallback.run(shader_fallback.NumpyBuilder(), env)
+        out = shader_fallback.run(NumpyBuilder(), env)
         lookup = WeaveLookup(PRESETS[name])
         X, Y, _, _ = tile_coordinates(torch.tensor(x), torch.tensor(y), DEFAULT_RIG, p.tiles, lookup)
         front, back = lookup.layers(X, Y, p.gap_scale)

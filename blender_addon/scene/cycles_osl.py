@@ -24,7 +24,8 @@ def compile_script(node) -> str:
     sockets and stores the bytecode in it). Returns "" or the error."""
     ensure_oslquery()
     try:
-        from cycles import osl as cycles_osl  # Cycles is an add-on: importable only inside Blender
+        # Optional: without Cycles the node group is still built and renders its fallback.
+        from cycles import osl as cycles_osl
     except ImportError as exc:  # pragma: no cover - Cycles is always bundled
         return f"the Cycles add-on is not available to compile the OSL shader ({exc})"
     messages = []

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 
 import bpy
+import bpy.utils.previews
 
 from ..core import declarations, rig_settings
 from . import operators
@@ -120,8 +121,6 @@ CLASSES = (VIEW3D_PT_woven_fabric, VIEW3D_PT_woven_fabric_rig, VIEW3D_PT_woven_f
 
 def register():
     global _previews
-    import bpy.utils.previews
-
     _previews = bpy.utils.previews.new()
     for cls in CLASSES:
         bpy.utils.register_class(cls)
