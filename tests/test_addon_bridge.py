@@ -7,10 +7,12 @@ second and can misbehave on request (FAKE_BACKEND_MODE).
 """
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -97,6 +99,49 @@ def test_rig_fields_are_the_capture_rigs_fields_with_its_defaults(tmp_path):
     assert rig_settings.capture_rig({"fov_deg": 40.0, "gamma": None}).to_dict() == \
         dataclasses.replace(rig, fov_deg=40.0).to_dict()
     assert json.loads(captures.write_rig_json(tmp_path, rig.to_dict()).read_text()) == rig.to_dict()
+
+
+ADDON = ROOT / "blender_addon"
+BLENDER_MODULES = {"bpy", "bmesh", "mathutils", "cycles", "_cycles", "oslquery"}
+
+
+def _imports(path: Path) -> set[str]:
+    """The first part of every module a file imports, anywhere in it (``from ..core import x``: core)."""
+    package = list(path.parent.relative_to(ADDON).parts)  # [] for the top level, ["core"], ...
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            names.add(node.module)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[:len(package) - node.level + 1]
+            if node.module:
+                names.add(".".join([*base, node.module]))
+            else:
+                names.update(".".join([*base, alias.name]) for alias in node.names)
+    return {name.split(".")[0] for name in names}
+
+
+def test_the_addon_layers_import_one_way():
+    """ui -> scene -> core; core never imports bpy; nothing imports torch."""
+    for path in sorted(ADDON.rglob("*.py")):
+        layer = path.relative_to(ADDON).parts[0] if path.parent != ADDON else "top"
+        names = _imports(path)
+        assert "torch" not in names, path
+        if layer == "core":
+            assert not names & (BLENDER_MODULES | {"scene", "ui"}), (path, names)
+        if layer == "scene":
+            assert "ui" not in names, (path, names)
+    # At run time too, with the backend's declarations loaded: neither torch nor bpy comes along.
+    probe = ("import sys, pkgutil, importlib, blender_addon.core as core\n"
+             "for m in pkgutil.iter_modules(core.__path__): importlib.import_module('blender_addon.core.' + m.name)\n"
+             "from blender_addon.core import declarations as d, rig_settings\n"
+             "d.parameters(), d.weave_presets(), d.fit_patterns(), d.is_raw('.dng'), d.protocol()\n"
+             "rig_settings.rig_fields()\n"
+             "print(sorted({'torch', 'bpy'} & set(sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr
 
 
 # -- the command line ---------------------------------------------------------------------------
