@@ -97,6 +97,15 @@ assert bpy.ops.extensions.package_install_files(
     filepath=os.environ["FABRIC_TEST_ZIP"], repo="user_default", enable_on_install=True) == {"FINISHED"}
 import importlib
 ext = importlib.import_module("%s")
+
+def refused(operator, message, **properties):
+    # Runs an operator that must fail (an ERROR report raises in background mode); its message.
+    try:
+        operator(**properties)
+    except RuntimeError as exc:
+        assert message in str(exc), exc
+        return str(exc)
+    raise AssertionError(f"{operator} was accepted; expected {message!r}")
 """ % EXTENSION
 
 
@@ -183,12 +192,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         backend = ext.ui.preferences.selected_backend(detect=False)
         assert backend.python == sys.executable and backend.script == os.environ["WOVEN_FABRIC_BACKEND_SCRIPT"]
         # A fit without photos is refused with a readable message, nothing started.
-        try:
-            bpy.ops.fabric.fit()
-        except RuntimeError as exc:
-            assert "Choose the reflection photo first" in str(exc), exc
-        else:
-            raise AssertionError("fit without photos was accepted")
+        refused(bpy.ops.fabric.fit, "Choose the reflection photo first")
 
         # Draw every panel and the preferences into a layout that checks each property and operator.
         drawn = []
@@ -243,13 +247,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
 def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
     python = python_without_torch(tmp_path / "no_torch")
     output = run_bpy(tmp_path, extension_zip, f"""
-        try:
-            bpy.ops.fabric.check_backend(python={python!r})
-        except RuntimeError as exc:
-            message = str(exc)
-        else:
-            raise AssertionError("the check passed for a Python without torch")
-        assert "The backend cannot run yet" in message, message
+        message = refused(bpy.ops.fabric.check_backend, "The backend cannot run yet", python={python!r})
         assert "PyTorch (torch) is not installed for {python}" in message, message
         assert ext.core.check_job.backend_check.last.problems
         print("CHECK OK")
@@ -294,12 +292,7 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
         settings.update_active_material = False
 
         os.environ["FAKE_BACKEND_MODE"] = "error"
-        try:
-            bpy.ops.fabric.fit()
-        except RuntimeError as exc:
-            assert "Internal backend error: the optimiser diverged" in str(exc), exc
-        else:
-            raise AssertionError("a backend error was not reported")
+        refused(bpy.ops.fabric.fit, "Internal backend error: the optimiser diverged")
         assert "linen.003" not in bpy.data.materials
 
         # An earlier fit's folder becomes a material again (named after the photo, not the folder).

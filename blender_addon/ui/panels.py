@@ -42,6 +42,10 @@ class FabricPanel:
     bl_category = "Fabric"
 
 
+class FabricSubPanel(FabricPanel):
+    bl_parent_id = "VIEW3D_PT_woven_fabric"
+
+
 class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
     bl_label = "Woven Fabric"
 
@@ -57,9 +61,8 @@ class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
         layout.prop(settings, "pattern")
 
 
-class VIEW3D_PT_woven_fabric_rig(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_rig(FabricSubPanel, bpy.types.Panel):
     bl_label = "Capture Rig"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
@@ -71,9 +74,8 @@ class VIEW3D_PT_woven_fabric_rig(FabricPanel, bpy.types.Panel):
         layout.operator("fabric.reset_rig", icon="LOOP_BACK")
 
 
-class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_fit(FabricSubPanel, bpy.types.Panel):
     bl_label = "Fit"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
 
     def draw(self, context):
         settings = context.scene.woven_fabric
@@ -96,9 +98,8 @@ class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
             layout.label(text="ESC or the button cancels", icon="INFO")
 
 
-class VIEW3D_PT_woven_fabric_result(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_result(FabricSubPanel, bpy.types.Panel):
     bl_label = "Result"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
 
     def draw(self, context):
         settings = context.scene.woven_fabric
