@@ -32,7 +32,7 @@ DEVELOPMENT_ONLY = ("backend/bench/", "backend/init/dataset.py", "backend/init/t
                     "backend/cli/bench.py", "backend/cli/dataset.py", "backend/cli/train.py",
                     "backend/cli/evaluate_init.py")
 # Without these the add-on installs but cannot make materials: the build warns (a test fails).
-EXPECTED = ("shaders/woven_fabric.osl", "node_group.py")
+EXPECTED = ("shaders/woven_fabric.osl", "scene/node_group.py")
 FIXED_TIME = (2024, 1, 1, 0, 0, 0)
 
 

@@ -1,26 +1,29 @@
-"""blender_addon/node_group.py in Blender (bpy, in a subprocess): the group's sockets, the
+"""blender_addon/scene/node_group.py in Blender (bpy, in a subprocess): the group's sockets, the
 create_material / apply_params / read_params round trip, the real-world UV scale, and that a
 saved .blend keeps everything (OSL bytecode, packed fallback atlases)."""
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
 from pathlib import Path
 
 import pytest
 
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_shader import addon, blender, run_blender  # noqa: E402
+
+from addon_support import run_blender  # noqa: E402
+
+from backend.core.params import FabricParams  # noqa: E402
+from blender_addon.core import shader_params, shader_weave  # noqa: E402
 
 
-@blender
 @pytest.mark.blender
 def test_node_group_sockets_and_material_round_trip(tmp_path):
     blend = tmp_path / "fabric.blend"
     result = run_blender(f"""
         from backend.core.params import FabricParams
-        from wf_addon import shader_params
         group = node_group.ensure_node_group()
         again = node_group.ensure_node_group()
         inputs = [(i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None))
@@ -58,8 +61,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
               "targets": targets, "bytecode": has_bytecode, "atlases": atlases, "header_px": px,
               "groups": sorted(g.name for g in bpy.data.node_groups)}})
     """, tmp_path)
-    sp = addon("shader_params")
-    specs = sp.socket_specs()
+    specs = shader_params.socket_specs()
     assert [i[0] for i in result["inputs"]] == [s.name for s in specs]
     for (name, socket_type, lo, hi), s in zip(result["inputs"], specs):
         assert socket_type == {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}[s.kind]
@@ -68,8 +70,6 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["outputs"] == ["BSDF", "Fallback"]
     assert result["same_group"] and result["bytecode"]
     assert result["targets"] == ["CYCLES", "EEVEE"]
-
-    from backend.core.params import FabricParams
 
     expected = FabricParams(pattern="satin1", tiles=(151.9, 84.7), roughness=(0.18, 0.75), thickness=(1.58, 2.79),
                             twist_deg=(-12.0, 30.0), specular_albedo=((0.12, 0.53, 0.28), (0.1, 0.52, 0.26)),
@@ -93,7 +93,6 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["uv_scale"] == pytest.approx(120.0 * V / (10 * 5.0), rel=1e-5)
     assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("header", "matrix", "warp", "weft")}
     assert all(packed for packed, _ in result["atlases"].values())
-    sw = addon("shader_weave")
-    w, h, px = sw.fallback_atlases()["header"]
+    w, h, px = shader_weave.fallback_atlases()["header"]
     assert result["header_px"][:3] == pytest.approx(px[:3]) and result["header_px"][4:7] == pytest.approx(px[3:6])
     assert {"Woven Fabric", "Woven Fabric fallback"} <= set(result["groups"])

@@ -2,77 +2,142 @@
 (in Blender subprocesses) OSL compilation, Cycles / EEVEE renders and a cheap validation."""
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import textwrap
-import types
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-ADDON = ROOT / "blender_addon"
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-PKG = "woven_fabric_addon_tests"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from addon_support import run_blender  # noqa: E402
+
+from backend.core.params import FabricParams  # noqa: E402
+from backend.core.rig import DEFAULT_RIG  # noqa: E402
+from backend.core.weave import PRESETS, WARP, WEFT  # noqa: E402
+from backend.model.geometry import tile_coordinates  # noqa: E402
+from backend.model.layers import GAP, WeaveLookup  # noqa: E402
+from backend.model.yarn import local_frame, scale_height  # noqa: E402
+from blender_addon.core import declarations, paths, shader_fallback, shader_params, shader_weave  # noqa: E402
+
+# The OSL shader's parameters that are not group sockets (wired inside the group or diagnostic only).
+OSL_INTERNAL_INPUTS = ("UV", "Tangent", "lobes")
+OSL_OUTPUTS = ("BSDF", "OSLActive")
+
+# -- reading the OSL shader's parameter list --------------------------------------------------------
+_PARAM = re.compile(
+    r"^\s*(?P<output>output\s+)?(?P<type>int|float|color|point|vector|normal|closure\s+color)\s+"
+    r"(?P<name>\w+)\s*=\s*(?P<default>\w+\s*\([^)]*\)|[^\[,()]+?)\s*(?:\[\[(?P<meta>.*?)\]\])?\s*[,)]?\s*(?://.*)?$")
+_META = re.compile(r"(?P<type>int|float|string)\s+(?P<key>\w+)\s*=\s*(?P<value>\"[^\"]*\"|[-+.\deE]+)")
 
 
-def addon(module: str):
-    """A blender_addon module, imported as part of a package without running its __init__."""
-    if PKG not in sys.modules:
-        package = types.ModuleType(PKG)
-        package.__path__ = [str(ADDON)]
-        sys.modules[PKG] = package
-    return importlib.import_module(f"{PKG}.{module}")
+def osl_parameters(source: str, shader: str = "woven_fabric") -> dict[str, dict]:
+    """Parameters of ``shader <name>(...)`` in OSL source: name -> type, output, default, metadata.
+
+    Expects one parameter per line (as ``shaders/woven_fabric.osl`` is written).
+    """
+    match = re.search(r"\bshader\s+" + shader + r"\s*\(", source)
+    if not match:
+        raise ValueError(f"no 'shader {shader}(' in the OSL source")
+    body = source[match.end():]
+    depth, end = 1, 0
+    for end, ch in enumerate(body):
+        depth += ch == "("
+        depth -= ch == ")"
+        if depth == 0:
+            break
+    out: dict[str, dict] = {}
+    for line in body[:end + 1].splitlines():
+        m = _PARAM.match(line)
+        if not m:
+            continue
+        meta = {}
+        for mm in _META.finditer(m.group("meta") or ""):
+            value = mm.group("value")
+            meta[mm.group("key")] = value.strip('"') if mm.group("type") == "string" else float(value)
+        out[m.group("name")] = {"type": " ".join(m.group("type").split()), "output": bool(m.group("output")),
+                                "default": m.group("default").strip(), "meta": meta}
+    return out
 
 
-def have_bpy() -> bool:
-    try:
-        return importlib.util.find_spec("bpy") is not None
-    except (ImportError, ValueError):
-        return False
+def osl_default(text: str):
+    """Number or colour tuple of an OSL default expression like ``0.5`` or ``color(1, 0.5, 0)``."""
+    text = text.strip()
+    m = re.fullmatch(r"(?:color|point|vector)\s*\((.*)\)", text)
+    if m:
+        parts = [float(p) for p in m.group(1).split(",")]
+        return tuple(parts * 3 if len(parts) == 1 else parts)
+    return float(text)
 
 
-def run_blender(script: str, tmp_path: Path, timeout: int = 300) -> dict:
-    """Runs `script` with the bpy module in a fresh interpreter; returns the JSON it prints last."""
-    path = tmp_path / "script.py"
-    prelude = textwrap.dedent(f"""
-        import sys, types, importlib, json
-        sys.path.insert(0, {str(ROOT)!r})
-        import bpy
-        _pkg = types.ModuleType("wf_addon")
-        _pkg.__path__ = [{str(ADDON)!r}]
-        sys.modules["wf_addon"] = _pkg
-        rig_scene = importlib.import_module("wf_addon.rig_scene")
-        node_group = importlib.import_module("wf_addon.node_group")
-        def emit(obj):
-            print("RESULT " + json.dumps(obj), flush=True)
-    """)
-    path.write_text(prelude + textwrap.dedent(script))
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"), PYTHONUNBUFFERED="1")
-    done = subprocess.run([sys.executable, str(path)], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=timeout)
-    results = [line[7:] for line in done.stdout.splitlines() if line.startswith("RESULT ")]
-    assert done.returncode == 0 and results, f"blender script failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
-    return json.loads(results[-1])
+# -- the fallback program on numpy arrays ---------------------------------------------------------
+class NumpyBuilder:
+    """Evaluates the program on numpy arrays (scalars: (S,), vectors: (3, S)), like the nodes do."""
 
+    def __init__(self):
+        self.atlases = {name: (w, h, np.asarray(px, dtype=np.float64).reshape(h, w, 3))
+                        for name, (w, h, px) in shader_weave.fallback_atlases().items()}
 
-blender = pytest.mark.skipif(not have_bpy(), reason="needs the bpy module")
+    def const(self, x):
+        return np.float64(x)
+
+    def math(self, op, *a):
+        f = {
+            "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q, "MULTIPLY": lambda p, q: p * q,
+            "DIVIDE": lambda p, q: np.where(q != 0, p / np.where(q != 0, q, 1), 0.0),
+            "POWER": lambda p, q: np.power(p, q), "FLOOR": np.floor, "FRACT": lambda p: p - np.floor(p),
+            "ABSOLUTE": np.abs, "SQRT": lambda p: np.sqrt(np.maximum(p, 0)), "SINE": np.sin, "COSINE": np.cos,
+            "EXPONENT": np.exp, "MINIMUM": np.minimum, "MAXIMUM": np.maximum,
+            "FLOORED_MODULO": lambda p, q: np.where(q != 0, p - q * np.floor(p / np.where(q != 0, q, 1)), 0.0),
+            "LESS_THAN": lambda p, q: (p < q).astype(np.float64),
+            "GREATER_THAN": lambda p, q: (p > q).astype(np.float64),
+        }[op]
+        return f(*a)
+
+    def vec(self, op, *a):
+        def normalize(v):
+            n = np.sqrt((v * v).sum(0))
+            return np.where(n > 0, v / np.where(n > 0, n, 1), 0.0)
+
+        f = {
+            "DOT_PRODUCT": lambda p, q: (p * q).sum(0),
+            "CROSS_PRODUCT": lambda p, q: np.stack([p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2],
+                                                    p[0] * q[1] - p[1] * q[0]]),
+            "NORMALIZE": normalize, "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q,
+            "MULTIPLY": lambda p, q: p * q, "SCALE": lambda p, s: p * s, "POWER": lambda p, q: np.power(p, q),
+        }[op]
+        return f(*a)
+
+    def combine(self, x, y, z):
+        return np.stack(np.broadcast_arrays(x, y, z)).astype(np.float64)
+
+    def separate(self, v, i):
+        return v[i]
+
+    def lookup(self, name, u, v):
+        w, h, img = self.atlases[name]
+        u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
+        px = np.clip(np.floor(u * w), 0, w - 1).astype(int)
+        py = np.clip(np.floor(v * h), 0, h - 1).astype(int)
+        return np.moveaxis(img[py, px], -1, 0)
 
 
 # -- declaration agreement (no bpy) ---------------------------------------------------------
 def test_sockets_follow_the_declaration():
-    sp = addon("shader_params")
-    paths = addon("paths")
-    specs = {s.name: s for s in sp.socket_specs()}
-    presets = list(paths.weave_presets())
+    specs = {s.name: s for s in shader_params.socket_specs()}
+    presets = declarations.preset_names()
     assert specs["pattern"].kind == "INT" and (specs["pattern"].lo, specs["pattern"].hi) == (0, len(presets) - 1)
     expected = {"pattern"}
-    for spec in paths.parameter_declaration():
+    for spec in declarations.parameters():
         names = [f"{spec.name} {y}" for y in ("warp", "weft")] if spec.per_yarn else [spec.name]
         for name in names:
             s = specs[name]
@@ -88,10 +153,9 @@ def test_sockets_follow_the_declaration():
 
 def test_osl_parameters_match_the_sockets():
     """Fails when shaders/woven_fabric.osl and backend/core/params.py drift apart (names, ranges, defaults)."""
-    sp = addon("shader_params")
-    source = addon("paths").shader_path().read_text()
-    params = sp.osl_parameters(source)
-    specs = sp.socket_specs()
+    source = paths.shader_path().read_text()
+    params = osl_parameters(source)
+    specs = shader_params.socket_specs()
     osl_type = {"INT": "int", "FLOAT": "float", "COLOR": "color"}
     for s in specs:
         assert s.osl in params, f"OSL shader lacks the parameter {s.osl}"
@@ -99,95 +163,77 @@ def test_osl_parameters_match_the_sockets():
         assert p["type"] == osl_type[s.kind] and not p["output"], s.osl
         assert p["meta"].get("label") == s.name, s.osl
         assert p["meta"].get("min") == pytest.approx(s.lo) and p["meta"].get("max") == pytest.approx(s.hi), s.osl
-        default = sp.osl_default(p["default"])
+        default = osl_default(p["default"])
         if s.kind == "COLOR":
             assert default == pytest.approx(tuple(s.default)), s.osl
         else:
             assert default == pytest.approx(float(s.default)), s.osl
     inputs = {n for n, p in params.items() if not p["output"]}
     outputs = {n for n, p in params.items() if p["output"]}
-    assert inputs == {s.osl for s in specs} | set(sp.OSL_INTERNAL_INPUTS)
-    assert outputs == set(sp.OSL_OUTPUTS)
+    assert inputs == {s.osl for s in specs} | set(OSL_INTERNAL_INPUTS)
+    assert outputs == set(OSL_OUTPUTS)
 
 
 def test_osl_weave_tables_are_generated_from_the_backend():
-    sw = addon("shader_weave")
-    source = addon("paths").shader_path().read_text()
-    assert sw.table_block_of(source) == sw.osl_table_block(), \
-        "run `python blender_addon/shader_weave.py` to regenerate the OSL weave tables"
+    source = paths.shader_path().read_text()
+    assert shader_weave.table_block_of(source) == shader_weave.osl_table_block(), \
+        "run `python -m blender_addon.core.shader_weave` to regenerate the OSL weave tables"
 
 
 def test_pack_weave_layout():
-    sw = addon("shader_weave")
-    from backend.core.weave import PRESETS, WARP, WEFT
-
-    bases, data = sw.packed_presets()
+    bases, data = shader_weave.packed_presets()
     for base, weave in zip(bases, PRESETS.values()):
         assert data[base:base + 2] == [weave.cols, weave.rows]
         assert data[base + 11:base + 13] == [weave.tile_width, weave.tile_height]
-        matrix = data[base + sw.HEADER:base + sw.HEADER + weave.rows * weave.cols]
+        matrix = data[base + shader_weave.HEADER:base + shader_weave.HEADER + weave.rows * weave.cols]
         assert matrix == [float(c) for row in weave.matrix for c in row]
         warp0, weft0 = int(data[base + 13]), int(data[base + 14])
         e = weave.interval_table(WARP)[weave.cols - 1][2 * weave.rows - 1]
-        off = base + warp0 + ((weave.cols - 1) * 2 * weave.rows + 2 * weave.rows - 1) * sw.ENTRY
+        off = base + warp0 + ((weave.cols - 1) * 2 * weave.rows + 2 * weave.rows - 1) * shader_weave.ENTRY
         assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
         e = weave.interval_table(WEFT)[0][1]
-        off = base + weft0 + 1 * sw.ENTRY
+        off = base + weft0 + 1 * shader_weave.ENTRY
         assert data[off:off + 4] == [e.centre, e.length, e.layer, e.tension]
 
 
 def test_params_socket_round_trip():
-    sp = addon("shader_params")
-    from backend.core.params import FabricParams
-
     for pattern in ("plain", "twill0", "twill1", "satin0", "satin1"):
         p = FabricParams(pattern=pattern, tiles=(120.5, 80.25), roughness=(0.3, 0.7), twist_deg=(-30.0, 12.5),
                          specular_albedo=((0.1, 0.2, 0.3), (0.4, 0.5, 0.6)), diffuse_reflection=(0.7, 0.1, 0.2),
                          multiple_weight=1.3, noise=1.0)
         data = p.to_dict()
         data["rig"] = {"width_cm": 3.0}
-        back = sp.params_from_sockets(sp.socket_values(data))
+        back = shader_params.params_from_sockets(shader_params.socket_values(data))
         assert FabricParams.from_dict(back) == p
     with pytest.raises(ValueError):
-        sp.socket_values({"pattern": "custom"})
-    clamped = sp.socket_values({"pattern": "plain", "roughness": [5.0, -1.0]})
+        shader_params.socket_values({"pattern": "custom"})
+    clamped = shader_params.socket_values({"pattern": "plain", "roughness": [5.0, -1.0]})
     assert clamped["roughness warp"] == 1.0 and clamped["roughness weft"] == 0.01
 
 
 def test_tiles_to_real_world_scale():
-    sp = addon("shader_params")
     V = 2 * 8 * math.tan(math.radians(26.5))
-    assert sp.view_size() == pytest.approx(V) and V == pytest.approx(7.977, abs=1e-3)  # the brief says 7.9787
+    assert shader_params.view_size() == pytest.approx(V)
     width_cm, cloth_cm = 4.0, 150.0
     unit = 10 * width_cm / V                      # cm per UV unit of the rig plane
-    assert sp.uv_unit_cm(width_cm) == pytest.approx(unit)
-    assert sp.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
-    tiles = [121.8, 168.9]
-    cloth = sp.cloth_tiles(tiles, width_cm, cloth_cm)
-    assert cloth == pytest.approx([t * cloth_cm / unit for t in tiles])
-    # same physical density: repeats per cm on the cloth = repeats per cm in the rig
-    assert [c / cloth_cm for c in cloth] == pytest.approx(sp.repeats_per_cm(tiles, width_cm))
-    assert sp.uv_scale(None, cloth_cm) == 1.0 and sp.uv_scale(width_cm, None) == 1.0
+    assert shader_params.uv_unit_cm(width_cm) == pytest.approx(unit)
+    assert shader_params.uv_scale(width_cm, cloth_cm) == pytest.approx(cloth_cm / unit)
+    # Same physical density: the repeats per cm on the cloth (tiles * uv scale per cloth_cm) are the
+    # repeats per cm in the rig (tiles per UV unit of the rig plane, uv_unit_cm wide).
+    tiles = 121.8
+    assert tiles * shader_params.uv_scale(width_cm, cloth_cm) / cloth_cm == \
+        pytest.approx(tiles / shader_params.uv_unit_cm(width_cm))
+    assert shader_params.uv_scale(None, cloth_cm) == 1.0 and shader_params.uv_scale(width_cm, None) == 1.0
     rig = {"camera_height": 10.0, "fov_deg": 40.0, "plane_size": 12.0}
     V2 = 2 * 10 * math.tan(math.radians(20))
-    assert sp.uv_scale(width_cm, cloth_cm, rig) == pytest.approx(cloth_cm / (12 * width_cm / V2))
+    assert shader_params.uv_scale(width_cm, cloth_cm, rig) == pytest.approx(cloth_cm / (12 * width_cm / V2))
     with pytest.raises(ValueError):
-        sp.uv_scale(-1.0, cloth_cm)
+        shader_params.uv_scale(-1.0, cloth_cm)
 
 
 def test_fallback_geometry_matches_the_backend():
     """The standard-node fallback program (evaluated with numpy) gives the backend's visible layer,
     yarn normal and fiber direction."""
-    import numpy as np
-    import torch
-    from backend.model.geometry import tile_coordinates
-    from backend.model.layers import GAP, WeaveLookup
-    from backend.core.params import FabricParams
-    from backend.core.rig import DEFAULT_RIG
-    from backend.core.weave import PRESETS
-    from backend.model.yarn import local_frame, scale_height
-
-    fb = addon("shader_fallback")
     rng = np.random.default_rng(1)
     S = 4000
     for index, name in enumerate(PRESETS):
@@ -198,7 +244,7 @@ def test_fallback_geometry_matches_the_backend():
                    gap_scale_weft=0.9, twist_deg_warp=-20.0, twist_deg_weft=15.0, height_scale_warp=1.5,
                    height_scale_weft=0.7, UV=np.stack([x / 10, y / 10 + 1, np.zeros(S)]),
                    Tangent=np.tile([[1.0], [0.0], [0.0]], S), Normal=np.tile([[0.0], [0.0], [1.0]], S))
-        out = fb.run(fb.NumpyBuilder(), env)
+        out = shader_fallback.run(NumpyBuilder(), env)
         lookup = WeaveLookup(PRESETS[name])
         X, Y, _, _ = tile_coordinates(torch.tensor(x), torch.tensor(y), DEFAULT_RIG, p.tiles, lookup)
         front, back = lookup.layers(X, Y, p.gap_scale)
@@ -218,21 +264,20 @@ def test_fallback_geometry_matches_the_backend():
 
 
 # -- Blender (subprocesses) -----------------------------------------------------------------
-@blender
 @pytest.mark.blender
 def test_osl_compiles_with_cycles(tmp_path):
     result = run_blender(f"""
         import os
-        rig_scene.ensure_oslquery()
+        from blender_addon.scene import cycles_osl
+        cycles_osl.ensure_oslquery()
         import _cycles, oslquery
         ok = _cycles.osl_compile({str(ROOT / 'shaders' / 'woven_fabric.osl')!r}, "out.oso")
         names = [p.name for p in oslquery.OSLQuery("out.oso").parameters] if ok else []
         emit({{"ok": bool(ok), "names": names}})
     """, tmp_path)
     assert result["ok"]
-    sp = addon("shader_params")
-    assert set(result["names"]) == {s.osl for s in sp.socket_specs()} | set(sp.OSL_INTERNAL_INPUTS) | \
-        set(sp.OSL_OUTPUTS)
+    assert set(result["names"]) == ({s.osl for s in shader_params.socket_specs()}
+                                    | set(OSL_INTERNAL_INPUTS) | set(OSL_OUTPUTS))
 
 
 RENDER_PAIR = textwrap.dedent("""
@@ -259,7 +304,6 @@ RENDER_PAIR = textwrap.dedent("""
 """)
 
 
-@blender
 @pytest.mark.blender
 def test_light_calibration_matches_the_backend_convention(tmp_path):
     """A Lambertian fabric renders to k / pi * cos * intensity / distance^2 (the backend's units)."""
@@ -273,8 +317,8 @@ def test_light_calibration_matches_the_backend_convention(tmp_path):
         tree.links.new(bsdf.outputs[0], out.inputs["Surface"])
         scene = rig_scene.build_scene(mat, size=16, samples=16, osl=False, scene=bpy.context.scene, threads=1)
         img = rig_scene.render_linear(scene, "front")[..., 0]
-        rig = rig_scene.rig_values()
-        V = rig_scene.view_size(rig)
+        from blender_addon.core import shader_params
+        V = shader_params.view_size()
         c = (np.arange(16) + 0.5) * V / 16
         x, y = c[None, :], -c[:, None]
         lx, ly, lz = V / 2 + 0, -V / 2 + 8, 8
@@ -285,7 +329,6 @@ def test_light_calibration_matches_the_backend_convention(tmp_path):
     assert result["ratio"] == pytest.approx(1.0, rel=0.01)
 
 
-@blender
 @pytest.mark.blender
 def test_cycles_osl_and_fallback_renders(tmp_path):
     """Tiny Cycles renders: the OSL shader and the fallback (OSL off) are not black, differ between
@@ -315,7 +358,6 @@ def test_cycles_osl_and_fallback_renders(tmp_path):
     assert result["back_side"][0] and min(result["back_side"][1:]) > 1e-3  # seen from behind
 
 
-@blender
 @pytest.mark.blender
 @pytest.mark.slow
 def test_eevee_renders_the_fallback(tmp_path):
@@ -331,7 +373,6 @@ def test_eevee_renders_the_fallback(tmp_path):
     assert result["difference"] > 1e-3
 
 
-@blender
 @pytest.mark.blender
 @pytest.mark.slow
 def test_cheap_validation_against_the_backend(tmp_path):

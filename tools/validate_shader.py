@@ -6,7 +6,7 @@ flags) this script
 
 1. renders the paper's capture rig in Cycles, headless through the ``bpy`` module: the fabric plane
    with the "Woven Fabric" material (OSL shader, or the standard-node fallback with ``--fallback``),
-   the pinhole camera and the front / back point light (``blender_addon/rig_scene.py``), and applies
+   the pinhole camera and the front / back point light (``blender_addon/scene/rig_scene.py``), and applies
    the rig's output transform (glow where the pixel sees through the gaps, clamp, 1/2.2,
    vignette);
 2. renders the same parameters with the backend
@@ -30,7 +30,6 @@ a pixel (sharp satin and plain highlights), so read the shader's figures against
 from __future__ import annotations
 
 import argparse
-import importlib
 import importlib.util
 import json
 import os
@@ -38,12 +37,20 @@ import subprocess
 import sys
 import tempfile
 import time
-import types
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")  # read before cv2 is first imported
+
+import bpy  # noqa: E402  (the bpy module of the venv)
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from backend.core.params import FabricParams  # noqa: E402  (torch-free)
+from blender_addon.scene import node_group, rig_scene  # noqa: E402
+
 SHARED = ROOT.parent / "shared"  # the shared data beside the checkout (/work/shared)
 GOLDEN = SHARED / "data" / "golden" / "cases.json"
 METRICS = SHARED / "tools" / "imagemetrics.py"
@@ -55,15 +62,6 @@ def load_metrics(path: Path = METRICS):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
-
-
-def addon_package(name: str = "woven_fabric_addon_validate"):
-    """The blender_addon folder as a package, without running its __init__ (registration)."""
-    if name not in sys.modules:
-        package = types.ModuleType(name)
-        package.__path__ = [str(ROOT / "blender_addon")]
-        sys.modules[name] = package
-    return name
 
 
 def select_cases(path: Path, names: str | None) -> list[dict]:
@@ -90,8 +88,6 @@ def backend_render(params: str, out: Path, size: int, spp: int, seed: int = 0) -
 
 
 def write_png(path: Path, image: np.ndarray) -> None:
-    import cv2
-
     data = np.round(np.clip(image, 0, 1) * 65535).astype(np.uint16)
     cv2.imwrite(str(path), np.ascontiguousarray(data[..., ::-1]))
 
@@ -112,21 +108,12 @@ def main(argv=None) -> int:
                          "figures the reference's own sampling noise allows")
     args = ap.parse_args(argv)
 
-    sys.path.insert(0, str(ROOT))
-    from backend.core.params import FabricParams  # torch-free
-
-    import bpy  # noqa: F401  (the bpy module of the venv)
-
-    pkg = addon_package()
-    rig_scene = importlib.import_module(f"{pkg}.rig_scene")
-    node_group = importlib.import_module(f"{pkg}.node_group")
     metrics = load_metrics()
 
     cases = select_cases(Path(args.golden), args.cases)
     out_dir = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="validate_shader_"))
     out_dir.mkdir(parents=True, exist_ok=True)
-    rig = rig_scene.rig_values()
-    scene = rig_scene.build_scene(None, rig, size=args.size, samples=args.samples, osl=not args.fallback,
+    scene = rig_scene.build_scene(size=args.size, samples=args.samples, osl=not args.fallback,
                                   threads=args.threads, scene=bpy.context.scene)
     fabric = rig_scene.rig_object(scene, "fabric")
 
@@ -141,7 +128,7 @@ def main(argv=None) -> int:
         fabric.data.materials.clear()
         fabric.data.materials.append(material)
         t0 = time.time()
-        R, T = rig_scene.render_pair(scene, rig)
+        R, T = rig_scene.render_pair(scene)  # the spec's rig, as the backend renders
         seconds = time.time() - t0
         bR, bT = backend_render(case["params"], out_dir / "backend" / case["name"], args.size, args.backend_spp)
         row = {"case": case["name"],
@@ -188,5 +175,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
     sys.exit(main())

@@ -38,9 +38,8 @@ import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import paths
+from . import declarations, paths
 
-PATTERNS = ("auto", "plain", "twill0", "twill1", "satin0", "satin1")
 DEVICES = ("cpu", "cuda")
 
 # Share of the progress bar per stage, in the protocol's stage order; optimisation dominates a fit.
@@ -51,11 +50,6 @@ STAGE_NAMES = {"load": "Loading photos", "init": "Initial guess", "search": "Sea
 CANCEL_GRACE_S = 3.0       # SIGTERM, then SIGKILL after this long
 EXIT_WITHOUT_EOF_S = 2.0   # a grandchild may hold stdout open after the backend exited
 STDERR_LINES = 200
-
-
-def protocol():
-    """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
-    return paths.backend_module("core.protocol")
 
 
 class BackendError(RuntimeError):
@@ -103,8 +97,9 @@ class FitRequest:
     output_spp: int | None = None   # samples per pixel of the fit's re-renders (backend default: 64)
 
     def arguments(self) -> list[str]:
-        if self.pattern not in PATTERNS:
-            raise BackendError(f"Unknown weave pattern {self.pattern!r}; expected one of {', '.join(PATTERNS)}")
+        patterns = declarations.fit_patterns()
+        if self.pattern not in patterns:
+            raise BackendError(f"Unknown weave pattern {self.pattern!r}; expected one of {', '.join(patterns)}")
         if self.device is not None and self.device not in DEVICES:
             raise BackendError(f"Unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
         args = ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir),
@@ -261,7 +256,7 @@ class FitProcess:
         line = line.strip()
         if not line:
             return None
-        proto = protocol()
+        proto = declarations.protocol()
         try:
             return proto.decode(line)
         except proto.ProtocolError:
@@ -301,7 +296,7 @@ class FitProcess:
         self._finish(*self._outcome(code))
 
     def _outcome(self, code: int) -> tuple[str, str]:
-        proto = protocol()
+        proto = declarations.protocol()
         event = self._error_event
         if self._timed_out is not None:
             return FAILED, f"The fit took longer than {self._timed_out:g} s and was stopped."
@@ -324,8 +319,8 @@ class FitProcess:
             last = self._last_stderr_line()
             return FAILED, (f"The backend stopped unexpectedly ({describe_exit(code)})"
                             + (f": {last}" if last else "") + ". See the console for its log.")
-        return FAILED, "The backend ended without reporting a result" + (
-            f" (it wrote {len(self._malformed)} line(s) that were not progress events)" if self._malformed else "") + "."
+        wrote = f" (it wrote {len(self._malformed)} line(s) that were not progress events)" if self._malformed else ""
+        return FAILED, f"The backend ended without reporting a result{wrote}."
 
     def _last_stderr_line(self) -> str:
         for line in reversed(self._stderr):

@@ -22,7 +22,7 @@ import bmesh
 import bpy
 from mathutils import Vector
 
-from . import materials
+from . import materials, node_group
 
 SPHERE_RADIUS_M = 0.3
 
@@ -136,9 +136,8 @@ def _preview_material(material, cloth_size_cm):
     copy = material.copy()
     copy.name = materials.free_material_name(f"{material.name} Drape")
     copy.use_fake_user = False
-    ng = materials.node_group()
-    ng.apply_params(copy, ng.read_params(copy), width_cm=materials.material_width_cm(material),
-                    cloth_size_cm=cloth_size_cm)
+    node_group.apply_params(copy, node_group.read_params(copy), width_cm=materials.material_width_cm(material),
+                            cloth_size_cm=cloth_size_cm)
     return copy
 
 

@@ -6,23 +6,20 @@ weave geometry (spec section 3, like ``backend/model/layers.py``) from UV: band 
 matrix and the backend's interval tables (read from the float atlases of
 :func:`shader_weave.fallback_atlases`), gap scaling, the visible yarn (front layer, or the back
 layer through a gap in front), its bent-cylinder normal and twisted fiber direction with height
-scaling. It skips the tension and noise and shades with standard BSDFs (see node_group.py).
+scaling. It skips the tension and noise and shades with standard BSDFs (see scene/node_group.py).
 
 The program is plain text, one assignment per line, in a tiny expression language (Python
 syntax): ``+ - * / **``, unary ``-``, numbers, names, and the functions listed in
-:data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``node_group.py`` passes one that
-creates shader nodes; :class:`NumpyBuilder` evaluates it on arrays, so the tests can check the
-fallback geometry against the backend without Blender.
+:data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``scene/node_group.py`` passes one
+that creates shader nodes; ``tests/test_shader.py`` passes one that evaluates it on numpy arrays,
+to check the fallback geometry against the backend without Blender.
 """
 from __future__ import annotations
 
 import ast
 import math
 
-try:  # inside the installed extension / the blender_addon package
-    from . import shader_weave
-except ImportError:  # pragma: no cover - loaded as a plain module
-    import shader_weave  # type: ignore
+from . import shader_weave
 
 # name -> (number of arguments, kind): "math" ops map to the Math node, "vec" ops to Vector Math.
 FUNCTIONS = {
@@ -133,9 +130,13 @@ def program() -> list[tuple[str, str]]:
     atlases = shader_weave.fallback_atlases()
     sizes = {f"A_{name}_w": w for name, (w, h, _) in atlases.items()}
     sizes.update({f"A_{name}_h": h for name, (w, h, _) in atlases.items()})
-    text = _PROGRAM.format(presets=atlases["header"][0], head_rows=atlases["header"][1],
-                           pi=repr(math.pi), deg=repr(math.pi / 180.0),
-                           **{k: v for k, v in sizes.items() if not k.startswith("A_header")})
+    return parse(_PROGRAM.format(presets=atlases["header"][0], head_rows=atlases["header"][1],
+                                 pi=repr(math.pi), deg=repr(math.pi / 180.0),
+                                 **{k: v for k, v in sizes.items() if not k.startswith("A_header")}))
+
+
+def parse(text: str) -> list[tuple[str, str]]:
+    """(name, expression) of each ``name = expression`` line of a program."""
     out = []
     for line in text.strip().splitlines():
         name, expr = line.split("=", 1)
@@ -185,62 +186,3 @@ def _emit(node, b, env):
         if kind == "lookup":
             return b.lookup(*args)
     raise SyntaxError(f"fallback program: unsupported expression {ast.dump(node)}")
-
-
-class NumpyBuilder:
-    """Evaluates the program on numpy arrays (scalars: (S,), vectors: (3, S)), like the nodes do."""
-
-    def __init__(self):
-        import numpy as np
-
-        self.np = np
-        self.atlases = {name: (w, h, np.asarray(px, dtype=np.float64).reshape(h, w, 3))
-                        for name, (w, h, px) in shader_weave.fallback_atlases().items()}
-
-    def const(self, x):
-        return self.np.float64(x)
-
-    def math(self, op, *a):
-        np = self.np
-        f = {
-            "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q, "MULTIPLY": lambda p, q: p * q,
-            "DIVIDE": lambda p, q: np.where(q != 0, p / np.where(q != 0, q, 1), 0.0),
-            "POWER": lambda p, q: np.power(p, q), "FLOOR": np.floor, "FRACT": lambda p: p - np.floor(p),
-            "ABSOLUTE": np.abs, "SQRT": lambda p: np.sqrt(np.maximum(p, 0)), "SINE": np.sin, "COSINE": np.cos,
-            "EXPONENT": np.exp, "MINIMUM": np.minimum, "MAXIMUM": np.maximum,
-            "FLOORED_MODULO": lambda p, q: np.where(q != 0, p - q * np.floor(p / np.where(q != 0, q, 1)), 0.0),
-            "LESS_THAN": lambda p, q: (p < q).astype(np.float64),
-            "GREATER_THAN": lambda p, q: (p > q).astype(np.float64),
-        }[op]
-        return f(*a)
-
-    def vec(self, op, *a):
-        np = self.np
-
-        def normalize(v):
-            n = np.sqrt((v * v).sum(0))
-            return np.where(n > 0, v / np.where(n > 0, n, 1), 0.0)
-
-        f = {
-            "DOT_PRODUCT": lambda p, q: (p * q).sum(0),
-            "CROSS_PRODUCT": lambda p, q: np.stack([p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2],
-                                                    p[0] * q[1] - p[1] * q[0]]),
-            "NORMALIZE": normalize, "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q,
-            "MULTIPLY": lambda p, q: p * q, "SCALE": lambda p, s: p * s, "POWER": lambda p, q: np.power(p, q),
-        }[op]
-        return f(*a)
-
-    def combine(self, x, y, z):
-        np = self.np
-        return np.stack(np.broadcast_arrays(x, y, z)).astype(np.float64)
-
-    def separate(self, v, i):
-        return v[i]
-
-    def lookup(self, name, u, v):
-        np = self.np
-        w, h, img = self.atlases[name]
-        u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
-        px = np.clip(np.floor(u * w), 0, w - 1).astype(int)
-        py = np.clip(np.floor(v * h), 0, h - 1).astype(int)
-        return np.moveaxis(img[py, px], -1, 0)

@@ -3,19 +3,23 @@
 Empty settings fall back to the environment (``WOVEN_FABRIC_PYTHON``,
 ``WOVEN_FABRIC_BACKEND_SCRIPT``) and then to auto-detection: the project's ``.venv`` beside the
 backend, else Blender's own Python if PyTorch imports there (see backend_setup.resolve_backend).
+Below the buttons the preferences show the last "Check Backend" (core/check_job.py).
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import bpy
 
-from . import backend_bridge, backend_setup
+from ..core import backend_bridge, backend_setup, captures
+from ..core.check_job import backend_check
 
-# The outcome of the last "Check Backend" (a BackendCheck), shown under the button; not saved.
-last_check: list = []
+# Preferences belong to the add-on's package, not to this ui sub-package.
+ADDON_PACKAGE = __package__.rpartition(".")[0]
 
 
 class WovenFabricPreferences(bpy.types.AddonPreferences):
-    bl_idname = __package__
+    bl_idname = ADDON_PACKAGE
 
     python_path: bpy.props.StringProperty(
         name="Backend Python", subtype="FILE_PATH",
@@ -45,12 +49,10 @@ class WovenFabricPreferences(bpy.types.AddonPreferences):
         row = layout.row()
         row.operator("fabric.detect_python", icon="VIEWZOOM")
         row.operator("fabric.check_backend", icon="CHECKMARK")
-        from .operators import FABRIC_OT_check_backend
-
-        if FABRIC_OT_check_backend._thread is not None and FABRIC_OT_check_backend._thread.is_alive():
+        check = backend_check.last
+        if backend_check.running:
             layout.label(text="Checking the backend ...", icon="TIME")
-        elif last_check:
-            check = last_check[-1]
+        elif check is not None:
             box = layout.box()
             box.label(text=f"{check.python}:", icon="CHECKMARK" if check.ok else "ERROR")
             for problem in check.problems:
@@ -62,7 +64,7 @@ class WovenFabricPreferences(bpy.types.AddonPreferences):
 def preferences(context=None):
     """The add-on's preferences, or None when the add-on runs unregistered (batch from a checkout)."""
     context = context or bpy.context
-    addon = context.preferences.addons.get(__package__)
+    addon = context.preferences.addons.get(ADDON_PACKAGE)
     return addon.preferences if addon else None
 
 
@@ -74,18 +76,22 @@ def selected_backend(context=None, detect: bool = True) -> backend_bridge.Backen
     return backend_setup.resolve_backend(python, script, detect=detect)
 
 
+def saved_backend() -> backend_bridge.Backend | None:
+    """The backend the preferences or the environment name, without auto-detection; None if none."""
+    try:
+        return selected_backend(detect=False)
+    except backend_bridge.BackendError:
+        return None
+
+
 def selected_device(context=None) -> str | None:
     prefs = preferences(context)
     return None if prefs is None or prefs.device == "AUTO" else prefs.device.lower()
 
 
-def results_parent(context=None):
-    from . import captures
-
+def results_parent(context=None) -> Path:
     prefs = preferences(context)
     if prefs and prefs.results_folder:
-        from pathlib import Path
-
         return Path(bpy.path.abspath(prefs.results_folder))
     return captures.default_results_parent(bpy.data.filepath)
 

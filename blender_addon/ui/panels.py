@@ -8,8 +8,10 @@ from __future__ import annotations
 import os
 
 import bpy
+import bpy.utils.previews
 
-from . import captures, operators
+from ..core import declarations, rig_settings
+from . import operators
 
 _previews = None
 
@@ -19,12 +21,19 @@ def photo_icon(path: str) -> int:
     if _previews is None or not path:
         return 0
     filepath = bpy.path.abspath(path)
-    if not os.path.isfile(filepath) or os.path.splitext(filepath)[1].lower() in captures.RAW_EXTENSIONS:
+    if not os.path.isfile(filepath) or declarations.is_raw(os.path.splitext(filepath)[1]):
         return 0
     key = f"{filepath}:{os.path.getmtime(filepath)}"
     if key not in _previews:
         _previews.load(key, filepath, "IMAGE")
     return _previews[key].icon_id
+
+
+def _property_style(layout):
+    """Labels left of the values, no animation decorators: how the sidebar shows settings."""
+    layout.use_property_split = True
+    layout.use_property_decorate = False
+    return layout
 
 
 class FabricPanel:
@@ -33,14 +42,16 @@ class FabricPanel:
     bl_category = "Fabric"
 
 
+class FabricSubPanel(FabricPanel):
+    bl_parent_id = "VIEW3D_PT_woven_fabric"
+
+
 class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
     bl_label = "Woven Fabric"
 
     def draw(self, context):
         settings = context.scene.woven_fabric
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
+        layout = _property_style(self.layout)
         for prop in ("reflection_path", "transmission_path"):
             layout.prop(settings, prop)
             icon = photo_icon(getattr(settings, prop))
@@ -50,33 +61,27 @@ class VIEW3D_PT_woven_fabric(FabricPanel, bpy.types.Panel):
         layout.prop(settings, "pattern")
 
 
-class VIEW3D_PT_woven_fabric_rig(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_rig(FabricSubPanel, bpy.types.Panel):
     bl_label = "Capture Rig"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
         rig = context.scene.woven_fabric.rig
-        layout = self.layout
-        layout.use_property_split = True
-        layout.use_property_decorate = False
-        for field in captures.rig_fields():
+        layout = _property_style(self.layout)
+        for field in rig_settings.rig_fields():
             if field.name != "width_cm":
                 layout.prop(rig, field.name)
         layout.operator("fabric.reset_rig", icon="LOOP_BACK")
 
 
-class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_fit(FabricSubPanel, bpy.types.Panel):
     bl_label = "Fit"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
 
     def draw(self, context):
         settings = context.scene.woven_fabric
         layout = self.layout
         fit = operators.active_fit()
-        column = layout.column()
-        column.use_property_split = True
-        column.use_property_decorate = False
+        column = _property_style(layout.column())
         column.enabled = fit is None
         column.prop(settings, "iterations")
         column.prop(settings, "size")
@@ -93,9 +98,8 @@ class VIEW3D_PT_woven_fabric_fit(FabricPanel, bpy.types.Panel):
             layout.label(text="ESC or the button cancels", icon="INFO")
 
 
-class VIEW3D_PT_woven_fabric_result(FabricPanel, bpy.types.Panel):
+class VIEW3D_PT_woven_fabric_result(FabricSubPanel, bpy.types.Panel):
     bl_label = "Result"
-    bl_parent_id = "VIEW3D_PT_woven_fabric"
 
     def draw(self, context):
         settings = context.scene.woven_fabric
@@ -118,8 +122,6 @@ CLASSES = (VIEW3D_PT_woven_fabric, VIEW3D_PT_woven_fabric_rig, VIEW3D_PT_woven_f
 
 def register():
     global _previews
-    import bpy.utils.previews
-
     _previews = bpy.utils.previews.new()
     for cls in CLASSES:
         bpy.utils.register_class(cls)

@@ -1,5 +1,8 @@
 """Operators: fit (modal, never blocking), cancel, check/detect the backend, results and preview.
 
+Each operator reads the context, calls a plain function (core/, scene/) and reports; ``execute``
+does the work, ``invoke`` only asks for input (Load Fit's file browser).
+
 The fit operator starts a backend_bridge.FitProcess and polls it from a window-manager timer, so
 Blender stays responsive; ESC or the Cancel button asks the backend to stop (SIGTERM, then SIGKILL
 after a grace period). Loading another file or disabling the add-on cancels a running fit too, so
@@ -9,12 +12,14 @@ version if the name is taken) unless "Update Active Material" is on.
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 import bpy
 
-from . import backend_bridge, backend_setup, captures, materials, preferences, properties
+from ..core import backend_bridge, backend_setup, captures, rig_settings
+from ..core.check_job import backend_check
+from ..scene import drape, materials
+from . import preferences, properties
 
 TIMER_INTERVAL_S = 0.1
 
@@ -38,10 +43,10 @@ def active_fit() -> backend_bridge.FitProcess | None:
     return ActiveFit.process if ActiveFit.running() else None
 
 
-def _redraw_sidebars(context):
+def _redraw_areas(context, area_type: str):
     for window in context.window_manager.windows:
         for area in window.screen.areas:
-            if area.type == "VIEW_3D":
+            if area.type == area_type:
                 area.tag_redraw()
 
 
@@ -51,6 +56,22 @@ def _abspath(path: str) -> Path:
 
 def _width_cm(settings) -> float | None:
     return settings.rig.width_cm or None
+
+
+def _material_name(settings) -> str:
+    return settings.material_name if settings is not None else ""
+
+
+def new_fit(context, settings) -> backend_bridge.FitProcess:
+    """The fit the panel's settings ask for, in a new result folder (not started)."""
+    reflection = captures.require_photo("reflection", settings.reflection_path, _abspath(settings.reflection_path))
+    transmission = captures.require_photo("transmission", settings.transmission_path,
+                                          _abspath(settings.transmission_path))
+    rig = rig_settings.rig_dict(properties.rig_values(settings.rig))
+    return captures.new_fit(preferences.selected_backend(context), reflection, transmission,
+                            preferences.results_parent(context), captures.fit_name(settings.material_name, reflection),
+                            rig, pattern=settings.pattern, iterations=settings.iterations or None,
+                            size=settings.size or None, device=preferences.selected_device(context))
 
 
 class FABRIC_OT_fit(bpy.types.Operator):
@@ -70,12 +91,9 @@ class FABRIC_OT_fit(bpy.types.Operator):
         return not ActiveFit.running() and context.scene is not None
 
     def execute(self, context):
-        return self.invoke(context, None)
-
-    def invoke(self, context, event):
         settings = context.scene.woven_fabric
         try:
-            fit = self._prepare(context, settings)
+            fit = new_fit(context, settings)
         except (backend_bridge.BackendError, ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -98,23 +116,6 @@ class FABRIC_OT_fit(bpy.types.Operator):
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
 
-    def _prepare(self, context, settings) -> backend_bridge.FitProcess:
-        reflection, transmission = _abspath(settings.reflection_path), _abspath(settings.transmission_path)
-        for label, chosen, path in (("reflection", settings.reflection_path, reflection),
-                                    ("transmission", settings.transmission_path, transmission)):
-            if not chosen:
-                raise ValueError(f"Choose the {label} photo first.")
-            if not path.is_file():
-                raise ValueError(f"The {label} photo {path} does not exist.")
-        rig = captures.rig_dict(properties.rig_values(settings.rig))
-        backend = preferences.selected_backend(context)
-        out_dir = captures.new_run_folder(preferences.results_parent(context), _fit_name(settings, reflection))
-        request = backend_bridge.FitRequest(
-            reflection, transmission, out_dir, pattern=settings.pattern,
-            iterations=settings.iterations or None, size=settings.size or None,
-            device=preferences.selected_device(context), rig_json=captures.write_rig_json(out_dir, rig))
-        return backend_bridge.FitProcess.fit(backend, request, log_path=out_dir / "backend.log")
-
     def modal(self, context, event):
         fit = ActiveFit.process
         if fit is None:
@@ -131,7 +132,7 @@ class FABRIC_OT_fit(bpy.types.Operator):
         self._warned = len(fit.warnings)
         if settings is not None and (settings.fit_progress, settings.fit_status) != (fit.progress, fit.status):
             settings.fit_progress, settings.fit_status = fit.progress, fit.status
-            _redraw_sidebars(context)
+            _redraw_areas(context, "VIEW_3D")
         if not fit.done:
             return {"PASS_THROUGH"}
         return self._end(context, self._finish(context, fit, settings))
@@ -171,27 +172,20 @@ class FABRIC_OT_fit(bpy.types.Operator):
                 return materials.update_fit_material(target, params, width, folder)
             self.report({"WARNING"}, "The active object has no Woven Fabric material to update; "
                                      "the fit becomes a new material")
-        return materials.new_fit_material(_fit_name(settings, fit.request.reflection), params, width, folder)
+        name = captures.fit_name(_material_name(settings), fit.request.reflection)
+        return materials.new_fit_material(name, params, width, folder)
 
     def _end(self, context, result):
         if self._timer is not None:
             context.window_manager.event_timer_remove(self._timer)
             self._timer = None
-        _redraw_sidebars(context)
+        _redraw_areas(context, "VIEW_3D")
         return result
 
     def cancel(self, context):
         # Blender ends modal operators without asking when a file is loaded or the window closes.
         ActiveFit.cancel(wait=True)
         self._end(context, {"CANCELLED"})
-
-
-def _fit_name(settings, reflection: Path) -> str:
-    """The material and folder name: the chosen name, else the photo's name without ``_R``."""
-    if settings is not None and settings.material_name:
-        return settings.material_name
-    stem = reflection.stem
-    return stem[:-2] if stem[-2:] in ("_R", "_r") else (stem or "Fabric")
 
 
 class FABRIC_OT_cancel_fit(bpy.types.Operator):
@@ -218,11 +212,9 @@ class FABRIC_OT_check_backend(bpy.types.Operator):
     python: bpy.props.StringProperty(name="Python", options={"SKIP_SAVE"},
                                      description="Interpreter to check; empty: the one the preferences select")
 
-    _thread = None
-
     @classmethod
     def poll(cls, context):
-        return cls._thread is None or not cls._thread.is_alive()
+        return not backend_check.running
 
     def execute(self, context):
         try:
@@ -233,37 +225,19 @@ class FABRIC_OT_check_backend(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         device = preferences.selected_device(context)
-        if bpy.app.background:
-            return self._report(_run_check(backend, device))
-        # Importing PyTorch takes seconds: check on a thread, show the outcome in the preferences.
-        import threading
-
-        cls = type(self)
-        cls._thread = threading.Thread(target=_run_check, args=(backend, device), daemon=True)
-        cls._thread.start()
-        bpy.app.timers.register(_redraw_preferences_when_checked, first_interval=0.5)
+        if bpy.app.background:  # no event loop would redraw the outcome: check now and report it
+            check = backend_check.run(backend, device)
+            self.report({"INFO"} if check.ok else {"ERROR"}, check.summary())
+            return {"FINISHED"} if check.ok else {"CANCELLED"}
+        backend_check.start(backend, device)
+        bpy.app.timers.register(_redraw_preferences_while_checking, first_interval=0.5)
         self.report({"INFO"}, f"Checking {backend.python} ...")
         return {"FINISHED"}
 
-    def _report(self, check):
-        self.report({"INFO"} if check.ok else {"ERROR"}, check.summary())
-        return {"FINISHED"} if check.ok else {"CANCELLED"}
 
-
-def _run_check(backend, device):
-    check = backend_setup.check_backend(backend, device=device)
-    preferences.last_check[:] = [check]
-    print(f"Woven Fabric: {check.python}: {check.summary()}")
-    return check
-
-
-def _redraw_preferences_when_checked():
-    thread = FABRIC_OT_check_backend._thread
-    for window in bpy.context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == "PREFERENCES":
-                area.tag_redraw()
-    return 0.5 if thread is not None and thread.is_alive() else None
+def _redraw_preferences_while_checking():
+    _redraw_areas(bpy.context, "PREFERENCES")
+    return 0.5 if backend_check.running else None
 
 
 class FABRIC_OT_detect_python(bpy.types.Operator):
@@ -294,7 +268,7 @@ class FABRIC_OT_reset_rig(bpy.types.Operator):
 
     def execute(self, context):
         rig = context.scene.woven_fabric.rig
-        for field in captures.rig_fields():
+        for field in rig_settings.rig_fields():
             rig.property_unset(field.name)
         return {"FINISHED"}
 
@@ -318,7 +292,7 @@ class FABRIC_OT_load_fit(bpy.types.Operator):
         try:
             params = captures.read_fit_params({"params": str(path)})
             settings = context.scene.woven_fabric
-            name = re.sub(r"_\d{3}$", "", path.parent.name) or "Fabric"  # a run folder is <name>_NNN
+            name = captures.run_name(path.parent)
             material = materials.new_fit_material(name, params, _width_cm(settings), path.parent)
         except Exception as exc:
             self.report({"ERROR"}, f"{path}: {exc}")
@@ -344,13 +318,7 @@ class FABRIC_OT_assign_material(bpy.types.Operator):
         return _last_material(context) is not None and any(o.type == "MESH" for o in context.selected_objects)
 
     def execute(self, context):
-        material = _last_material(context)
-        for obj in context.selected_objects:
-            if obj.type == "MESH":
-                obj.data.materials.append(material)
-                obj.active_material_index = len(obj.material_slots) - 1
-                for polygon in obj.data.polygons:
-                    polygon.material_index = obj.active_material_index
+        materials.assign(_last_material(context), [obj for obj in context.selected_objects if obj.type == "MESH"])
         return {"FINISHED"}
 
 
@@ -372,8 +340,6 @@ class FABRIC_OT_add_drape_preview(bpy.types.Operator):
                                    description="Keep the draped shape and drop the simulation")
 
     def execute(self, context):
-        from . import drape
-
         material = bpy.data.materials.get(self.material) if self.material else _last_material(context)
         if material is None:
             self.report({"ERROR"}, "Fit a fabric (or load a fit) first: there is no fitted material.")

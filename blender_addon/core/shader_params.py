@@ -18,12 +18,13 @@ Sockets (one per scalar component, spec section 2 names, ranges = the backend's 
 The OSL parameter of a socket is its name with spaces replaced by underscores
 (``roughness warp`` -> ``roughness_warp``).
 
-Tiles and physical size. In the rig the fabric plane is ``plane_size`` (10) units square with
-UV = (x / 10, y / 10 + 1), and ``tiles`` counts pattern repeats per UV unit square, which the
-shader keeps exactly (so the rig scene in Blender reproduces the backend's geometry). The rig's
-visible square, side V = 2 h tan(fov / 2) units (7.9787 with the default rig), is ``width_cm``
-wide in reality, so one UV unit of the rig plane is ``plane_size * width_cm / V`` cm. A cloth
-whose UV unit square is ``cloth_size_cm`` wide therefore needs
+Tiles and physical size. In the rig (the backend's ``CaptureRig``) the fabric plane is
+``plane_size`` (10) units square with UV = (x / 10, y / 10 + 1), and ``tiles`` counts pattern
+repeats per UV unit square, which the shader keeps exactly (so the rig scene in Blender reproduces
+the backend's geometry). The rig's visible square, side V = 2 h tan(fov / 2) units (7.977 with the
+default rig), is ``width_cm`` wide in reality, so one UV unit of the rig plane is
+``plane_size * width_cm / V`` cm. A cloth whose UV unit square is ``cloth_size_cm`` wide therefore
+needs
 
     tiles_cloth = tiles * cloth_size_cm / (plane_size * width_cm / V)
 
@@ -32,28 +33,15 @@ and the shader multiplies ``tiles`` by it (the tiles sockets keep the params.jso
 """
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass
 from typing import Any
 
-try:  # inside the installed extension / the blender_addon package
-    from . import paths
-except ImportError:  # pragma: no cover - loaded as a plain module
-    import paths  # type: ignore
+from . import declarations, rig_settings
 
 YARNS = ("warp", "weft")
 MAP_SUFFIX = " map"
 UV_SCALE = "uv scale"
 PATTERN = "pattern"
-# OSL parameters that are not group sockets (wired inside the group or diagnostic only).
-OSL_INTERNAL_INPUTS = ("UV", "Tangent", "lobes")
-OSL_OUTPUTS = ("BSDF", "OSLActive")
-
-# The rig's defaults (spec section 1), used when a params dict carries no rig.
-DEFAULT_PLANE_SIZE = 10.0
-DEFAULT_CAMERA_HEIGHT = 8.0
-DEFAULT_FOV_DEG = 53.0
 
 
 @dataclass(frozen=True)
@@ -82,12 +70,8 @@ def osl_name(socket_name: str) -> str:
     return socket_name.replace(" ", "_")
 
 
-def preset_names() -> tuple[str, ...]:
-    return tuple(paths.weave_presets())
-
-
 def pattern_index(name: str) -> int:
-    names = preset_names()
+    names = declarations.preset_names()
     if name not in names:
         raise ValueError(f"pattern: the Woven Fabric shader supports the presets {', '.join(names)}, "
                          f"not {name!r}")
@@ -95,21 +79,15 @@ def pattern_index(name: str) -> int:
 
 
 def pattern_name(index: int) -> str:
-    names = preset_names()
+    names = declarations.preset_names()
     return names[max(0, min(int(round(index)), len(names) - 1))]
-
-
-def _defaults() -> dict:
-    """Default values of every parameter: the backend dataclass defaults (read without torch)."""
-    params = paths.backend_module("core.params")
-    return params.FabricParams().to_dict()
 
 
 def socket_specs() -> list[SocketSpec]:
     """Every group input, in UI order (pattern, the declaration, maps after their albedo, uv scale)."""
-    declaration = paths.parameter_declaration()
-    defaults = _defaults()
-    names = preset_names()
+    declaration = declarations.parameters()
+    defaults = declarations.default_params()
+    names = declarations.preset_names()
     specs = [SocketSpec(PATTERN, "INT", names.index(defaults["pattern"]), 0, len(names) - 1, PATTERN, None,
                         "weave preset: " + ", ".join(f"{i} {n}" for i, n in enumerate(names)))]
     for spec in declaration:
@@ -168,7 +146,7 @@ def socket_values(params: dict) -> dict[str, Any]:
 def params_from_sockets(values: dict[str, Any]) -> dict:
     """Inverse of :func:`socket_values`: a params.json dict (``FabricParams.to_dict()`` shape)."""
     out: dict[str, Any] = {"pattern": pattern_name(values[PATTERN])}
-    for spec in paths.parameter_declaration():
+    for spec in declarations.parameters():
         def get(name):
             v = values[name]
             return [float(c) for c in v][:3] if spec.rgb else float(v)
@@ -180,17 +158,14 @@ def params_from_sockets(values: dict[str, Any]) -> dict:
 
 
 def view_size(rig: dict | None = None) -> float:
-    """Side V of the rig's visible square, in scene units: 2 h tan(fov / 2)."""
-    rig = rig or {}
-    h = float(rig.get("camera_height", DEFAULT_CAMERA_HEIGHT))
-    fov = float(rig.get("fov_deg", DEFAULT_FOV_DEG))
-    return 2.0 * h * math.tan(math.radians(fov) / 2.0)
+    """Side V of the rig's visible square, in scene units: 2 h tan(fov / 2) (``CaptureRig.view_size``)."""
+    return rig_settings.capture_rig(rig).view_size
 
 
 def uv_unit_cm(width_cm: float, rig: dict | None = None) -> float:
     """Real size (cm) of one UV unit of the rig plane: plane_size * width_cm / V."""
-    rig = rig or {}
-    return float(rig.get("plane_size", DEFAULT_PLANE_SIZE)) * float(width_cm) / view_size(rig)
+    capture = rig_settings.capture_rig(rig)
+    return capture.plane_size * float(width_cm) / capture.view_size
 
 
 def uv_scale(width_cm: float | None, cloth_size_cm: float | None, rig: dict | None = None) -> float:
@@ -200,61 +175,3 @@ def uv_scale(width_cm: float | None, cloth_size_cm: float | None, rig: dict | No
     if not (width_cm > 0 and cloth_size_cm > 0):
         raise ValueError(f"width_cm and cloth_size_cm must be positive (got {width_cm}, {cloth_size_cm})")
     return float(cloth_size_cm) / uv_unit_cm(width_cm, rig)
-
-
-def cloth_tiles(tiles, width_cm: float, cloth_size_cm: float, rig: dict | None = None) -> list[float]:
-    """Repeats per UV unit on the cloth: tiles * cloth_size_cm / (plane_size * width_cm / V)."""
-    k = uv_scale(width_cm, cloth_size_cm, rig)
-    return [float(t) * k for t in tiles]
-
-
-def repeats_per_cm(tiles, width_cm: float, rig: dict | None = None) -> list[float]:
-    """Pattern repeats per centimetre of real fabric (tiles per UV unit / UV unit in cm)."""
-    unit = uv_unit_cm(width_cm, rig)
-    return [float(t) / unit for t in tiles]
-
-
-# -- OSL parameter list ---------------------------------------------------------------------
-_PARAM = re.compile(
-    r"^\s*(?P<output>output\s+)?(?P<type>int|float|color|point|vector|normal|closure\s+color)\s+"
-    r"(?P<name>\w+)\s*=\s*(?P<default>\w+\s*\([^)]*\)|[^\[,()]+?)\s*(?:\[\[(?P<meta>.*?)\]\])?\s*[,)]?\s*(?://.*)?$")
-_META = re.compile(r"(?P<type>int|float|string)\s+(?P<key>\w+)\s*=\s*(?P<value>\"[^\"]*\"|[-+.\deE]+)")
-
-
-def osl_parameters(source: str, shader: str = "woven_fabric") -> dict[str, dict]:
-    """Parameters of ``shader <name>(...)`` in OSL source: name -> type, output, default, metadata.
-
-    Expects one parameter per line (as ``shaders/woven_fabric.osl`` is written).
-    """
-    match = re.search(r"\bshader\s+" + shader + r"\s*\(", source)
-    if not match:
-        raise ValueError(f"no 'shader {shader}(' in the OSL source")
-    body = source[match.end():]
-    depth, end = 1, 0
-    for end, ch in enumerate(body):
-        depth += ch == "("
-        depth -= ch == ")"
-        if depth == 0:
-            break
-    out: dict[str, dict] = {}
-    for line in body[:end + 1].splitlines():
-        m = _PARAM.match(line)
-        if not m:
-            continue
-        meta = {}
-        for mm in _META.finditer(m.group("meta") or ""):
-            value = mm.group("value")
-            meta[mm.group("key")] = value.strip('"') if mm.group("type") == "string" else float(value)
-        out[m.group("name")] = {"type": " ".join(m.group("type").split()), "output": bool(m.group("output")),
-                                "default": m.group("default").strip(), "meta": meta}
-    return out
-
-
-def osl_default(text: str):
-    """Number or colour tuple of an OSL default expression like ``0.5`` or ``color(1, 0.5, 0)``."""
-    text = text.strip()
-    m = re.fullmatch(r"(?:color|point|vector)\s*\((.*)\)", text)
-    if m:
-        parts = [float(p) for p in m.group(1).split(",")]
-        return tuple(parts * 3 if len(parts) == 1 else parts)
-    return float(text)

@@ -1,13 +1,13 @@
 """The "Woven Fabric" shader node group and materials that use it (bpy layer).
 
 The group's inputs are the fabric parameters (names from the spec, ranges from
-``backend/core/params.py``; see :mod:`shader_params` for the socket list and the UV-scale rule) plus
+``backend/core/params.py``; see ``core/shader_params.py`` for the socket list and the UV-scale rule) plus
 colour maps multiplying the diffuse albedos. Inside:
 
 - a Script node running ``shaders/woven_fabric.osl`` (stored as an internal text, compiled here
   so the .blend carries its bytecode), fed by the UV map and its tangent;
 - the standard-node fallback (nested group "Woven Fabric fallback"): the same weave geometry from
-  Math / Vector Math / Image Texture nodes (:mod:`shader_fallback`, float atlases packed into the
+  Math / Vector Math / Image Texture nodes (``core/shader_fallback.py``, float atlases packed into the
   .blend) shaded with Diffuse, Translucent, anisotropic Glossy and Transparent BSDFs;
 - a Mix Shader whose factor is the Script node's ``OSLActive`` output (1 when OSL runs). Where OSL
   is not available the Script node is dropped from the shader graph and the factor keeps its own
@@ -23,19 +23,19 @@ Group outputs: ``BSDF`` (the switch above) and ``Fallback`` (standard nodes only
 by :func:`create_material` has two Material Output nodes: target Cycles <- BSDF, target EEVEE <-
 Fallback (EEVEE never runs OSL).
 
-API (used by the add-on's operators): :data:`NODE_GROUP_NAME`, :func:`ensure_node_group`,
+API (used by materials.py and the tests): :data:`NODE_GROUP_NAME`, :func:`ensure_node_group`,
 :func:`create_material`, :func:`apply_params`, :func:`read_params`.
 """
 from __future__ import annotations
 
 import hashlib
 import math
-import os
 import sys
 
 import bpy
 
-from . import paths, shader_fallback, shader_params, shader_weave
+from ..core import paths, shader_fallback, shader_params, shader_weave
+from . import cycles_osl
 
 NODE_GROUP_NAME = "Woven Fabric"
 FALLBACK_GROUP_NAME = "Woven Fabric fallback"
@@ -44,6 +44,9 @@ ATLAS_PREFIX = "Woven Fabric "
 _MARK = "woven_fabric_group"
 _HASH = "woven_fabric_hash"
 _ERROR = "woven_fabric_osl_error"
+# On a material: the photographed width and the cloth size its uv scale was set for.
+WIDTH_KEY = "woven_fabric_width_cm"
+CLOTH_SIZE_KEY = "woven_fabric_cloth_size_cm"
 _BUILD = 1  # bump when the node layout changes
 
 _SOCKET_TYPES = {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}
@@ -84,14 +87,6 @@ translucent_yarn = scale(kd_t, 0.5 * diffuse_normal_weight)
 
 
 # -- small helpers ---------------------------------------------------------------------------
-def _ensure_oslquery_path() -> None:
-    """Blender's bundled site-packages (oslquery) on sys.path: the pip bpy module lacks it."""
-    path = os.path.join(bpy.utils.resource_path("LOCAL"), "python", "lib",
-                        f"python{sys.version_info.major}.{sys.version_info.minor}", "site-packages")
-    if os.path.isdir(path) and path not in sys.path:
-        sys.path.append(path)
-
-
 def _source_hash() -> str:
     md5 = hashlib.md5(usedforsecurity=False)
     md5.update(paths.shader_path().read_bytes())
@@ -252,14 +247,6 @@ _FOLD = {
 }
 
 
-def _program(text: str) -> list[tuple[str, str]]:
-    out = []
-    for line in text.strip().splitlines():
-        name, expr = line.split("=", 1)
-        out.append((name.strip(), expr.strip()))
-    return out
-
-
 def _build_fallback_group():
     tree = bpy.data.node_groups.get(FALLBACK_GROUP_NAME)
     if tree is None:
@@ -283,7 +270,7 @@ def _build_fallback_group():
     env = {s.osl: group_in.outputs[s.name] for s in shader_params.socket_specs()}
     env.update(UV=uvmap.outputs["UV"], Tangent=tangent.outputs["Tangent"], Normal=geometry.outputs["Normal"])
     env = shader_fallback.run(builder, env)
-    env = shader_fallback.run(builder, env, _program(_SHADING))
+    env = shader_fallback.run(builder, env, shader_fallback.parse(_SHADING))
     x0 = 180.0 * (max(builder.column_rows) + 2)
 
     def bsdf(kind, y, **inputs):
@@ -326,22 +313,6 @@ def _build_fallback_group():
     return tree
 
 
-def _compile_script(node) -> str:
-    """Compiles the Script node's OSL (Cycles' own compile-and-update, which also makes the node's
-    sockets and stores the bytecode in it). Returns "" or the error."""
-    _ensure_oslquery_path()
-    try:
-        from cycles import osl as cycles_osl
-    except ImportError as exc:  # pragma: no cover - Cycles is always bundled
-        return f"the Cycles add-on is not available to compile the OSL shader ({exc})"
-    messages = []
-    try:
-        ok = cycles_osl.update_script_node(node, lambda kind, text: messages.append(f"{kind}: {text}"))
-    except ImportError as exc:  # pragma: no cover - oslquery missing from this Blender
-        return f"Cycles cannot compile OSL here ({exc})"
-    return "" if ok else "compiling shaders/woven_fabric.osl failed: " + "; ".join(messages)
-
-
 def _build_main_group(tree, fallback):
     _sync_interface(tree, ("BSDF", "Fallback"))
     tree.nodes.clear()
@@ -359,7 +330,7 @@ def _build_main_group(tree, fallback):
     script.mode = "INTERNAL"
     script.script = text
     script.location = (0, 300)
-    error = _compile_script(script)
+    error = cycles_osl.compile_script(script)
     tree[_ERROR] = error
     if error:
         # The material still renders through the fallback (the OSLActive switch reads 0).
@@ -484,8 +455,8 @@ def apply_params(material, params: dict, width_cm: float | None = None,
         width_cm = rig.get("width_cm")
     if width_cm is not None and cloth_size_cm is not None:
         node.inputs[shader_params.UV_SCALE].default_value = shader_params.uv_scale(width_cm, cloth_size_cm, rig)
-        material["woven_fabric_width_cm"] = float(width_cm)
-        material["woven_fabric_cloth_size_cm"] = float(cloth_size_cm)
+        material[WIDTH_KEY] = float(width_cm)
+        material[CLOTH_SIZE_KEY] = float(cloth_size_cm)
 
 
 def read_params(material) -> dict:

@@ -1,26 +1,31 @@
 """Scene settings of a capture (``scene.woven_fabric``): the photos, the rig, the fit and its state.
 
-The rig's properties are generated from ``CaptureRig`` in backend/core/rig.py (captures.rig_fields),
-so the panel shows the spec's defaults and follows any new rig setting.
+The rig's properties are generated from ``CaptureRig`` in backend/core/rig.py (rig_settings.rig_fields)
+and the weave choices from the patterns the backend's fit accepts (declarations.fit_patterns), so
+the panel shows the spec's defaults and follows any new rig setting or pattern.
 """
 from __future__ import annotations
 
+import re
+
 import bpy
 
-from . import backend_bridge, captures
-
-PATTERN_ITEMS = (
-    ("auto", "Automatic", "Let the fit choose the weave"),
-    ("plain", "Plain", "Plain weave"),
-    ("twill0", "Twill 0", "Twill weave, first variant"),
-    ("twill1", "Twill 1", "Twill weave, second variant"),
-    ("satin0", "Satin 0", "Satin weave, first variant"),
-    ("satin1", "Satin 1", "Satin weave, second variant"),
-)
-assert tuple(item[0] for item in PATTERN_ITEMS) == backend_bridge.PATTERNS
+from ..core import declarations, rig_settings
 
 
-def _rig_property(field: captures.RigField):
+def _pattern_item(name: str) -> tuple[str, str, str]:
+    """(identifier, label, tooltip) of a weave pattern: twill1 -> "Twill 1", "Twill weave, variant 1"."""
+    if name == declarations.AUTO_PATTERN:
+        return name, "Automatic", "Let the fit choose the weave"
+    family, variant = re.fullmatch(r"(.*?)(\d*)", name).groups()
+    label = f"{family.capitalize()} {variant}".strip()
+    return name, label, f"{family.capitalize()} weave" + (f", variant {variant}" if variant else "")
+
+
+PATTERN_ITEMS = tuple(_pattern_item(name) for name in declarations.fit_patterns())
+
+
+def _rig_property(field: rig_settings.RigField):
     common = {"name": field.label, "description": field.description, "default": field.default}
     if field.kind == "vector":
         return bpy.props.FloatVectorProperty(size=3, subtype="XYZ", **common)
@@ -31,7 +36,7 @@ def _rig_property(field: captures.RigField):
 
 
 def _rig_settings_class():
-    annotations = {field.name: _rig_property(field) for field in captures.rig_fields()}
+    annotations = {field.name: _rig_property(field) for field in rig_settings.rig_fields()}
     return type("WovenFabricRigSettings", (bpy.types.PropertyGroup,), {
         "__annotations__": annotations,
         "__doc__": "The capture rig (spec section 1); the defaults are the paper's rig.",
@@ -44,7 +49,7 @@ WovenFabricRigSettings = _rig_settings_class()
 def rig_values(rig) -> dict:
     """The rig settings as plain values (tuples for vectors)."""
     return {field.name: (tuple(getattr(rig, field.name)) if field.kind == "vector" else getattr(rig, field.name))
-            for field in captures.rig_fields()}
+            for field in rig_settings.rig_fields()}
 
 
 def _photos_changed(self, context):
@@ -62,7 +67,7 @@ class WovenFabricSettings(bpy.types.PropertyGroup):
         name="Transmission", subtype="FILE_PATH", update=_photos_changed,
         description="Photo of the fabric lit from behind (<name>_T)")
     rig: bpy.props.PointerProperty(type=WovenFabricRigSettings)
-    pattern: bpy.props.EnumProperty(name="Weave", items=PATTERN_ITEMS, default="auto")
+    pattern: bpy.props.EnumProperty(name="Weave", items=PATTERN_ITEMS, default=declarations.AUTO_PATTERN)
     iterations: bpy.props.IntProperty(
         name="Iterations", default=0, min=0, soft_max=2000,
         description="Optimiser iterations; 0 uses the backend's default")

@@ -1,0 +1,66 @@
+"""The facts the add-on shares with the backend, read from the backend's torch-free ``core`` modules.
+
+Each is declared once, in ``backend/core/``, and read here (through :func:`paths.backend_module`,
+without torch), so the panel, the batch, the node group and the shader cannot drift from the fit:
+
+- the fabric parameters (``core.params``: names, ranges, labels, defaults): the node group's
+  sockets and the OSL inputs;
+- the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index) and the
+  patterns the fit command accepts (``core.priors.PATTERNS``, with ``auto`` first);
+- the capture rig (``core.rig.CaptureRig``; its field defaults are the spec's rig);
+- the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
+  (``core.pairs.find_pairs``);
+- the JSON-lines progress protocol (``core.protocol``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .paths import backend_module
+
+AUTO_PATTERN = "auto"  # the fit command's "let the fit choose the weave"
+
+
+def parameters() -> tuple:
+    """The backend's ``PARAMETERS`` tuple of ParamSpec (name, lo, hi, per_yarn, rgb, label, doc, unit)."""
+    return backend_module("core.params").PARAMETERS
+
+
+def default_params() -> dict:
+    """``FabricParams().to_dict()``: every parameter's default value."""
+    return backend_module("core.params").FabricParams().to_dict()
+
+
+def weave_presets() -> dict:
+    """The backend's preset weaves (name -> Weave with matrix, bands, umax_deg, s_min)."""
+    return backend_module("core.weave").PRESETS
+
+
+def preset_names() -> tuple[str, ...]:
+    """The preset weaves' names in the backend's order (= the shader's ``pattern`` index)."""
+    return tuple(weave_presets())
+
+
+def fit_patterns() -> tuple[str, ...]:
+    """What the fit command's ``--pattern`` accepts: ``auto``, then the backend's patterns."""
+    return (AUTO_PATTERN, *backend_module("core.priors").PATTERNS)
+
+
+def rig():
+    """The backend's ``core.rig`` module: ``CaptureRig``, ``DEFAULT_RIG`` and ``RigError``."""
+    return backend_module("core.rig")
+
+
+def is_raw(suffix: str) -> bool:
+    """Whether a file suffix (``.dng``, any case) names a camera RAW photo."""
+    return backend_module("core.formats").is_raw(suffix)
+
+
+def find_pairs(folder: str | Path) -> tuple[list, list]:
+    """``(pairs, problems)`` of a folder by the backend's one ``<name>_R.* / <name>_T.*`` rule."""
+    return backend_module("core.pairs").find_pairs(folder)
+
+
+def protocol():
+    """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
+    return backend_module("core.protocol")

@@ -1,0 +1,49 @@
+"""Where the add-on finds the backend and the shader, and how it loads the backend's plain modules.
+
+Two layouts are supported:
+- installed extension (built by build.py): ``<extension>/backend/`` and ``<extension>/shaders/``
+  sit inside the add-on folder;
+- the repository: ``blender_addon/``, ``backend/`` and ``shaders/`` are siblings.
+
+:func:`backend_module` imports a torch-free backend module (``core.params``, ``core.rig``, ...)
+under a private package name, so that no top-level ``backend`` module is added to Blender's Python;
+declarations.py says which facts the add-on reads that way.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
+_ADDON = Path(__file__).resolve().parent.parent  # blender_addon/ (the extension folder when installed)
+_ALIAS = "_woven_fabric_backend"
+
+
+def backend_root() -> Path:
+    """The folder that contains the ``backend`` package (put it on PYTHONPATH for the subprocess)."""
+    for root in (_ADDON, _ADDON.parent):
+        if (root / "backend" / "__init__.py").is_file():
+            return root
+    raise FileNotFoundError(f"the fabric backend was not found next to {_ADDON}; reinstall the add-on")
+
+
+def shader_path() -> Path:
+    """The OSL source of the Woven Fabric shader."""
+    for root in (_ADDON, _ADDON.parent):
+        path = root / "shaders" / "woven_fabric.osl"
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_ADDON}; reinstall the add-on")
+
+
+def backend_module(name: str):
+    """Imports ``backend.<name>`` (a torch-free module such as core.params) under a private alias."""
+    if _ALIAS not in sys.modules:
+        package = backend_root() / "backend"
+        spec = importlib.util.spec_from_file_location(_ALIAS, package / "__init__.py",
+                                                      submodule_search_locations=[str(package)])
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[_ALIAS] = module
+        spec.loader.exec_module(module)
+    return importlib.import_module(f"{_ALIAS}.{name}")

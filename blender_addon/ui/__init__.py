@@ -1,0 +1,5 @@
+"""What the user works with: operators, sidebar panels, add-on preferences, scene properties and
+the batch command. Operators read the context, call core/ or scene/, and report.
+
+Imports: bpy, scene/ and core/.
+"""
