@@ -4,6 +4,7 @@ import dataclasses
 import random
 import zlib
 
+import numpy as np
 import pytest
 import torch
 from oracles import reference
@@ -18,6 +19,7 @@ from backend.model.imaging import display_transform, gaussian_blur
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer, compile_available
+from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
 VARIANTS = {"full": {}, "one_layer": {"layers": 1}, "sggx": {"multiple_lobe": "sggx"},
@@ -237,10 +239,6 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
 
 
 def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
-    import numpy as np
-
-    from blender_addon.rig_scene import gaussian_blur as numpy_blur
-
     image = torch.rand(24, 24, 3, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 1.3), (image,))
     assert np.allclose(gaussian_blur(image, 1.3).detach().numpy(), numpy_blur(image.detach().numpy(), 1.3))

@@ -17,7 +17,9 @@ _PAIR_NAME = re.compile(r"^(?P<name>.+)_(?P<side>[RrTt])$")
 
 
 @dataclass(frozen=True)
-class PhotoPair:
+class PhotoFiles:
+    """The two files of one pair (the working images are :class:`backend.image.photos.PhotoPair`)."""
+
     name: str
     reflection: Path
     transmission: Path
@@ -29,7 +31,7 @@ class PairProblem:
     message: str
 
 
-def find_pairs(folder: str | Path) -> tuple[list[PhotoPair], list[PairProblem]]:
+def find_pairs(folder: str | Path) -> tuple[list[PhotoFiles], list[PairProblem]]:
     """Every ``<name>_R.* / <name>_T.*`` pair of a folder (not recursive), sorted by name."""
     folder = Path(folder)
     sides: dict[str, dict[str, list[Path]]] = {}
@@ -44,7 +46,7 @@ def find_pairs(folder: str | Path) -> tuple[list[PhotoPair], list[PairProblem]]:
     for name in sorted(sides):
         found = sides[name]
         if len(found["R"]) == 1 and len(found["T"]) == 1:
-            pairs.append(PhotoPair(name, found["R"][0], found["T"][0]))
+            pairs.append(PhotoFiles(name, found["R"][0], found["T"][0]))
             continue
         for side, label, partner in (("R", "reflection", "T"), ("T", "transmission", "R")):
             if not found[side]:
