@@ -18,6 +18,11 @@ radiance of each image is blurred by a Gaussian of that standard deviation, in f
 the output transform. The paper's renderer has none (0, the default, is exact); a phone photo shows
 about a pixel, and a sharp render of yarns beside a soft photo pushes a fit to wash them out.
 
+``sample_rotation_deg`` is how the sample lies in the holder: the fabric is turned by that angle
+about the centre of the visible square (counter-clockwise as the camera sees it), so its warp runs
+that many degrees off the image's vertical. The paper's renderer has none (0, the default); a real
+sample sits a few degrees off, which the fit reads from the photos' spectra.
+
 ``width_cm`` is the real width of the visible square when known (for physical scale).
 """
 from __future__ import annotations
@@ -30,6 +35,7 @@ from pathlib import Path
 from .jsonfile import read_json
 
 MAX_CAMERA_BLUR_PX = 4.0
+MAX_SAMPLE_ROTATION_DEG = 45.0
 
 
 class RigError(ValueError):
@@ -52,6 +58,7 @@ class CaptureRig:
     gamma: float = 2.2
     clamp: float = 1.0
     camera_blur_px: float = 0.0
+    sample_rotation_deg: float = 0.0
     width_cm: float | None = None
 
     def __post_init__(self):
@@ -69,6 +76,10 @@ class CaptureRig:
             raise RigError(f"rig.fov_deg: must be in (0, 170), got {self.fov_deg!r}")
         if not isinstance(self.camera_blur_px, (int, float)) or not 0 <= self.camera_blur_px <= MAX_CAMERA_BLUR_PX:
             raise RigError(f"rig.camera_blur_px: must be in [0, {MAX_CAMERA_BLUR_PX}], got {self.camera_blur_px!r}")
+        rotation = self.sample_rotation_deg
+        if not isinstance(rotation, (int, float)) or not abs(rotation) <= MAX_SAMPLE_ROTATION_DEG:
+            raise RigError(f"rig.sample_rotation_deg: must be in [-{MAX_SAMPLE_ROTATION_DEG:g}, "
+                           f"{MAX_SAMPLE_ROTATION_DEG:g}] degrees, got {rotation!r}")
         if self.glow_strength < 0:
             raise RigError(f"rig.glow_strength: must be >= 0, got {self.glow_strength!r}")
         for name, side in (("front_light", 1), ("back_light", -1)):

@@ -6,7 +6,9 @@ the discrete parameters (pattern, tiles, gap scale, twist, noise), so the optimi
 once per discrete state and reuses it across iterations.
 
 UV mapping (spec 1): u = x / P, v = y / P + 1; tile coordinates s = frac(u tu), t = 1 - frac(v tv);
-tile units X = s * tile_width, Y = t * tile_height (Y grows down the image).
+tile units X = s * tile_width, Y = t * tile_height (Y grows down the image). A sample turned by the
+rig's ``sample_rotation_deg`` theta about the view centre c is looked up at the fabric point
+c + R(-theta)(p - c), and its yarn normals and fiber directions are turned by R(theta) about z.
 Tension (spec 3.4): thickness *= S_min + (1 - mu)(1 - S_min).
 Noise (spec 4.6, N > 0): for non-plain weaves the albedos are scaled by min(-ln xi, 10) per cell of
 a grid of spacing 1 / (11 - N) tile units; for plain the height scale of each yarn segment moves by
@@ -60,8 +62,29 @@ class GeometryKey:
     layers: int
 
 
+def fabric_point(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig) -> tuple[torch.Tensor, torch.Tensor]:
+    """The point of the (turned) fabric under world (x, y): c + R(-theta)(p - c)."""
+    if rig.sample_rotation_deg == 0:
+        return x, y
+    theta = math.radians(rig.sample_rotation_deg)
+    cx, cy = rig.view_centre
+    dx, dy = x - cx, y - cy
+    return (cx + math.cos(theta) * dx + math.sin(theta) * dy,
+            cy - math.sin(theta) * dx + math.cos(theta) * dy)
+
+
+def turned(vectors: torch.Tensor, rig: CaptureRig) -> torch.Tensor:
+    """(3, S) directions of the fabric's frame in the world: R(theta) about z."""
+    if rig.sample_rotation_deg == 0:
+        return vectors
+    theta = math.radians(rig.sample_rotation_deg)
+    c, s = math.cos(theta), math.sin(theta)
+    return torch.stack((c * vectors[0] - s * vectors[1], s * vectors[0] + c * vectors[1], vectors[2]))
+
+
 def tile_coordinates(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig, tiles, lookup: WeaveLookup):
     """World (x, y) -> tile units (X, Y), plus the integer tile indices (for noise)."""
+    x, y = fabric_point(x, y, rig)
     u = x / rig.plane_size * tiles[0]
     v = (y / rig.plane_size + 1.0) * tiles[1]
     s = u - torch.floor(u)
@@ -79,6 +102,7 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     out = []
     for index, layer in enumerate(layers):
         n, o = local_frame(layer, twist)
+        n, o = turned(n, rig), turned(o, rig)
         warp = (layer.yarn == WARP).to(dtype)
         weft = (layer.yarn == WEFT).to(dtype)
         thickness_scale = (s_min + (1.0 - layer.mu) * (1.0 - s_min)).to(dtype)

@@ -281,19 +281,30 @@ def render_points(params: FabricParams | dict, x, y, rig, options: RenderOptions
                                 "height_scale", "specular_albedo", "multiple_weight", "diffuse_reflection",
                                 "diffuse_transmission", "diffuse_normal_weight")}
     tensors = dict(tensors, twist_deg=torch.tensor(params.twist_deg, dtype=torch.float64))
+    # A sample turned by theta about the view centre: evaluate everything in the fabric's own frame
+    # (positions and directions turned back by theta), where the weave is the unrotated one.
+    theta = math.radians(rig.sample_rotation_deg)
+    cx, cy = rig.view_centre
+
+    def to_fabric(vx, vy):
+        return math.cos(theta) * vx + math.sin(theta) * vy, -math.sin(theta) * vx + math.cos(theta) * vy
+
     layers = []
     for px, py in zip(x, y):
-        u, v = px / rig.plane_size, py / rig.plane_size + 1
+        fx, fy = to_fabric(px - cx, py - cy)
+        u, v = (cx + fx) / rig.plane_size, (cy + fy) / rig.plane_size + 1
         s = (u * params.tiles[0]) % 1.0
         t = 1.0 - (v * params.tiles[1]) % 1.0
         layers.append(point_layers(weave, s * weave.tile_width, t * weave.tile_height, params.gap_scale))
     p = torch.tensor([list(x), list(y), [0.0] * len(x)], dtype=torch.float64)
     cam = torch.tensor(rig.camera_position(), dtype=torch.float64)[:, None]
-    wi = _normalize(cam - p)
+    rotate_back = torch.tensor([[math.cos(theta), math.sin(theta), 0.0], [-math.sin(theta), math.cos(theta), 0.0],
+                                [0.0, 0.0, 1.0]], dtype=torch.float64)
+    wi = rotate_back @ _normalize(cam - p)
     lights = []
     for which in ("front", "back"):
         to_light = torch.tensor(rig.light_position(which), dtype=torch.float64)[:, None] - p
         dist2 = (to_light ** 2).sum(0)
-        lights.append((_normalize(to_light), rig.intensity(which) / dist2))
+        lights.append((rotate_back @ _normalize(to_light), rig.intensity(which) / dist2))
     (r, t), no_yarn = radiance(tensors, weave, layers, wi, lights, options)
     return r, t, no_yarn
