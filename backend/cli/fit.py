@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from .. import __version__
-from ..core.params import FabricParams
+from ..core.params import PARAMETERS, FabricParams
 from ..core.priors import PATTERNS
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig, RigError
@@ -46,6 +46,7 @@ from ..model.render import render_pair
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
 OUTPUT_SPP = 64
+FITTED = tuple(s.name for s in PARAMETERS if s.optimised or (s.searched and s.name != "tiles"))
 
 
 class FitInputError(ValueError):
@@ -152,18 +153,21 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
                "transmission": compare(photos.transmission, renders[1])}
     wall = time.perf_counter() - started
     peak_mb = peak_memory_mb(torch.device(settings.device))
+    at_bounds = result.params.at_bounds(FITTED)
     summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": None if peak_mb is None else round(peak_mb, 1),
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
-               "camera_blur_px": rig.camera_blur_px}
+               "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
+               "at_bounds": at_bounds}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
     files["metrics"] = str(out / "metrics.json")
     (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
     files["report"] = str(write_report(out / "report.png", (photos.reflection, photos.transmission), renders,
-                                       metrics, result.params, wall))
+                                       metrics, result.params, rig, wall, at_bounds))
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
+                     "at_bounds": at_bounds,
                      "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
                                   "size": settings.size, "spp": settings.spp, "seed": settings.seed}},
              "photos": photos.info}

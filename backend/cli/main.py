@@ -6,9 +6,10 @@
     dataset --out DIR --per-pattern N [...]    (backend/cli/dataset.py)
     train DATASET --out WEIGHTS [...]          (backend/cli/train.py)
     evaluate-init [--heldout DIR] [--golden DIR] [...]  (backend/cli/evaluate_init.py)
+    photolike --out DIR --count N [--seed S]   (backend/cli/photolike.py)
     bench render|fit [...]                     (backend/cli/bench.py)
 
-The development commands (dataset, train, evaluate-init, bench) are not part of the Blender
+The development commands (dataset, train, evaluate-init, photolike, bench) are not part of the Blender
 extension (``build.py`` leaves them out): where their modules are absent the commands are too.
 
 Bad input (unreadable files, malformed or out-of-range parameters) ends with exit code 2 and a
@@ -25,7 +26,7 @@ from . import fit, render
 from .common import INPUT_ERRORS, input_error_message
 
 # Modules of the development commands, in the order --help lists them.
-DEVELOPMENT_COMMANDS = ("dataset", "train", "evaluate_init", "bench")
+DEVELOPMENT_COMMANDS = ("dataset", "train", "evaluate_init", "photolike", "bench")
 
 
 def _development_modules():

@@ -108,6 +108,19 @@ def flatten(spec: ParamSpec, value: Any) -> list[float]:
     return [value]
 
 
+def component_labels(spec: ParamSpec) -> list[str]:
+    """Labels of the scalar components of a value of ``spec`` in :func:`flatten`'s order:
+    ``" (warp)"``, ``" (weft, g)"``, ``" (b)"``, or ``""`` for a scalar."""
+    yarns = ("warp", "weft") if spec.per_yarn else (None,)
+    channels = ("r", "g", "b") if spec.rgb else (None,)
+    labels = []
+    for yarn in yarns:
+        for channel in channels:
+            parts = [p for p in (yarn, channel) if p]
+            labels.append(f" ({', '.join(parts)})" if parts else "")
+    return labels
+
+
 def unflatten(spec: ParamSpec, flat: Iterable[float]) -> Any:
     """Inverse of :func:`flatten`: tuples shaped as the dataclass fields."""
     flat = [float(x) for x in flat]
@@ -214,6 +227,20 @@ class FabricParams:
 
     def flat(self, name: str) -> list[float]:
         return flatten(SPECS[name], getattr(self, name))
+
+    def at_bounds(self, names: Iterable[str], tolerance: float = 1e-3) -> list[str]:
+        """The components of ``names`` within ``tolerance`` x range of a bound, as
+        ``"roughness (weft) = 1 (upper bound)"``: a fit that ends there may want a value beyond the
+        declared range (or the images do not constrain it)."""
+        out = []
+        for name in names:
+            spec = SPECS[name]
+            margin = tolerance * (spec.hi - spec.lo)
+            for label, x in zip(component_labels(spec), self.flat(name)):
+                bound = "lower" if x <= spec.lo + margin else "upper" if x >= spec.hi - margin else None
+                if bound:
+                    out.append(f"{name}{label} = {x:g} ({bound} bound)")
+        return out
 
     # -- JSON ------------------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -1,4 +1,14 @@
-"""The fit report: photo, re-render and error map side by side for both images, with the figures."""
+"""The fit report (report.png): what the fit found and how its re-renders compare with the photos.
+
+- a header: pattern, tiles, the main parameters (warp / weft), the camera blur and sample rotation
+  the fit read, and every parameter that ended at a bound of its declared range (in red: the fit
+  wanted a value beyond the range, or the images do not constrain it);
+- per image (reflection, transmission): photo, re-render and |error| x 4 (inferno) at 320 px, with
+  FLIP, 16 x 16 colour L1 and spectrum correlation;
+- a row of zoomed centre crops (``CROP`` x ``CROP`` photo pixels, enlarged without smoothing) of
+  photo and re-render for both images, where the weave itself can be compared: dense weaves have
+  2-3 pixels per yarn, which a downsampled overview cannot show.
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,14 +17,18 @@ import cv2
 import numpy as np
 
 from ..core.params import FabricParams
+from ..core.rig import CaptureRig
 
 PANEL = 320
-HEADER = 96
+CROP = 96
+CROP_PANEL = 240
+LINE = 24
+RED = (80, 80, 235)
 
 
-def _to_bgr8(image: np.ndarray, size: int) -> np.ndarray:
+def _to_bgr8(image: np.ndarray, size: int, interpolation=cv2.INTER_AREA) -> np.ndarray:
     rgb = np.clip(np.asarray(image, np.float32), 0, 1)
-    rgb = cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
+    rgb = cv2.resize(rgb, (size, size), interpolation=interpolation)
     return (rgb[..., ::-1] * 255 + 0.5).astype(np.uint8)
 
 
@@ -25,33 +39,54 @@ def _error_map(photo: np.ndarray, render: np.ndarray, size: int) -> np.ndarray:
     return cv2.applyColorMap((np.clip(err * 4, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
 
 
+def centre_crop(image: np.ndarray, size: int = CROP) -> np.ndarray:
+    top = (image.shape[0] - size) // 2
+    left = (image.shape[1] - size) // 2
+    return image[top:top + size, left:left + size]
+
+
 def _text(canvas, text: str, x: int, y: int, scale: float = 0.5, colour=(235, 235, 235)):
     cv2.putText(canvas, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
+def _pairs(values, digits: int) -> str:
+    return " / ".join(f"{x:.{digits}f}" for x in values)
+
+
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
-                 metrics: dict[str, dict[str, float]], params: FabricParams, wall_s: float) -> Path:
-    """Writes report.png: rows reflection and transmission; columns photo, render, |error| x 4."""
+                 metrics: dict[str, dict[str, float]], params: FabricParams, rig: CaptureRig, wall_s: float,
+                 at_bounds: list[str]) -> Path:
+    """Writes report.png (see the module docstring)."""
+    header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
+               f"camera blur {rig.camera_blur_px:.2f} px   sample rotation {rig.sample_rotation_deg:+.2f} deg   "
+               f"fit {wall_s:.0f} s", None),
+              (f"roughness {_pairs(params.roughness, 2)}   thickness {_pairs(params.thickness, 2)}   "
+               f"height {_pairs(params.height_scale, 2)}   gap {_pairs(params.gap_scale, 2)}   "
+               f"twist {_pairs(params.twist_deg, 1)}   (warp / weft)", None)]
+    header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
-    canvas = np.full((HEADER + 2 * (PANEL + 24), width, 3), 32, np.uint8)
-    _text(canvas, f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
-                  f"fit {wall_s:.0f} s", 10, 24, 0.6)
-    _text(canvas, "roughness " + " / ".join(f"{x:.2f}" for x in params.roughness)
-          + "   thickness " + " / ".join(f"{x:.2f}" for x in params.thickness)
-          + "   height " + " / ".join(f"{x:.2f}" for x in params.height_scale)
-          + "   gap " + " / ".join(f"{x:.2f}" for x in params.gap_scale), 10, 50)
-    _text(canvas, "twist " + " / ".join(f"{x:.1f}" for x in params.twist_deg)
-          + "   (warp / weft)", 10, 74)
-    for row, (tag, name) in enumerate((("R", "reflection"), ("T", "transmission"))):
-        top = HEADER + row * (PANEL + 24)
+    top = LINE * (len(header) + 1)
+    crop_top = top + 2 * (PANEL + LINE)
+    canvas = np.full((crop_top + LINE + CROP_PANEL, width, 3), 32, np.uint8)
+    for index, (line, colour) in enumerate(header):
+        _text(canvas, line, 10, LINE * (index + 1) - 4, 0.5, colour or (235, 235, 235))
+    for row, name in enumerate(("reflection", "transmission")):
+        y = top + row * (PANEL + LINE)
         m = metrics[name]
         _text(canvas, f"{name}: FLIP {m['flip']:.3f}   colour L1 {m['colour_l1']:.4f}   "
-                      f"spectrum corr {m['spectrum_corr']:.3f}", 10, top + 17)
+                      f"spectrum corr {m['spectrum_corr']:.3f}", 10, y + 17)
         panels = [_to_bgr8(photos[row], PANEL), _to_bgr8(renders[row], PANEL),
                   _error_map(photos[row], renders[row], PANEL)]
         for col, (panel, label) in enumerate(zip(panels, ("photo", "render", "|error| x4"))):
-            canvas[top + 24: top + 24 + PANEL, col * PANEL:(col + 1) * PANEL] = panel
-            _text(canvas, label, col * PANEL + 8, top + 24 + PANEL - 10, 0.5)
+            canvas[y + LINE: y + LINE + PANEL, col * PANEL:(col + 1) * PANEL] = panel
+            _text(canvas, label, col * PANEL + 8, y + LINE + PANEL - 10, 0.5)
+    _text(canvas, f"centre {CROP} x {CROP} px, enlarged", 10, crop_top + 17)
+    crops = [(photos[0], "photo R"), (renders[0], "render R"), (photos[1], "photo T"), (renders[1], "render T")]
+    for col, (image, label) in enumerate(crops):
+        x = col * CROP_PANEL
+        panel = _to_bgr8(centre_crop(np.asarray(image)), CROP_PANEL, cv2.INTER_NEAREST)
+        canvas[crop_top + LINE: crop_top + LINE + CROP_PANEL, x:x + CROP_PANEL] = panel
+        _text(canvas, label, x + 8, crop_top + LINE + CROP_PANEL - 10, 0.5)
     path = Path(path)
     if not cv2.imwrite(str(path), canvas):
         raise OSError(f"{path}: could not write the report")

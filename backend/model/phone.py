@@ -1,0 +1,107 @@
+"""What a phone adds to the rig's radiance: the photo-like synthetic data of the fit benchmark.
+
+A render of the model is a perfect photo: sharp, noiseless, exactly exposed, lit exactly as the rig
+says, with perfectly regular yarns. A phone photo of a real sample is none of these. Given the
+linear radiance of a render of the (possibly turned) sample without camera blur, one photo is
+
+    warped   = radiance(p + d(p))                     mild non-uniform yarn spacing: a smooth
+               d(p) = A (sin(2 pi p_y / L_x + phi_x), sin(2 pi p_x / L_y + phi_y)), local scale
+               changes of 2 pi A / L (1-3 %)
+    lit      = warped * (1 + falloff(p))              low-frequency light falloff the rig does not
+               model: a random tilt and bowl, at most a few tens of percent across the image
+    blurred  = G_sigma * lit                          the camera's point spread (sigma film pixels)
+    exposed  = blurred * exposure * exposure_i * wb   exposure (both photos, and a little per photo:
+               phones meter each shot) and white balance (per channel)
+    noisy    = exposed + N(0, gain * exposed + read^2)   shot and read noise, linear
+    photo    = display_transform(noisy)               the rig's clamp, 1/gamma and vignetting
+
+and the file is an 8-bit JPEG of ``photo`` at ``jpeg_quality`` (the caller writes it). Everything is
+drawn from a seeded generator (:meth:`PhoneEffects.draw`), so a photo-like set is a function of its
+seed. The camera's gains (exposure x white balance) scale what the photo shows; a fit cannot tell them
+from the albedos, so a comparison with the truth under other lights applies them to the truth
+(:meth:`PhoneEffects.gains`).
+"""
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+
+from ..core.rig import CaptureRig
+from .camera import CameraSamples
+from .imaging import display_transform, gaussian_blur
+
+
+@dataclass(frozen=True)
+class PhoneEffects:
+    blur_px: float                                  # Gaussian point spread, film pixels
+    exposure: float                                 # linear gain of both photos
+    photo_exposure: tuple[float, float]             # extra gain of the reflection and transmission photo
+    white_balance: tuple[float, float, float]       # per-channel gain
+    falloff: tuple[float, float, float, float]      # tilt x, tilt y, bowl, bowl centre offset (fraction)
+    warp_px: float                                  # amplitude A of the spacing warp, film pixels
+    warp_period_px: tuple[float, float]             # L_x, L_y, film pixels
+    warp_phase: tuple[float, float]
+    noise_gain: float                               # shot-noise variance per unit of linear signal
+    read_noise: float                               # standard deviation, linear
+    jpeg_quality: int
+    seed: int                                       # of the noise
+
+    @classmethod
+    def draw(cls, rng: random.Random) -> "PhoneEffects":
+        """One phone and one pair of shots, drawn from the ranges of the fit issue."""
+        periods = (rng.uniform(150.0, 400.0), rng.uniform(150.0, 400.0))
+        scale_change = rng.uniform(0.01, 0.03)          # 2 pi A / L
+        return cls(blur_px=rng.uniform(0.5, 2.0), exposure=rng.uniform(0.85, 1.15),
+                   photo_exposure=(rng.uniform(0.95, 1.05), rng.uniform(0.95, 1.05)),
+                   white_balance=tuple(rng.uniform(0.93, 1.07) for _ in range(3)),
+                   falloff=(rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.2, 0.1),
+                            rng.uniform(-0.2, 0.2)),
+                   warp_px=scale_change * min(periods) / (2 * math.pi), warp_period_px=periods,
+                   warp_phase=(rng.uniform(0, 2 * math.pi), rng.uniform(0, 2 * math.pi)),
+                   noise_gain=rng.uniform(1e-4, 1e-3), read_noise=rng.uniform(0.001, 0.004),
+                   jpeg_quality=rng.randrange(75, 96), seed=rng.randrange(1 << 30))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def gains(self, photo: int) -> torch.Tensor:
+        """(3,) linear gain of photo 0 (reflection) or 1 (transmission): exposure x white balance."""
+        return torch.tensor(self.white_balance) * self.exposure * self.photo_exposure[photo]
+
+    def apply(self, radiance: torch.Tensor, photo: int, rig: CaptureRig) -> torch.Tensor:
+        """The display-space photo (N, N, 3) in [0, 1] of a render's sharp linear ``radiance``."""
+        n = radiance.shape[0]
+        film = rig.film_size / n  # film pixels per image pixel
+        image = self._warped(radiance, film)
+        image = image * self._falloff(n).to(image)[..., None]
+        image = gaussian_blur(image, self.blur_px / film)
+        image = image * self.gains(photo).to(image)
+        generator = torch.Generator().manual_seed(self.seed * 2 + photo)
+        std = torch.sqrt(self.noise_gain * image.clamp_min(0) + self.read_noise ** 2)
+        image = image + std * torch.randn(image.shape, generator=generator, dtype=image.dtype)
+        vignette = CameraSamples(rig, n, 1, dtype=image.dtype).pixel_falloff(rig.vignette_sigma_px)
+        return display_transform(image.clamp_min(0), rig.gamma, rig.clamp, vignette).clamp(0, 1)
+
+    def _warped(self, image: torch.Tensor, film: float) -> torch.Tensor:
+        n = image.shape[0]
+        centres = torch.arange(n, dtype=torch.float64) + 0.5
+        rows, cols = torch.meshgrid(centres, centres, indexing="ij")
+        amplitude = self.warp_px / film
+        (lx, ly), (px, py) = (p / film for p in self.warp_period_px), self.warp_phase
+        x = cols + amplitude * torch.sin(2 * math.pi * rows / lx + px)
+        y = rows + amplitude * torch.sin(2 * math.pi * cols / ly + py)
+        grid = torch.stack((x / n * 2 - 1, y / n * 2 - 1), dim=-1)[None].to(image.dtype)
+        warped = F.grid_sample(image.permute(2, 0, 1)[None], grid, mode="bilinear", padding_mode="reflection",
+                               align_corners=False)
+        return warped[0].permute(1, 2, 0)
+
+    def _falloff(self, n: int) -> torch.Tensor:
+        tilt_x, tilt_y, bowl, offset = self.falloff
+        coords = (torch.arange(n, dtype=torch.float64) + 0.5) / n * 2 - 1   # -1 .. 1 across the image
+        y, x = torch.meshgrid(coords, coords, indexing="ij")
+        r2 = (x - offset) ** 2 + (y + offset) ** 2
+        return (1 + tilt_x * x + tilt_y * y + bowl * r2 / 2).clamp_min(0.2)
