@@ -171,7 +171,7 @@ def test_fit_example_end_to_end(tmp_path):
     again = run_fit("--example", "--out", str(out))
     assert again.returncode == 2 and "already holds a fit" in again.stderr
     blur = run_fit("--example", "--out", str(tmp_path / "blur"), "--camera-blur", "9")
-    assert blur.returncode == 2 and "--camera-blur: must be in [0, 4.0] pixels" in blur.stderr
+    assert blur.returncode == 2 and "--camera-blur: must be in [0, 4] pixels" in blur.stderr
 
 
 def test_fit_cancel_keeps_the_best_so_far(tmp_path):

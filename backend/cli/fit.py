@@ -3,7 +3,7 @@
     fit REFLECTION TRANSMISSION --out DIR [--pattern auto|plain|twill0|twill1|satin0|satin1]
         [--iterations N] [--size N] [--device cpu|cuda] [--json-progress] [--rig RIG.json]
         [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior]
-        [--vgg-weights PATH] [--camera-blur auto|PX] [--output-spp N] [--overwrite]
+        [--vgg-weights PATH] [--camera-blur auto|PX] [--sample-rotation auto|DEG] [--output-spp N] [--overwrite]
     fit --example --out DIR      (renders a known fabric, then fits it)
 
 Writes DIR/params.json (spec names, plus the interchange string, rig, fit details), DIR/reflection.png
@@ -31,7 +31,7 @@ from .. import __version__
 from ..core.params import PARAMETERS, FabricParams
 from ..core.priors import PATTERNS
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
-from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig, RigError
+from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG, CaptureRig, RigError
 from ..fit.gram import GramWeightsError
 from ..fit.pipeline import fit
 from ..fit.report import write_report
@@ -129,7 +129,8 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
 
     settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
                            device=args.device, vgg_weights=args.vgg_weights,
-                           camera_blur=_given_blur(args.camera_blur, rig))
+                           camera_blur=_given(args.camera_blur, rig.camera_blur_px),
+                           sample_rotation=_given(args.sample_rotation, rig.sample_rotation_deg))
     initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
@@ -137,7 +138,9 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
                  pattern_probabilities=initial_for.pattern_probabilities if initial_for is not None else None,
                  should_stop=should_stop)
 
-    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4))  # re-renders, params.json
+    # the placement the fit read from the photos: the re-renders and params.json's rig use it
+    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4),
+                              sample_rotation_deg=round(result.sample_rotation_deg, 4))
     reporter.progress("render", 0, 1)
 
     def render_progress(done, total):
@@ -184,25 +187,30 @@ def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, prog
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 
-def _given_blur(option: str, rig: CaptureRig) -> float | None:
-    """The fixed camera blur: --camera-blur PX, else a rig file's non-zero ``camera_blur_px`` (the
-    same camera again); None (estimate it) otherwise."""
+def _given(option: str, rig_value: float) -> float | None:
+    """A fixed capture value (camera blur, sample rotation): the command line's number, else a rig
+    file's non-zero value (the same camera and holder again); None (read it from the photos)."""
     if option != "auto":
         return float(option)
-    return rig.camera_blur_px if rig.camera_blur_px > 0 else None
+    return rig_value if rig_value != 0 else None
 
 
-def _camera_blur(text: str) -> str:
-    """argparse type of --camera-blur: 'auto' or a number in the rig's range."""
-    if text == "auto":
+def _auto_or_number(limit: float, unit: str, low: float | None = None):
+    """argparse type of an 'auto'-or-number option in [low, limit] (low defaults to -limit)."""
+    low = -limit if low is None else low
+
+    def parse(text: str) -> str:
+        if text == "auto":
+            return text
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected 'auto' or a number of {unit}, got {text!r}") from None
+        if not low <= value <= limit:
+            raise argparse.ArgumentTypeError(f"must be in [{low:g}, {limit:g}] {unit}, got {text}")
         return text
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected 'auto' or a number of pixels, got {text!r}") from None
-    if not 0.0 <= value <= MAX_CAMERA_BLUR_PX:
-        raise argparse.ArgumentTypeError(f"must be in [0, {MAX_CAMERA_BLUR_PX}] pixels, got {text}")
-    return text
+
+    return parse
 
 
 def add_parser(sub) -> None:
@@ -221,9 +229,14 @@ def add_parser(sub) -> None:
     p.add_argument("--flat-field", help="photo of a uniform target under the same light (vignetting)")
     p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--camera-blur", default="auto", type=_camera_blur, metavar="auto|PX",
+    p.add_argument("--camera-blur", default="auto", type=_auto_or_number(MAX_CAMERA_BLUR_PX, "pixels", 0.0),
+                   metavar="auto|PX",
                    help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's "
                         "non-zero camera_blur_px is kept) or fixed")
+    p.add_argument("--sample-rotation", default="auto", type=_auto_or_number(MAX_SAMPLE_ROTATION_DEG, "degrees"),
+                   metavar="auto|DEG",
+                   help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the "
+                        "photos (auto, default; a rig file's non-zero sample_rotation_deg is kept) or fixed")
     p.add_argument("--init", choices=INIT_CHOICES, default="network",
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")

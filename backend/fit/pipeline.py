@@ -1,5 +1,7 @@
 """Fitting fabric parameters to a reflection/transmission photo pair.
 
+    placement  the sample's rotation in the holder, read from the photos' spectra (unless given):
+               the lattice, the loss's probes and the renders all use it
     search     candidates from the spectra, starting points, camera blur, short trial fits,
                the pattern chosen by comparing them (:mod:`backend.fit.search`)
     optimise   the winner's run goes on: Adam on the continuous parameters, every
@@ -14,6 +16,7 @@ deterministic for a given input, settings and seed (fixed jitter, no random step
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Callable
 
@@ -24,7 +27,7 @@ from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
-from ..texture.candidates import Candidate, propose
+from ..texture.candidates import Candidate, propose, sample_rotation
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
@@ -50,14 +53,19 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings: dict[str, float] = {}
     torch.manual_seed(settings.seed)
     progress = progress or (lambda *args: None)
+    patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
+    progress("search", 0, 1, None, None)
+    rotation = settings.sample_rotation
+    if rotation is None:
+        rotation = sample_rotation(reflection, transmission, rig, patterns)
+    rig = dataclasses.replace(rig, sample_rotation_deg=rotation)
+    timings["rotation_s"] = time.perf_counter() - started
     objective = _objective(reflection, transmission, rig, settings)
 
     def check_stop(run: Run | None = None):
         if should_stop is not None and should_stop():
             raise FitCancelled(run.best if run is not None else None)
 
-    patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
-    progress("search", 0, 1, None, None)
     found = (propose(reflection, transmission, rig, patterns, per_pattern=1)
              or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns])
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
@@ -84,7 +92,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
-                     run.history, timings, run.best_blur)
+                     run.history, timings, run.best_blur, rotation)
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:

@@ -39,6 +39,7 @@ class FitSettings:
     vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
     gram_weight: float = 1.0
     camera_blur: float | None = None  # film pixels; None: estimated from the photos
+    sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
 
 
 @dataclass
@@ -50,3 +51,4 @@ class FitResult:
     history: list[tuple[int, float]]
     timings: dict[str, float] = field(default_factory=dict)
     camera_blur_px: float = 0.0
+    sample_rotation_deg: float = 0.0

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 
 from ..image.tone import LUMA
+from .lattice import turned_frequencies
 
 QUANTILES = 24
 ORDER = 4
@@ -61,17 +62,21 @@ def harmonic_indices(order: int = ORDER) -> list[tuple[int, int]]:
 class LatticeProbe:
     """Regional Fourier magnitudes of an image at the harmonics of one lattice (a, b).
 
-    a, b: tiles across and down the image (cycles per image). The probe precomputes the windowed
-    complex exponentials of each region; calling it is two small matrix products per region.
+    a, b: tiles across and down the fabric (cycles per image); ``rotation_deg``: the sample's turn in
+    the holder, so harmonic (m, n) sits at the image frequency
+    :func:`backend.texture.lattice.turned_frequencies` (m a, n b). The frequency is still one 2D
+    plane wave, so the transform stays separable: the probe precomputes the windowed complex
+    exponentials of each region along x and y; calling it is two small matrix products per region.
     """
 
     def __init__(self, size: int, a: float, b: float, device="cpu", dtype=torch.float32,
-                 regions: int = REGIONS, order: int = ORDER):
+                 regions: int = REGIONS, order: int = ORDER, rotation_deg: float = 0.0):
         self.size, self.a, self.b, self.regions = size, a, b, regions
         self.harmonics = harmonic_indices(order)
         # Lattice harmonics, then the same count of off-lattice probes for the noise floor.
         ms = torch.tensor([m for m, _ in self.harmonics] + [m + 0.5 for m, _ in self.harmonics], dtype=torch.float64)
         ns = torch.tensor([n for _, n in self.harmonics] + [n + 0.5 for _, n in self.harmonics], dtype=torch.float64)
+        fx, fy = turned_frequencies(ms * a, ns * b, rotation_deg)
         self.bounds = [round(k * size / regions) for k in range(regions + 1)]
         self.ex, self.ey = [], []
         for k in range(regions):
@@ -80,8 +85,8 @@ class LatticeProbe:
             window = torch.hann_window(hi - lo + 2, periodic=False, dtype=torch.float64)[1:-1]
             window = window / window.sum()
             # e^{-2 pi i f x / size} with the window folded in: (harmonics, region width)
-            self.ex.append((torch.exp(-2j * math.pi * torch.outer(ms * a, coords) / size) * window).to(device))
-            self.ey.append((torch.exp(-2j * math.pi * torch.outer(ns * b, coords) / size) * window).to(device))
+            self.ex.append((torch.exp(-2j * math.pi * torch.outer(fx, coords) / size) * window).to(device))
+            self.ey.append((torch.exp(-2j * math.pi * torch.outer(fy, coords) / size) * window).to(device))
         self.dtype = dtype
 
     def __call__(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

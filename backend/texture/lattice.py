@@ -57,6 +57,27 @@ def lattice_of(tiles, rig) -> tuple[float, float]:
     return tiles[0] * scale, tiles[1] * scale
 
 
+def turned_frequencies(f1, f2, rotation_deg: float):
+    """Image frequencies (fx to the right, fy down the image; cycles per image) of the fabric
+    frequency (f1 across the warps, f2 across the wefts) of a sample turned by ``rotation_deg`` (the
+    rig's ``sample_rotation_deg``, counter-clockwise as the camera sees it):
+
+        fx = f1 cos(theta) + f2 sin(theta),    fy = -f1 sin(theta) + f2 cos(theta)
+
+    (the image's rows run down while the world's y runs up, so a counter-clockwise turn of the
+    fabric turns its frequencies clockwise in (fx, fy)). Arrays broadcast."""
+    if rotation_deg == 0:
+        return f1, f2
+    theta = math.radians(rotation_deg)
+    c, s = math.cos(theta), math.sin(theta)
+    return c * f1 + s * f2, -s * f1 + c * f2
+
+
+def fabric_frequencies(fx, fy, rotation_deg: float):
+    """The inverse of :func:`turned_frequencies`: image frequencies -> (f1, f2) of the fabric."""
+    return turned_frequencies(fx, fy, -rotation_deg)
+
+
 def harmonic_spectrum(image: np.ndarray, a: float, b: float, m: np.ndarray, n: np.ndarray) -> np.ndarray:
     """|DFT|^2 of the windowed, high-passed luminance at the frequencies (m a, n b), cycles per image
     (exact: the separable DFT at those frequencies, not the FFT grid)."""
@@ -114,27 +135,30 @@ def _lookup(q: np.ndarray, fx: np.ndarray, fy: np.ndarray, size: int) -> np.ndar
             + (1 - tx) * ty * q[y0 + 1, x0] + tx * ty * q[y0 + 1, x0 + 1])
 
 
-def signature_score(maps, signatures, a, b, size) -> np.ndarray:
-    """Search score of lattices (a, b) (arrays of equal shape) on peakness maps."""
+def signature_score(maps, signatures, a, b, size, rotation_deg: float = 0.0) -> np.ndarray:
+    """Search score of lattices (a, b) (arrays of equal shape) of a sample turned by ``rotation_deg``
+    on peakness maps."""
     total = np.zeros(np.broadcast(a, b).shape)
     for q, sig in zip(maps, signatures):
         weights = np.sqrt(sig.weight)
         weights = weights / weights.sum()
         for m, n, weight in zip(sig.m, sig.n, weights):
-            folded = (np.abs(m * a) > size / 2) | (np.abs(n * b) > size / 2)
-            fx, fy = np.broadcast_arrays(_fold(m * a, size), _fold(n * b, size))
+            fx, fy = turned_frequencies(m * a, n * b, rotation_deg)
+            folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
+            fx, fy = np.broadcast_arrays(_fold(fx, size), _fold(fy, size))
             looked_up = _lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
             total = total + weight * np.where(folded, 0.5, 1.0) * looked_up
     return total
 
 
 def polish(maps, signatures, start: Lattice, size: int, square: bool, span: float = 0.006,
-           step: float = 0.0003) -> Lattice:
+           step: float = 0.0003, rotation_deg: float = 0.0) -> Lattice:
     factors = np.exp(np.arange(-span, span + step / 2, step))
     a = start.a * factors[None, :]
     b = (start.a * factors[None, :]) if square else start.b * factors[:, None]
     shape = np.broadcast(a, b).shape
-    scores = signature_score(maps, signatures, np.broadcast_to(a, shape), np.broadcast_to(b, shape), size)
+    scores = signature_score(maps, signatures, np.broadcast_to(a, shape), np.broadcast_to(b, shape), size,
+                             rotation_deg)
     row, col = np.unravel_index(int(np.argmax(scores)), scores.shape)
     a_best = float(np.broadcast_to(a, scores.shape)[row, col])
     b_best = float(np.broadcast_to(b, scores.shape)[row, col])
@@ -179,42 +203,75 @@ def comb_scores(freqs: np.ndarray, strengths: np.ndarray, periods: np.ndarray, s
                 sigma: float = 0.35, reach: float = 1.6) -> np.ndarray:
     """How well each candidate spacing explains the (folded) peak frequencies: sum of strengths of
     peaks lying within ~sigma cycles of a folded multiple m * spacing, |m * spacing| <= reach * size."""
+    multiples = np.arange(1, int(reach * size / periods.min()) + 1)[:, None] * periods[None, :]  # (M, G)
+    folded = np.where(multiples <= reach * size, np.abs(_fold(multiples, size)), np.inf)
     scores = np.zeros(len(periods))
-    for f, s in zip(freqs, strengths):
-        best = np.zeros(len(periods))
-        for m in range(1, int(reach * size / periods.min()) + 1):
-            valid = m * periods <= reach * size
-            folded = np.abs(_fold(m * periods, size))
-            hit = np.exp(-0.5 * ((folded - abs(f)) / sigma) ** 2)
-            best = np.maximum(best, np.where(valid, hit, 0.0))
-        scores += s * best
+    for f, s in zip(freqs, strengths):  # one peak at a time keeps the arrays (M, G) small
+        hit = np.exp(-0.5 * ((folded - abs(f)) / sigma) ** 2)
+        scores += s * hit.max(axis=0)
     return scores
 
 
-def estimate(images: list[np.ndarray], a_range: tuple[float, float], b_range: tuple[float, float],
-             step: float = 0.0002, tooth_cost: float = 1.0, reach: float = 2.5) -> Lattice:
-    """The tile lattice (a, b) explaining the spectral peaks of the images, independent of the pattern.
-
-    Each axis is a 1D comb search over a fine log grid (a harmonic sieve): the strength of the peaks
-    a spacing explains, minus ``tooth_cost`` per comb tooth up to ``reach`` times the image size.
-    Without that cost, every sub-multiple of the true spacing (and, with enough teeth, any small
-    spacing) would explain the peaks equally well; with it, the coarsest comb that explains them wins.
-    """
-    size = images[0].shape[0]
-    peaks = [p for img in images for p in spectral_peaks(img)]
+def _combs(peaks: list[Peak], images: int, size: int, ranges, rotation_deg: float, step: float,
+           tooth_cost: float, reach: float, near: tuple[float, float] | None = None,
+           span: float = 0.02) -> tuple[tuple[float, float], float]:
+    """The best comb spacing per fabric axis and the summed score, for peaks turned back by
+    ``rotation_deg``; ``near`` restricts each axis to within ``span`` (relative) of a spacing."""
+    f1, f2 = fabric_frequencies(np.array([p.fx for p in peaks]), np.array([p.fy for p in peaks]), rotation_deg)
     strengths = np.array([p.strength for p in peaks])
-    spacing = []
-    score = 0.0
-    for axis, (lo, hi) in ((0, a_range), (1, b_range)):
-        freqs = np.array([p.fx if axis == 0 else p.fy for p in peaks])
+    spacing, score = [], 0.0
+    for axis, freqs, (lo, hi) in ((0, f1, ranges[0]), (1, f2, ranges[1])):
+        if near is not None:
+            lo, hi = near[axis] * (1 - span), near[axis] * (1 + span)
         informative = np.abs(freqs) > 3
         grid = np.exp(np.arange(math.log(lo), math.log(hi), step))
         scores = comb_scores(freqs[informative], strengths[informative], grid, size, reach=reach)
-        scores = scores - tooth_cost * np.floor(reach * size / grid) * len(images)
+        scores = scores - tooth_cost * np.floor(reach * size / grid) * images
         best = int(np.argmax(scores))
         spacing.append(float(grid[best]))
         score += float(scores[best])
-    return Lattice(spacing[0], spacing[1], score)
+    return (spacing[0], spacing[1]), score
+
+
+def estimate(images: list[np.ndarray], a_range: tuple[float, float], b_range: tuple[float, float],
+             step: float = 0.0002, tooth_cost: float = 1.0, reach: float = 2.5, rotation_deg: float = 0.0) -> Lattice:
+    """The tile lattice (a, b) explaining the spectral peaks of the images, independent of the pattern.
+
+    Each fabric axis is a 1D comb search over a fine log grid (a harmonic sieve) on the peaks'
+    frequencies turned back by ``rotation_deg``: the strength of the peaks a spacing explains, minus
+    ``tooth_cost`` per comb tooth up to ``reach`` times the image size. Without that cost, every
+    sub-multiple of the true spacing (and, with enough teeth, any small spacing) would explain the
+    peaks equally well; with it, the coarsest comb that explains them wins.
+    """
+    size = images[0].shape[0]
+    peaks = [p for img in images for p in spectral_peaks(img)]
+    (a, b), score = _combs(peaks, len(images), size, (a_range, b_range), rotation_deg, step, tooth_cost, reach)
+    return Lattice(a, b, score)
+
+
+ROTATION_SCAN_DEG = 6.0
+
+
+def estimate_rotation(images: list[np.ndarray], a_range: tuple[float, float], b_range: tuple[float, float],
+                      tooth_cost: float = 1.0, reach: float = 2.5) -> float:
+    """The sample's rotation (degrees, the rig's ``sample_rotation_deg``) that lines the photos'
+    spectral peaks up best with an axis-aligned tile lattice: the rotation maximising the harmonic
+    sieves of :func:`estimate` on the peaks turned back by it. A coarse scan of +-6 degrees in
+    0.25-degree steps on a coarse spacing grid, then a fine one (0.02 degrees) around its best, with
+    each axis's spacing held near the coarse one."""
+    size = images[0].shape[0]
+    peaks = [p for img in images for p in spectral_peaks(img)]
+    ranges = (a_range, b_range)
+
+    def scan(angles, step, near=None):
+        results = [(_combs(peaks, len(images), size, ranges, angle, step, tooth_cost, reach, near), angle)
+                   for angle in angles]
+        (spacing, _), angle = max(results, key=lambda r: r[0][1])
+        return spacing, angle
+
+    spacing, coarse = scan(np.arange(-ROTATION_SCAN_DEG, ROTATION_SCAN_DEG + 1e-9, 0.25), step=0.003)
+    _, fine = scan(coarse + np.arange(-0.3, 0.3 + 1e-9, 0.02), step=0.0005, near=spacing)
+    return float(round(fine, 3))
 
 
 RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
@@ -222,7 +279,7 @@ RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
 
 def candidates(images: list[np.ndarray], comb: Lattice, signatures: list[Signature],
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
-               top: int = 3) -> list[Lattice]:
+               top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
     """Lattices for one pattern: the comb estimate times small ratios per axis (the comb pins the
     lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
     and scored by the pattern's signature on the sharp peakness map. Best first."""
@@ -238,5 +295,6 @@ def candidates(images: list[np.ndarray], comb: Lattice, signatures: list[Signatu
             if key in seen:
                 continue
             seen.add(key)
-            out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002))
+            out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002,
+                              rotation_deg=rotation_deg))
     return sorted(out, key=lambda lat: -lat.score)[:top]
