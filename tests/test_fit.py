@@ -40,13 +40,13 @@ def twill_pair():
 
 
 def test_lattice_reads_the_tiles_from_the_spectrum(twill_pair):
-    candidates = search.propose(*twill_pair, DEFAULT_RIG, ("twill1",))
+    candidates = search.propose(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG, ("twill1",))
     tiles = candidates[0].tiles
     assert tiles == pytest.approx(TWILL.tiles, rel=0.01)
 
 
 def test_comb_prefers_the_true_spacing_over_its_submultiples(twill_pair):
-    comb = lattice.estimate(list(twill_pair), (25.0, 250.0), (25.0, 250.0))
+    comb = lattice.estimate(lattice.Spectra.of(list(twill_pair)), (25.0, 250.0), (25.0, 250.0))
     a, b = (t * SCALE for t in TWILL.tiles)
     # The comb pins the lattice up to small ratios; the pattern signature settles them later.
     for found, true in ((comb.a, a), (comb.b, b)):

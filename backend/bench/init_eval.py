@@ -34,6 +34,7 @@ from ..image.photos import load_pair
 from ..init import network as init_net
 from ..init.train import EXACT_ROW, load_arrays
 from ..texture.candidates import propose
+from ..texture.lattice import Spectra
 
 REPORTED = init_net.TARGETS
 
@@ -96,7 +97,7 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
     rows, net_rows, prior_rows = [], [], []
     for name, r_path, t_path, truth in golden_cases(folder):
         reflection, transmission = _load(r_path, t_path)
-        candidates = propose(reflection, transmission, DEFAULT_RIG, priors.PATTERNS, per_pattern=1)
+        candidates = propose(Spectra.of([reflection, transmission]), DEFAULT_RIG, priors.PATTERNS, per_pattern=1)
         pair = init_net.WorkingPair.from_images(reflection, transmission, DEFAULT_RIG.gamma)
         guesses = model.guesses(pair, candidates, DEFAULT_RIG)
         best = max(range(len(candidates)), key=lambda k: guesses[k][1])

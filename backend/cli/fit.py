@@ -111,8 +111,11 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
     started = time.perf_counter()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise FitInputError(f"--device {args.device}: CUDA is not available in this PyTorch build or on this machine")
-    _prepare_out(out, args.overwrite)
     rig = CaptureRig.load(args.rig) if args.rig else DEFAULT_RIG
+    if args.size is not None and args.size > rig.film_size:
+        raise FitInputError(f"--size {args.size}: larger than the photos' working size ({rig.film_size} px, the rig's "
+                            "film size); the loss cannot see more than the photos hold")
+    _prepare_out(out, args.overwrite)
     truth = None
     if args.example:
         reflection_path, transmission_path, truth = make_example(out / "example_photos", rig)
@@ -172,7 +175,7 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds,
                      "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
-                                  "size": settings.size, "spp": settings.spp, "seed": settings.seed}},
+                                  "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
     files["params"] = str(out / "params.json")
     (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
@@ -185,6 +188,17 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
 def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
     pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress)
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
+
+
+def _working_size(text: str) -> int:
+    """argparse type of --size: an integer from 32 up to the film size (checked again against the rig)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of pixels, got {text!r}") from None
+    if value < 32:
+        raise argparse.ArgumentTypeError(f"must be at least 32 pixels, got {value}")
+    return value
 
 
 def _given(option: str, rig_value: float) -> float | None:
@@ -221,7 +235,9 @@ def add_parser(sub) -> None:
     p.add_argument("--example", action="store_true", help="render the bundled example fabric and fit it")
     p.add_argument("--pattern", default="auto", choices=("auto",) + PATTERNS)
     p.add_argument("--iterations", type=int, default=FitSettings.iterations)
-    p.add_argument("--size", type=int, default=FitSettings.size, help="working size of the loss (default 256)")
+    p.add_argument("--size", type=_working_size, default=None, metavar="N",
+                   help="working size of the loss in pixels, 32 up to the photos' working size (the rig's film "
+                        "size, 512); default: 256, or 512 where the yarns are too dense for 256")
     p.add_argument("--device", default="cpu")
     p.add_argument("--json-progress", action="store_true", help="JSON lines on stdout (see backend/core/protocol.py)")
     p.add_argument("--rig", help="capture rig JSON (default: the paper's rig)")

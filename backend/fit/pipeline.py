@@ -28,6 +28,7 @@ from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
 from ..texture.candidates import Candidate, propose, sample_rotation
+from ..texture.lattice import Spectra
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
@@ -55,22 +56,25 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     progress = progress or (lambda *args: None)
     patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
+    spectra = Spectra.of([reflection, transmission])
     rotation = settings.sample_rotation
     if rotation is None:
-        rotation = sample_rotation(reflection, transmission, rig, patterns)
+        rotation = sample_rotation(spectra, rig, patterns)
     rig = dataclasses.replace(rig, sample_rotation_deg=rotation)
     timings["rotation_s"] = time.perf_counter() - started
-    objective = _objective(reflection, transmission, rig, settings)
 
     def check_stop(run: Run | None = None):
         if should_stop is not None and should_stop():
             raise FitCancelled(run.best if run is not None else None)
 
-    found = (propose(reflection, transmission, rig, patterns, per_pattern=1)
+    found = (propose(spectra, rig, patterns, per_pattern=1)
              or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns])
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
                                                       settings.min_pattern_probability)
     timings["lattice_s"] = time.perf_counter() - started
+    size = settings.size or search.working_size(found, np.asarray(reflection).shape[0], rig)
+    settings = dataclasses.replace(settings, size=size, spp=settings.spp or search.samples_per_pixel(size))
+    objective = _objective(reflection, transmission, rig, settings)
 
     def on_start(count, loss):
         progress("search", count, len(found), loss, None)
@@ -92,7 +96,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
-                     run.history, timings, run.best_blur, rotation)
+                     run.history, timings, run.best_blur, rotation, settings.size, settings.spp)
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:

@@ -24,15 +24,19 @@ import torch
 
 from ..core import priors
 from ..core.params import PARAMETERS, FabricParams
-from ..core.rig import MAX_CAMERA_BLUR_PX
+from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
+from ..core.weave import PRESETS
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from ..image.metrics import spectrum_corr
 from ..texture.candidates import Candidate
+from ..texture.lattice import lattice_of
 from .objective import Objective
 from .optimise import Run
 from .settings import FitSettings
 
 GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
+BASE_SIZE, BASE_SPP = 256, 16
+MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 
 
@@ -49,6 +53,24 @@ class Trial:
     run: Run
     summary: dict           # what params.json's fit.candidates records for it
     selection: float        # trial loss + spectrum mismatch: the lowest wins
+
+
+def working_size(candidates: list[Candidate], photo_size: int, rig: CaptureRig) -> int:
+    """The loss's working size: BASE_SIZE, or the photos' own size when a candidate's yarns would get
+    fewer than MIN_PIXELS_PER_YARN pixels at BASE_SIZE (dense weaves: 2-3 px per yarn at 512 px, past
+    the sampling limit at 256)."""
+    yarns = 0.0
+    for cand in candidates:
+        a, b = lattice_of(cand.tiles, rig)
+        weave = PRESETS.get(cand.pattern)
+        if weave is not None:
+            yarns = max(yarns, weave.cols * a, weave.rows * b)
+    return photo_size if photo_size > BASE_SIZE and BASE_SIZE / max(yarns, 1e-9) < MIN_PIXELS_PER_YARN else BASE_SIZE
+
+
+def samples_per_pixel(size: int) -> int:
+    """BASE_SPP at BASE_SIZE, and as many samples per image at other sizes (at least 4: a 2 x 2 jitter)."""
+    return max(4, round(BASE_SPP * (BASE_SIZE / size) ** 2))
 
 
 def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float

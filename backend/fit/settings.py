@@ -23,8 +23,9 @@ class FitCancelled(Exception):
 class FitSettings:
     pattern: str = "auto"            # a preset name, or "auto" to choose by comparing fits
     iterations: int = 150
-    size: int = 256                  # working size of the loss (photos are area-downsampled to it)
-    spp: int = 16
+    size: int | None = None          # working size of the loss (photos are area-downsampled to it);
+                                     # None: chosen from the yarn lattice (backend.fit.search.working_size)
+    spp: int | None = None           # samples per pixel; None: 16 at 256 px, the same samples per image above
     seed: int = 0
     trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
@@ -52,3 +53,5 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     camera_blur_px: float = 0.0
     sample_rotation_deg: float = 0.0
+    size: int = 0                    # the working size and samples per pixel the loss used
+    spp: int = 0

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
-import numpy as np
 import torch
 
 from ..core import priors
@@ -54,29 +53,26 @@ def _search_range(rig: CaptureRig, patterns: tuple[str, ...]) -> tuple[float, fl
     return (min(min(r[0][0], r[1][0]) for r in ranges) * scale, max(max(r[0][1], r[1][1]) for r in ranges) * scale)
 
 
-def sample_rotation(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig,
-                    patterns: tuple[str, ...] = priors.PATTERNS) -> float:
+def sample_rotation(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...] = priors.PATTERNS) -> float:
     """The sample's rotation in the holder, read from both photos' spectra (degrees)."""
     span = _search_range(rig, patterns)
-    images = [np.asarray(reflection, dtype=np.float64), np.asarray(transmission, dtype=np.float64)]
-    return lattice.estimate_rotation(images, span, span)
+    return lattice.estimate_rotation(spectra, span, span)
 
 
-def propose(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig, patterns: tuple[str, ...],
+def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
             per_pattern: int = 2) -> list[Candidate]:
     """(pattern, tiles) candidates for a sample turned by the rig's ``sample_rotation_deg``, best
     lattice score first (scores compare within a pattern only)."""
     scale = rig.view_size / rig.plane_size
     ranges = {p: priors.tile_range(p) for p in patterns}
     lo, hi = _search_range(rig, patterns)
-    images = [np.asarray(reflection, dtype=np.float64), np.asarray(transmission, dtype=np.float64)]
     rotation = rig.sample_rotation_deg
-    comb = lattice.estimate(images, (lo, hi), (lo, hi), rotation_deg=rotation)
+    comb = lattice.estimate(spectra, (lo, hi), (lo, hi), rotation_deg=rotation)
     sigs = signatures(rig)
     out = []
     for pattern in patterns:
         (tu_lo, tu_hi), (tv_lo, tv_hi) = ranges[pattern]
-        found = lattice.candidates(images, comb, sigs[pattern], (tu_lo * scale, tu_hi * scale),
+        found = lattice.candidates(spectra, comb, sigs[pattern], (tu_lo * scale, tu_hi * scale),
                                    (tv_lo * scale, tv_hi * scale), top=per_pattern, rotation_deg=rotation)
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
     return out

@@ -48,7 +48,16 @@ def colour16(image: torch.Tensor) -> torch.Tensor:
     return F.adaptive_avg_pool2d(image.permute(2, 0, 1)[None], 16)[0]
 
 
+QUANTILE_SIZE = 256  # quantiles are read at most at this size: a 512-px render has 4 samples per pixel
+
+
 def luminance_quantiles(image: torch.Tensor) -> torch.Tensor:
+    """QUANTILES quantiles of the luminance of a linear image, area-pooled to at most QUANTILE_SIZE
+    pixels: the per-pixel Monte Carlo noise of a few samples widens the distribution, pooling to 16
+    samples per pixel keeps render and photo comparable whatever the working size."""
+    pool = image.shape[0] // QUANTILE_SIZE
+    if pool > 1:
+        image = F.avg_pool2d(image.permute(2, 0, 1)[None], pool)[0].permute(1, 2, 0)
     y = luminance(image).flatten()
     q = torch.linspace(0.02, 0.98, QUANTILES, dtype=y.dtype, device=y.device)
     return torch.quantile(y, q)

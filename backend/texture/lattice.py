@@ -41,6 +41,26 @@ class Signature:
     weight: np.ndarray   # sums to 1
 
 
+@dataclass
+class Spectra:
+    """What the lattice search reads from a photo pair, computed once: each image's strongest spectral
+    peaks (sub-bin positions) and its sharp peakness map."""
+
+    size: int
+    peaks: list[list["Peak"]]
+    maps: list[np.ndarray]
+
+    @classmethod
+    def of(cls, images: list[np.ndarray]) -> "Spectra":
+        images = [np.asarray(img, dtype=np.float64) for img in images]
+        return cls(images[0].shape[0], [spectral_peaks(img) for img in images],
+                   [peakness(img, blur=0.0) for img in images])
+
+    @property
+    def all_peaks(self) -> list["Peak"]:
+        return [p for peaks in self.peaks for p in peaks]
+
+
 @dataclass(frozen=True)
 class Lattice:
     a: float       # tiles across the image (cycles per image width)
@@ -233,7 +253,7 @@ def _combs(peaks: list[Peak], images: int, size: int, ranges, rotation_deg: floa
     return (spacing[0], spacing[1]), score
 
 
-def estimate(images: list[np.ndarray], a_range: tuple[float, float], b_range: tuple[float, float],
+def estimate(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
              step: float = 0.0002, tooth_cost: float = 1.0, reach: float = 2.5, rotation_deg: float = 0.0) -> Lattice:
     """The tile lattice (a, b) explaining the spectral peaks of the images, independent of the pattern.
 
@@ -243,48 +263,76 @@ def estimate(images: list[np.ndarray], a_range: tuple[float, float], b_range: tu
     sub-multiple of the true spacing (and, with enough teeth, any small spacing) would explain the
     peaks equally well; with it, the coarsest comb that explains them wins.
     """
-    size = images[0].shape[0]
-    peaks = [p for img in images for p in spectral_peaks(img)]
-    (a, b), score = _combs(peaks, len(images), size, (a_range, b_range), rotation_deg, step, tooth_cost, reach)
+    (a, b), score = _combs(spectra.all_peaks, len(spectra.peaks), spectra.size, (a_range, b_range), rotation_deg,
+                           step, tooth_cost, reach)
     return Lattice(a, b, score)
 
 
 ROTATION_SCAN_DEG = 6.0
+ROTATION_HYPOTHESES = 6
 
 
-def estimate_rotation(images: list[np.ndarray], a_range: tuple[float, float], b_range: tuple[float, float],
+def _generic_signature(order: int = 3) -> Signature:
+    """Every low harmonic |m|, n <= order (half plane), equally weighted: any weave's lattice."""
+    m, n = np.meshgrid(np.arange(-order, order + 1), np.arange(0, order + 1))
+    keep = (n > 0) | (m > 0)
+    return Signature(m[keep], n[keep], np.full(int(keep.sum()), 1.0 / int(keep.sum())))
+
+
+def estimate_rotation(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
                       tooth_cost: float = 1.0, reach: float = 2.5) -> float:
-    """The sample's rotation (degrees, the rig's ``sample_rotation_deg``) that lines the photos'
-    spectral peaks up best with an axis-aligned tile lattice: the rotation maximising the harmonic
-    sieves of :func:`estimate` on the peaks turned back by it. A coarse scan of +-6 degrees in
-    0.25-degree steps on a coarse spacing grid, then a fine one (0.02 degrees) around its best, with
-    each axis's spacing held near the coarse one."""
-    size = images[0].shape[0]
-    peaks = [p for img in images for p in spectral_peaks(img)]
-    ranges = (a_range, b_range)
+    """The sample's rotation (degrees, the rig's ``sample_rotation_deg``) under which the photos'
+    spectra show an axis-aligned tile lattice.
 
-    def scan(angles, step, near=None):
-        results = [(_combs(peaks, len(images), size, ranges, angle, step, tooth_cost, reach, near), angle)
-                   for angle in angles]
-        (spacing, _), angle = max(results, key=lambda r: r[0][1])
-        return spacing, angle
+    1. Hypotheses: the harmonic sieves of :func:`estimate` on the peaks turned back by each angle of
+       a +-6 degree scan (0.25-degree steps, a coarse spacing grid); the best local maxima (with their
+       spacings) are kept. A sieve works on one axis at a time, so a wrong angle can line the
+       projections up by chance (often with a denser lattice).
+    2. Verification: each hypothesis is refined in angle (0.02-degree steps) and spacing against the
+       whole 2D peakness maps, with every low harmonic (:func:`_generic_signature`) folded exactly as
+       the pixel grid folds it; the lattice that explains the maps best wins.
+    """
+    peaks, images, size = spectra.all_peaks, len(spectra.peaks), spectra.size
+    angles = np.arange(-ROTATION_SCAN_DEG, ROTATION_SCAN_DEG + 1e-9, 0.25)
+    scan = [_combs(peaks, images, size, (a_range, b_range), angle, 0.003, tooth_cost, reach) for angle in angles]
+    scores = np.array([score for _, score in scan])
+    local = [k for k in range(len(angles))
+             if scores[k] >= scores[max(k - 1, 0)] and scores[k] >= scores[min(k + 1, len(angles) - 1)]]
+    local = sorted(local, key=lambda k: -scores[k])[:ROTATION_HYPOTHESES]
+    unturned = int(np.argmin(np.abs(angles)))  # always a hypothesis: weak textures give weak evidence
+    local += [] if unturned in local else [unturned]
+    generic = [_generic_signature()] * images
+    best = (-np.inf, 0.0)
+    for k in local:
+        start = Lattice(*scan[k][0], 0.0)
+        refined = _refine_rotation(spectra.maps, generic, start, float(angles[k]), size)
+        best = max(best, refined)
+    return float(round(best[1], 3))
 
-    spacing, coarse = scan(np.arange(-ROTATION_SCAN_DEG, ROTATION_SCAN_DEG + 1e-9, 0.25), step=0.003)
-    _, fine = scan(coarse + np.arange(-0.3, 0.3 + 1e-9, 0.02), step=0.0005, near=spacing)
-    return float(round(fine, 3))
+
+def _refine_rotation(maps, signatures, start: Lattice, angle: float, size: int) -> tuple[float, float]:
+    """(score, angle): alternately the best angle within +-0.3 degrees for the current spacing and
+    the polished spacing for that angle, twice."""
+    lattice_now = polish(maps, signatures, start, size, False, span=0.01, step=0.0005, rotation_deg=angle)
+    for _ in range(2):
+        trial = angle + np.arange(-0.3, 0.3 + 1e-9, 0.02)
+        scores = [signature_score(maps, signatures, np.array([lattice_now.a]), np.array([lattice_now.b]), size,
+                                  float(t))[0] for t in trial]
+        angle = float(trial[int(np.argmax(scores))])
+        lattice_now = polish(maps, signatures, lattice_now, size, False, span=0.004, step=0.0002, rotation_deg=angle)
+    return lattice_now.score, angle
 
 
 RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
 
 
-def candidates(images: list[np.ndarray], comb: Lattice, signatures: list[Signature],
+def candidates(spectra: Spectra, comb: Lattice, signatures: list[Signature],
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
                top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
     """Lattices for one pattern: the comb estimate times small ratios per axis (the comb pins the
     lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
-    and scored by the pattern's signature on the sharp peakness map. Best first."""
-    size = images[0].shape[0]
-    sharp = [peakness(img, blur=0.0) for img in images]
+    and scored by the pattern's signature on the sharp peakness maps. Best first."""
+    size, sharp = spectra.size, spectra.maps
     seen, out = set(), []
     for ra in RATIOS:
         for rb in ((ra,) if square else RATIOS):
