@@ -253,7 +253,8 @@ def test_float_tiff_is_treated_as_linear(tmp_path):
 def test_linear_pair_keeps_its_relative_brightness(tmp_path):
     """One exposure for both photos: a transmission 4x darker stays 4x darker."""
     rng = np.random.default_rng(8)
-    reflection = rng.uniform(0.1, 3.0, size=(64, 64, 3)).astype(np.float32)
+    yarns = 1 + 0.5 * np.sin(2 * np.pi * 20 * np.arange(64) / 64)[None, :, None]  # a weave, or the pair is refused
+    reflection = (rng.uniform(0.1, 3.0, size=(64, 64, 3)) * yarns).astype(np.float32)
     transmission = reflection / 4
     pair = load_pair(write(tmp_path / "r.exr", reflection), write(tmp_path / "t.exr", transmission), size=64)
     assert pair.info["reflection"]["exposure"] == pair.info["transmission"]["exposure"]
@@ -551,14 +552,28 @@ def test_pair_framed_at_a_slightly_different_scale_is_a_warning(tmp_path):
     assert pair.info["yarn_frequency"]["scale"] == pytest.approx(1.1, rel=0.03)
 
 
-def test_pair_without_a_yarn_pattern_skips_the_frequency_check_with_a_warning(tmp_path):
-    n = 128
+def test_a_pair_without_any_yarn_pattern_is_refused_and_one_without_is_a_warning(tmp_path):
+    n = 256
     flat = np.ones((n, n, 3)) * np.array([0.8, 0.7, 0.6])
-    to16 = lambda linear: (encoded(linear) * 65535).round().astype(np.uint16)  # noqa: E731
-    r = write(tmp_path / "plain_R.png", to16(0.4 * flat * front_lit(n)))
-    t = write(tmp_path / "plain_T.png", to16(0.4 * flat * back_lit(n)))
-    pair = load_pair(r, t, size=n)
-    assert len(pair.warnings) == 1 and "no clear yarn pattern" in pair.warnings[0]
+    noise = np.random.default_rng(3).normal(0.0, 0.004, (n, n, 3))  # a camera's noise, no yarns
+    to16 = lambda linear: (encoded(np.clip(linear, 0, 1)) * 65535).round().astype(np.uint16)  # noqa: E731
+    r = write(tmp_path / "plain_R.png", to16(0.4 * flat * front_lit(n) + noise))
+    t = write(tmp_path / "plain_T.png", to16(0.4 * flat * back_lit(n) + noise))
+    with pytest.raises(PhotoError, match="plain_R.png / .*plain_T.png: neither photo shows a yarn pattern"):
+        load_pair(r, t, size=n)
+    textured, _ = synthetic_pair(tmp_path, n)
+    pair = load_pair(textured, t, size=n)
+    assert [w for w in pair.warnings if "no clear yarn pattern" in w] == [f"{t}: no clear yarn pattern in the "
+                                                                         "spectrum; the framing check was skipped"]
+
+
+@pytest.mark.parametrize("problem", ["black", "overexposed"])
+def test_a_black_or_overexposed_photo_is_refused_and_named(tmp_path, problem):
+    r, t = synthetic_pair(tmp_path)
+    value = 0 if problem == "black" else 65535
+    bad = write(tmp_path / "bad_R.png", np.full((256, 256, 3), value, np.uint16))
+    with pytest.raises(PhotoError, match=f"bad_R.png: the photo is {problem}"):
+        load_pair(bad, t, size=128)
 
 
 def test_pair_shared_crop_and_flat_fields(tmp_path):

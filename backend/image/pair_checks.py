@@ -2,6 +2,14 @@
 
 Computed on the working images (before any flat-field division) by :func:`.photos.load_pair`.
 
+Content
+    A photo that cannot show a fabric is refused (:func:`check_content`): black (even its brightest
+    pixels, the 99.9th percentile of linear luminance, under 0.2 % of full scale: a covered lens or a
+    lamp that did not fire), or overexposed (more than half of its pixels clipped in some channel).
+    A pair in which neither photo shows a yarn pattern (:func:`yarn_peaks` finds no peak in either
+    spectrum: a blank wall, a photo out of focus) is refused too; one photo without is a warning
+    (a transmission photo of a dense fabric may show little).
+
 Framing
     The two source images must have the same pixel size (:func:`check_source_sizes`, else
     :class:`PhotoError`). The same fabric on the same stand shows the same yarn lattice, so the peaks
@@ -30,6 +38,9 @@ from .errors import PhotoError
 from .spectrum import hann, highpass, power_spectrum
 from .tone import GAMMA, luminance
 
+BLACK_LEVEL = 0.002      # linear; the darkest usable photo seen (twill2_T) has 99.9 % of its pixels above 0.04
+CLIPPED_LEVEL = 0.995    # display value of a clipped channel
+MAX_CLIPPED = 0.5        # the photos seen clip at most 2.3 % of their pixels
 # The rules and the values measured on real and rendered pairs are in check_order,
 # check_framing_frequency and yarn_peaks.
 TOP_BIAS_THRESHOLD = 0.35
@@ -208,6 +219,19 @@ def _describe_peak(peak) -> str:
     return f"{math.hypot(peak[0], peak[1]):.0f} cycles per image at ({peak[0]:+.0f}, {peak[1]:+.0f})"
 
 
+def check_content(image: np.ndarray, path: Path) -> None:
+    """Refuses a working image that is black or overexposed (:class:`PhotoError` naming ``path``)."""
+    image = np.asarray(image, dtype=np.float32)
+    bright = float(np.percentile(luminance(np.clip(image, 0, 1) ** np.float32(GAMMA)), 99.9))
+    if bright < BLACK_LEVEL:
+        raise PhotoError(f"{path}: the photo is black (its brightest pixels reach {bright:.2%} of full scale): "
+                         "check that the lamp was on and the lens uncovered")
+    clipped = float((image >= CLIPPED_LEVEL).any(axis=-1).mean())
+    if clipped > MAX_CLIPPED:
+        raise PhotoError(f"{path}: the photo is overexposed ({clipped:.0%} of its pixels are clipped): "
+                         "lower the exposure so the fabric's highlights stay below white")
+
+
 def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path]
                             ) -> tuple[list[str], dict]:
     """Compares the yarn lattices of the two working images.
@@ -223,6 +247,9 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
     info = {"reflection": [list(p[:2]) for p in peaks_r], "transmission": [list(p[:2]) for p in peaks_t],
             "mismatch": frequency_mismatch(peaks_r, peaks_t), "scale": None}
     label = f"{names[0]} / {names[1]}"
+    if not peaks_r and not peaks_t:
+        raise PhotoError(f"{label}: neither photo shows a yarn pattern (no peak in either spectrum): photograph "
+                         "the fabric flat and in focus, close enough that its yarns show")
     if not peaks_r or not peaks_t:
         missing = [str(n) for n, p in zip(names, (peaks_r, peaks_t)) if not p]
         return [f"{', '.join(missing)}: no clear yarn pattern in the spectrum; the framing check was skipped"], info

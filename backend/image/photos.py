@@ -37,7 +37,14 @@ import numpy as np
 from .decode import Box, SourceImage, read_image
 from .errors import PhotoError
 from .flat_field import flat_corrected
-from .pair_checks import check_framing_frequency, check_order, check_source_sizes, order_cues, order_score
+from .pair_checks import (
+    check_content,
+    check_framing_frequency,
+    check_order,
+    check_source_sizes,
+    order_cues,
+    order_score,
+)
 from .tone import auto_exposure, encode, resize_linear, to_linear
 
 __all__ = ["DEFAULT_SIZE", "Photo", "PhotoError", "PhotoPair", "check_crop_size", "crop_box", "load_pair",
@@ -192,6 +199,8 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     warnings += notes
     image_r = _working_image(reflection, box, size, scale_r)
     image_t = _working_image(transmission, box, size, scale_t)
+    check_content(image_r, reflection.path)
+    check_content(image_t, transmission.path)
 
     frequency_warnings, frequency_info = check_framing_frequency(image_r, image_t, (reflection.path,
                                                                                     transmission.path))
