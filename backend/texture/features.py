@@ -17,7 +17,13 @@ descriptor of an (H, W, 3) display-space image is:
   their lattices differ slightly. On a pixel grid a frequency past Nyquist is automatically folded,
   exactly as in the image. Each region also gets a noise floor: the median magnitude at the
   off-lattice frequencies (m + 1/2, n + 1/2);
-- ``quantiles``: 24 luminance quantiles (the highlight distribution).
+- ``quantiles``: 24 luminance quantiles (the highlight distribution);
+- ``spectrum``: the standardised log power spectrum of the high-passed display luminance over the
+  central half band (:func:`log_spectrum`): the project's spectrum metric
+  (:func:`backend.image.metrics.spectrum_corr`) at the working size. It sees every peak the image
+  has, wherever it sits, smoothed over 1.5 bins: a lattice a little off (a turn the rotation
+  estimate missed, uneven yarn spacing, a framing difference) still matches where the exact-frequency
+  harmonics above lose it; and it is what the fit is judged by.
 
 :func:`descriptor_terms` compares two descriptors: L1 of the 16 x 16 colours, L1 of the log
 harmonic amplitudes above a noise floor, L1 of the quantiles.
@@ -31,6 +37,7 @@ import torch
 import torch.nn.functional as F
 
 from ..image.tone import LUMA
+from ..model.imaging import gaussian_blur
 from .lattice import turned_frequencies
 
 QUANTILES = 24
@@ -130,6 +137,7 @@ class Descriptor:
     coefficients: torch.Tensor  # (regions^2, harmonics, 3) complex, relative to the region's mean
     floor: torch.Tensor         # (regions^2, 1, 3) noise floor of their magnitudes
     quantiles: torch.Tensor     # (QUANTILES,) linear luminance
+    spectrum: torch.Tensor      # standardised log power spectrum, central half band
     probe: LatticeProbe
 
     @property
@@ -138,12 +146,36 @@ class Descriptor:
         return self.coefficients.abs()
 
 
+METRIC_SIZE = 512          # the spectrum metric's image size: its high-pass scales with the working size
+METRIC_HIGHPASS_PX = 16.0
+METRIC_POWER_BLUR = 1.5    # bins
+
+
+def log_spectrum(image: torch.Tensor, keep: float = 0.5) -> torch.Tensor:
+    """The standardised log power spectrum of an (N, N, 3) display-space image, as the spectrum metric
+    reads it: luminance minus its Gaussian blur (16 px at 512 px), Hann window, |FFT|^2 blurred by 1.5
+    bins, the central ``keep`` of the band without the 5 x 5 bins around DC, log, zero mean and unit
+    spread. Differentiable."""
+    n = image.shape[0]
+    y = luminance(image)[..., None]
+    y = (y - gaussian_blur(y, METRIC_HIGHPASS_PX * n / METRIC_SIZE))[..., 0]
+    window = torch.hann_window(n, periodic=False, dtype=y.dtype, device=y.device)
+    power = torch.fft.fftshift(torch.fft.fft2(y * window[:, None] * window[None, :])).abs().square()
+    power = gaussian_blur(power[..., None], METRIC_POWER_BLUR)[..., 0]
+    half = int(n * keep / 2)
+    band = power[n // 2 - half: n // 2 + half, n // 2 - half: n // 2 + half]
+    mask = torch.ones_like(band, dtype=torch.bool)
+    mask[half - 2: half + 3, half - 2: half + 3] = False
+    values = torch.log(band[mask] + 1e-12)
+    return (values - values.mean()) / (values.std() + 1e-8)
+
+
 def describe(image: torch.Tensor, probe: LatticeProbe, gamma: float = 2.2) -> Descriptor:
     """Descriptor of a display-space image (values in [0, 1], gamma-encoded)."""
     linear = image.clamp_min(0).pow(gamma)
     coefficients, floor = probe(linear)
     return Descriptor(colour16(linear).clamp_min(1e-8).pow(1 / gamma), coefficients, floor,
-                      luminance_quantiles(linear), probe)
+                      luminance_quantiles(linear), log_spectrum(image), probe)
 
 
 ALIGN_STEPS = 32
@@ -178,6 +210,7 @@ class LossWeights:
     harmonics: float = 1.0
     aligned: float = 0.5
     quantiles: float = 2.0
+    spectrum: float = 1.0
 
 
 def descriptor_terms(render: Descriptor, photo: Descriptor, significance: float = 4.0) -> dict[str, torch.Tensor]:
@@ -190,4 +223,5 @@ def descriptor_terms(render: Descriptor, photo: Descriptor, significance: float 
     return {"colour": (render.colour - photo.colour).abs().mean(),
             "harmonics": (log_diff * keep).sum() / keep.sum().clamp_min(1.0),
             "aligned": aligned_difference(render, photo, keep, floor),
-            "quantiles": (render.quantiles - photo.quantiles).abs().mean()}
+            "quantiles": (render.quantiles - photo.quantiles).abs().mean(),
+            "spectrum": 1.0 - (render.spectrum * photo.spectrum).mean()}
