@@ -18,13 +18,14 @@ from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.pipeline import fit
+from backend.fit.search import samples_per_pixel, working_size
 from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
 from backend.texture import lattice
-from backend.texture.features import LatticeProbe, describe, descriptor_terms
+from backend.texture.features import LatticeProbe, describe, descriptor_terms, log_spectrum
 
 TWILL = FabricParams.from_interchange(
     "twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -216,3 +217,36 @@ def test_metrics_match_the_team_checker(shared_tools, twill_pair):
     assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
     assert metrics.colour_l1(photo, render) == pytest.approx(imagemetrics.downsample_l1(photo, render), rel=1e-6)
     assert metrics.spectrum_corr(photo, render) == pytest.approx(imagemetrics.spectrum_corr(photo, render), rel=1e-6)
+
+
+def test_the_sample_rotation_is_read_from_the_spectra(twill_pair):
+    # A turned sample moves every lattice peak; the estimate must find the turn (and none when there is none).
+    turned = render_pair(TWILL, CaptureRig(sample_rotation_deg=-2.5), size=512, spp=8, seed=3)
+    estimate = search.sample_rotation(lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()]),
+                                      DEFAULT_RIG)
+    assert estimate == pytest.approx(-2.5, abs=0.25)
+    assert search.sample_rotation(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG) == pytest.approx(0.0, abs=0.25)
+
+
+def test_dense_weaves_get_the_photos_full_resolution():
+    # twill1 has 4 warps and 4 wefts per tile; 10 plane units hold 7.98 of the visible square
+    sparse = [search.Candidate("twill1", (20.0, 25.0), 0.0)]     # 64 x 80 yarns: 4 and 3.2 px each at 256
+    dense = [search.Candidate("twill1", (40.0, 60.0), 0.0)]      # 128 x 192 yarns: 2 and 1.3 px at 256
+    assert working_size(sparse, 512, DEFAULT_RIG) == 256
+    assert working_size(dense, 512, DEFAULT_RIG) == 512
+    assert working_size(dense, 256, DEFAULT_RIG) == 256          # never above the photos' own size
+    assert samples_per_pixel(256) == 16 and samples_per_pixel(512) == 4
+
+
+def test_the_loss_spectrum_is_the_metric(twill_pair):
+    photo, render = twill_pair[0], np.clip(twill_pair[0] * 0.8 + 0.1 * twill_pair[1], 0, 1).astype(np.float32)
+    both = (log_spectrum(torch.tensor(photo)) * log_spectrum(torch.tensor(render))).mean()
+    assert float(both) == pytest.approx(metrics.spectrum_corr(photo, render), abs=2e-3)
+
+
+@pytest.mark.parametrize("size,needle", [("0", "--size: must be at least 32 pixels"),
+                                         ("big", "--size: expected a whole number of pixels"),
+                                         ("1024", "--size 1024: larger than the photos' working size (512 px")])
+def test_any_working_size_gives_a_clear_error_or_a_fit(tmp_path, size, needle):
+    result = run_fit("--example", "--out", str(tmp_path / "o"), "--size", size)
+    assert result.returncode == 2 and needle in result.stderr and "Traceback" not in result.stderr

@@ -150,3 +150,12 @@ def test_load_params_reads_a_full_precision_interchange_string_longer_than_a_fil
     text = p.to_interchange()
     assert len(text) > 255
     assert load_params(text) == p
+
+
+def test_parameters_at_a_bound_are_named_by_component():
+    params = FabricParams(roughness=(1.0, 0.3), thickness=(0.01, 2.0),
+                          specular_albedo=((0.0, 0.5, 0.2), (0.3, 0.3, 0.3)))
+    assert params.at_bounds(["roughness", "thickness", "specular_albedo", "gap_scale"]) == [
+        "roughness (warp) = 1 (upper bound)", "thickness (warp) = 0.01 (lower bound)",
+        "specular_albedo (warp, r) = 0 (lower bound)"]
+    assert FabricParams().at_bounds([s.name for s in PARAMETERS if s.optimised]) == []

@@ -57,10 +57,10 @@ def novel_light_images(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size
 
 
 def novel_light_error(fitted: FabricParams, truth: FabricParams, rig: CaptureRig = DEFAULT_RIG,
-                      gains: tuple[torch.Tensor, torch.Tensor] | None = None) -> dict[str, float]:
-    """Mean colour L1 and spectrum correlation over the novel lights (and each light's colour L1)."""
-    fit_images = novel_light_images(fitted, rig)
-    true_images = novel_light_images(truth, rig, gains=gains)
+                      gains: tuple[torch.Tensor, torch.Tensor] | None = None, size: int = 256) -> dict[str, float]:
+    """Mean colour L1 and spectrum correlation over the novel lights (and each light's figures)."""
+    fit_images = novel_light_images(fitted, rig, size)
+    true_images = novel_light_images(truth, rig, size, gains=gains)
     out = {}
     for name in NOVEL_LIGHTS:
         a, b = true_images[name].numpy(), fit_images[name].numpy()
