@@ -248,7 +248,7 @@ def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
     python = python_without_torch(tmp_path / "no_torch")
     output = run_bpy(tmp_path, extension_zip, f"""
         message = refused(bpy.ops.fabric.check_backend, "The backend cannot run yet", python={python!r})
-        assert "PyTorch (torch) is not installed for {python}" in message, message
+        assert "PyTorch (torch), which renders and fits the fabric model, is not installed for {python}" in message
         assert ext.core.check_job.backend_check.last.problems
         print("CHECK OK")
     """)

@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from addon_support import python_without_torch  # noqa: E402
 
+import backend.core.dependencies  # noqa: E402
 import backend.core.formats  # noqa: E402
 import backend.core.pairs  # noqa: E402
 import backend.core.params  # noqa: E402
@@ -329,12 +330,24 @@ def no_torch_python(tmp_path_factory) -> str:
     return python_without_torch(tmp_path_factory.mktemp("venv") / "no_torch")
 
 
-def test_check_backend_says_in_words_that_torch_is_missing(no_torch_python):
+def test_check_backend_names_every_missing_dependency_in_words(no_torch_python):
     check = setup.check_backend(bridge.Backend(no_torch_python))
-    assert not check.ok
-    assert any(p.startswith("PyTorch (torch) is not installed for") and "pip install torch" in p
-               for p in check.problems), check.problems
+    assert not check.ok and check.torch_version == "" and check.device == ""
+    # One sentence per runtime dependency: what it is, what for, the pip line that installs it.
+    for dependency in backend.core.dependencies.RUNTIME:
+        assert any(p.startswith(f"{dependency.label} ({dependency.module}), which {dependency.role}, is not "
+                                f"installed for {no_torch_python}") and
+                   p.endswith(f'-m pip install "{dependency.requirement}"') for p in check.problems), dependency
     assert "The backend cannot run yet:" in check.summary()
+
+
+def test_check_of_the_bundled_backend_says_to_reinstall_the_zip(tmp_path):
+    packages = tmp_path / "site-packages"  # the extension's packages, with PyTorch missing
+    packages.mkdir()
+    check = setup.check_backend(setup.bundled_backend(sys.executable, packages))
+    torch_problem = next(p for p in check.problems if p.startswith("PyTorch (torch)"))
+    assert f"is missing from the extension's packages in {packages}: reinstall the extension zip" in torch_problem
+    assert check.label == "Blender's Python with the extension's packages"
 
 
 def test_check_backend_missing_interpreter():
@@ -346,6 +359,10 @@ def test_check_backend_accepts_the_project_environment():
     check = setup.check_backend(bridge.Backend(sys.executable, BACKEND_SCRIPT))
     assert check.ok, check.summary()
     assert any(note.startswith("Backend ") and "PyTorch" in note for note in check.notes), check.notes
+    import torch  # the test environment's own, which this check found
+    assert check.torch_version == torch.__version__
+    assert check.device == (f"CUDA: {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else "CPU")
+    assert Path(check.torch_file).resolve() == Path(torch.__file__).resolve()
 
 
 def test_the_check_job_runs_one_check_at_a_time_and_keeps_the_last():
