@@ -157,7 +157,7 @@ class FABRIC_OT_install_gpu_torch(bpy.types.Operator):
         prefs = preferences(context)
         packages = backend_setup.bundled_backend(sys.executable, extensions_site_packages()) \
             if paths.bundled_wheels() else backend_bridge.Backend(sys.executable)
-        job = gpu_env.TorchInstall(packages, gpu_folder(create=True), gpu_env.torch_requirement(),
+        job = gpu_env.TorchInstall(packages, gpu_folder(), gpu_env.torch_requirement(),
                                    (prefs.cuda_index if prefs else "") or None)
         try:
             job.start(online=online_access())
