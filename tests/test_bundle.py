@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from addon_support import require_bpy
+from addon_support import require_bpy, validate_extension
 from conftest import ROOT
 
 from backend.core import dependencies
@@ -39,14 +39,6 @@ from backend.model.render import render_pair
 EXTENSION = "bl_ext.user_default.woven_fabric"
 PLATFORM = "linux-x64"
 TIMEOUT_S = 900  # a liveness bound for a bpy script that fits or installs PyTorch, not a timing
-
-
-@pytest.fixture(scope="module")
-def build_module():
-    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 # -- what is declared, and what build.py makes of it ---------------------------------------------------
@@ -192,12 +184,7 @@ def installed(build_module, tmp_path_factory) -> Path:
     for dependency in (*dependencies.RUNTIME, dependencies.INSTALLER):
         project = dependency.project.replace("-", "_")
         assert any(w.lower().startswith(project + "-") for w in wheels), dependency
-    require_bpy()
-    validator = next(Path(importlib.util.find_spec("bpy").origin).parent.glob(
-        "*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
-    checked = subprocess.run([sys.executable, str(validator), "validate", str(zip_path)], capture_output=True,
-                             text=True, timeout=120)
-    assert checked.returncode == 0 and "Success" in checked.stdout, checked.stdout + checked.stderr
+    validate_extension(zip_path)
     resources = tmp_path_factory.mktemp("blender_user")
     _bpy(f"""
         import bpy
@@ -249,6 +236,24 @@ def test_the_installed_zip_fits_with_blenders_python_and_its_own_packages_only(i
         print("CHECK", json.dumps({{"label": check.label, "torch": check.torch_version, "file": check.torch_file,
                                     "device": check.device, "items": [[i.state, i.text] for i in items]}}))
 
+        drawn = []  # the preferences drawn into a layout that records labels and checks props and operators
+        class Layout:
+            def __getattr__(self, name):
+                def call(*args, **kw):
+                    if name == "prop":
+                        assert args[1] in args[0].bl_rna.properties, args[1]
+                    if name == "operator":
+                        assert hasattr(getattr(bpy.ops, args[0].split(".")[0]), args[0].split(".")[1]), args[0]
+                    drawn.append(kw.get("text") if name == "label" else args[-1] if args else name)
+                    return Layout()
+                return call
+        class PreferencesView:
+            layout = Layout()
+            def __getattr__(self, name):
+                return getattr(prefs, name)
+        type(prefs).draw(PreferencesView(), bpy.context)
+        print("DRAWN", json.dumps([d for d in drawn if isinstance(d, str)]))
+
         settings = bpy.context.scene.woven_fabric
         settings.reflection_path = {str(photos / "cotton_R.png")!r}
         settings.transmission_path = {str(photos / "cotton_T.png")!r}
@@ -275,6 +280,12 @@ def test_the_installed_zip_fits_with_blenders_python_and_its_own_packages_only(i
     assert check["device"] == "CPU"
     assert [state for state, _ in check["items"]] == ["ok", "ok", "ok", "ok"], check["items"]
     assert check["items"][1][1] == "PyTorch 2.13.0+cpu" and check["items"][2][1] == "Device: CPU"
+
+    drawn = _printed(output, "DRAWN")  # the checklist, and the GPU route (offline: it says what to allow)
+    assert "First-Run Checklist" in drawn and "PyTorch 2.13.0+cpu" in drawn and "Device: CPU" in drawn
+    assert "fabric.install_gpu_torch" in drawn and "cuda_index" in drawn
+    assert "Needs online access: turn on Allow Online Access in Edit > Preferences > System > Network." in \
+        " ".join(drawn)
 
     fitted = _printed(output, "FITTED")
     written = json.loads((Path(fitted["folder"]) / "params.json").read_text())

@@ -55,11 +55,14 @@ def show_text_file(context, path: Path):
         text = bpy.data.texts.load(str(path))
     else:
         text.from_string(content)
-    if context.window is None:  # background mode: the text is there, nothing to show it in
+    if bpy.app.background or context.window is None:  # the text is there, nothing to show it in
         return text
     area = next((a for a in context.window.screen.areas if a.type == "TEXT_EDITOR"), None)
     if area is None:
-        bpy.ops.wm.window_new()
+        try:
+            bpy.ops.wm.window_new()
+        except RuntimeError:  # no window to open one from: the text is in the file's texts
+            return text
         window = context.window_manager.windows[-1]
         area = max(window.screen.areas, key=lambda a: a.width * a.height)
         area.type = "TEXT_EDITOR"
