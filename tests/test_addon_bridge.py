@@ -342,6 +342,18 @@ def test_check_backend_names_every_missing_dependency_in_words(no_torch_python):
     assert "The backend cannot run yet:" in check.summary()
 
 
+def test_check_backend_imports_the_fit_command_itself(tmp_path):
+    """Dependencies that import but do not work (here: empty stand-ins) stop the fit command's import."""
+    packages = tmp_path / "site-packages"
+    for dependency in backend.core.dependencies.RUNTIME:
+        (packages / dependency.module).mkdir(parents=True)
+        (packages / dependency.module / "__init__.py").write_text(
+            "__version__ = '0.0'\nclass cuda:\n    is_available = staticmethod(lambda: False)\n")
+    check = setup.check_backend(setup.bundled_backend(sys.executable, packages))
+    assert [p for p in check.problems if p.startswith("The backend's fit command cannot be imported: ")] == \
+        check.problems and len(check.problems) == 1, check.problems
+
+
 def test_check_of_the_bundled_backend_says_to_reinstall_the_zip(tmp_path):
     packages = tmp_path / "site-packages"  # the extension's packages, with PyTorch missing
     packages.mkdir()

@@ -8,12 +8,12 @@ installed, and the GPU route's CUDA PyTorch first when chosen) > auto-detection
 environment, then the running Python, i.e. Blender's own, whichever first imports torch).
 
 :func:`check_backend` runs a probe in the interpreter, with the backend's own flags and path, that
-imports every runtime dependency (backend/core/dependencies.py) and answers in words: the
-interpreter is missing, the Python version is wrong, a dependency is missing (what it is for, and
-how to get it: reinstall the platform zip for the bundled backend, the pip command for an external
-Python), the backend package does not import, CUDA is selected but absent, the backend has no
-``fit`` command. It also says which interpreter runs, its PyTorch version and where that comes
-from, and the device.
+imports every runtime dependency (backend/core/dependencies.py) and the fit command's module, and
+answers in words: the interpreter is missing, the Python version is wrong, a dependency is missing
+(what it is for, and how to get it: reinstall the platform zip for the bundled backend, the pip
+command for an external Python), the backend or its fit command does not import, CUDA is selected
+but absent (a script standing in for the backend is asked for ``fit --help`` instead). It also
+says which interpreter runs, its PyTorch version and where that comes from, and the device.
 """
 from __future__ import annotations
 
@@ -120,6 +120,9 @@ for name in json.loads(sys.argv[1]):
 try:
     import backend
     out["backend"] = getattr(backend, "__version__", "?")
+    if not out["errors"]:  # the fit command's module imports everything a fit runs (an old backend has none)
+        import backend.cli.fit
+        out["fit"] = True
 except Exception as exc:
     out["errors"]["backend"] = f"{type(exc).__name__}: {exc}"
 if "torch" in out["modules"]:
@@ -202,6 +205,8 @@ def check_backend(backend: Backend, device: str | None = None, timeout: float = 
     check.problems += [_missing(d, found, backend) for d in dependencies if d.module not in found["modules"]]
     check.torch_version = found["modules"].get("torch", "")
     check.torch_file = found["files"].get("torch", "")
+    if "backend" in found and not check.problems and not found.get("fit"):
+        check.problems.append(f"The backend's fit command cannot be imported: {found['errors'].get('backend')}.")
     if "backend" in found:
         check.notes.append(f"Backend {found['backend']} from {paths.backend_root()}, Python "
                            f"{'.'.join(map(str, version))}, PyTorch {check.torch_version or '-'}"
@@ -215,13 +220,13 @@ def check_backend(backend: Backend, device: str | None = None, timeout: float = 
         check.device = "CPU"
         if device == "cuda":
             check.problems.append("The CUDA device is selected but PyTorch sees no CUDA GPU here; choose CPU.")
-    if check.ok or backend.script:
+    if backend.script:
         _check_fit_command(backend, check, timeout)
     return check
 
 
 def _check_fit_command(backend: Backend, check: BackendCheck, timeout: float):
-    """The backend must know the fit command (an older backend has only render)."""
+    """A script standing in for the backend must know the fit command."""
     try:
         done = subprocess.run(backend.command(["fit", "--help"]), capture_output=True, text=True,
                               timeout=timeout, env=backend.environment())

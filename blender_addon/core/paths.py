@@ -14,6 +14,7 @@ declarations.py says which facts the add-on reads that way.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import sys
@@ -41,13 +42,14 @@ def shader_path() -> Path:
     raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_ADDON}; reinstall the add-on")
 
 
-def bundled_wheels() -> list[str]:
-    """The wheels the extension's manifest lists (a platform zip); [] for the plain zip or a checkout."""
+@functools.cache  # the manifest of an installed extension does not change while it is loaded
+def bundled_wheels() -> tuple[str, ...]:
+    """The wheels the extension's manifest lists (a platform zip); () for the plain zip or a checkout."""
     try:
         with open(_ADDON / "blender_manifest.toml", "rb") as fh:
-            return list(tomllib.load(fh).get("wheels", []))
+            return tuple(tomllib.load(fh).get("wheels", ()))
     except (OSError, tomllib.TOMLDecodeError):
-        return []
+        return ()
 
 
 def backend_module(name: str):

@@ -6,6 +6,7 @@ the pip ``bpy`` module does not put that folder on ``sys.path``, so :func:`ensur
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import sys
@@ -21,6 +22,7 @@ def ensure_oslquery() -> None:
         sys.path.append(path)
 
 
+@functools.cache  # asked on every redraw of the preferences; the answer is the build's
 def osl_problem() -> str:
     """Why Cycles cannot run the Woven Fabric OSL shader in this Blender, or "" when it can."""
     try:
