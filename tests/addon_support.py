@@ -23,6 +23,19 @@ def require_bpy() -> None:
         pytest.fail("the bpy module is not installed; install the project with pip install -e '.[test,blender]'")
 
 
+def validate_extension(zip_path: Path) -> str:
+    """Runs Blender's own extension validator (``blender_ext.py validate``, in the bpy module) on a zip;
+    fails the test with its output unless it accepts the zip; returns that output."""
+    require_bpy()
+    validator = next(Path(importlib.util.find_spec("bpy").origin).parent.glob(
+        "*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
+    checked = subprocess.run([sys.executable, str(validator), "validate", str(zip_path)], capture_output=True,
+                             text=True, timeout=120)
+    output = checked.stdout + checked.stderr
+    assert checked.returncode == 0 and "Success" in checked.stdout, output
+    return output
+
+
 def python_without_torch(folder: Path) -> str:
     """A fresh Python 3.11 without PyTorch (a virtual environment without pip or site-packages)."""
     done = subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(folder)], capture_output=True,

@@ -3,6 +3,7 @@ pairs and the team's checkers; CI has it. Tests that need it fail with a clear m
 missing (the product never reads it)."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -44,3 +45,12 @@ def shared_tools() -> Path:
 @pytest.fixture(scope="session")
 def real_dir() -> Path:
     return _require_shared("data", "real")
+
+
+@pytest.fixture(scope="session")
+def build_module():
+    """build.py, loaded as a module (it is a script beside the packages, not one of them)."""
+    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

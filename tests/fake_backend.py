@@ -13,13 +13,15 @@ error          an ``internal`` error event, exit 1
 crash          a traceback on stderr, exit 1, no error event
 garbage        a non-protocol line among the progress lines, then a normal result
 garbage_only   non-protocol lines only, exit 0
-slow           progress every 0.1 s for a minute (for cancel tests); SIGTERM -> cancelled, 130
-stubborn       like slow but ignores SIGTERM (the caller must kill it)
+slow           progress every 0.1 s for a minute (for cancel tests); a stop request -> cancelled, 130
+stubborn       like slow but ignores stop requests (the caller must kill it)
 no_result      progress and output files but no result line, exit 0
 =============  ===============================================================================
 
-In every mode a photo that is missing, or a ``.png``/``.jpg`` whose bytes are not an image, is bad
-input: an ``input`` error event naming the file, exit 2 (as the real backend does).
+A stop request is SIGTERM/SIGINT or, with ``--stop-on-stdin``, a ``stop`` line on stdin or its end
+(as the real fit command does). In every mode a photo that is missing, or a ``.png``/``.jpg`` whose
+bytes are not an image, is bad input: an ``input`` error event naming the file, exit 2 (as the real
+backend does).
 ``FAKE_BACKEND_DELAY`` sets the sleep between progress lines (default 0.01 s).
 """
 from __future__ import annotations
@@ -31,6 +33,7 @@ import os
 import shutil
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -43,9 +46,19 @@ def emit(event: str, **fields):
     sys.stdout.flush()
 
 
+STOP = threading.Event()
+
+
 def on_terminate(signum, frame):
     emit("error", kind="cancelled", message="cancelled by signal", file=None)
     sys.exit(EXIT_CANCELLED)
+
+
+def watch_stdin():
+    for line in sys.stdin:
+        if line.strip() == "stop":
+            break
+    STOP.set()
 
 
 def bad_photo(path: Path) -> str:
@@ -79,6 +92,8 @@ def fit(args) -> int:
         signal.signal(signal.SIGINT, on_terminate)
     else:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if args.stop_on_stdin and mode != "stubborn":
+        threading.Thread(target=watch_stdin, daemon=True).start()
     print(f"fake backend: mode {mode}, pid {os.getpid()}", file=sys.stderr, flush=True)
     emit("start", command="fit", version="0.1.0-fake", device=args.device or "cpu")
 
@@ -93,7 +108,9 @@ def fit(args) -> int:
         for i in range(600):
             emit("progress", stage="optimise", iteration=i, total=600, loss=1.0 / (i + 1), eta_s=60 - i * 0.1,
                  elapsed_s=i * 0.1)
-            time.sleep(0.1)
+            if STOP.wait(0.1):
+                emit("error", kind="cancelled", message="cancelled by a stop request", file=None)
+                return EXIT_CANCELLED
         return EXIT_INTERNAL
     if mode == "garbage_only":
         print("this is not JSON")
@@ -151,6 +168,7 @@ def main(argv=None) -> int:
     p.add_argument("--rig")
     p.add_argument("--output-spp", type=int)
     p.add_argument("--json-progress", action="store_true")
+    p.add_argument("--stop-on-stdin", action="store_true")
     args = parser.parse_args(argv)
     return fit(args)
 

@@ -10,7 +10,6 @@ that runs the extension's bundled backend.
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import struct
@@ -28,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from addon_support import python_without_torch, require_bpy  # noqa: E402
+from addon_support import python_without_torch, require_bpy, validate_extension  # noqa: E402
 
 from backend.core.params import FabricParams  # noqa: E402
 from backend.core.priors import PATTERNS  # noqa: E402
@@ -57,13 +56,10 @@ def write_png(path: Path, rgb: tuple[int, int, int], size: int = 16):
 
 
 @pytest.fixture(scope="module")
-def extension_zip(tmp_path_factory) -> Path:
+def extension_zip(tmp_path_factory, build_module) -> Path:
     if os.environ.get("WOVEN_FABRIC_TEST_ZIP"):
         return Path(os.environ["WOVEN_FABRIC_TEST_ZIP"])
-    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
-    build = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(build)
-    return build.build(tmp_path_factory.mktemp("dist"))
+    return build_module.build(tmp_path_factory.mktemp("dist"))
 
 
 @pytest.fixture
@@ -139,12 +135,7 @@ def test_build_makes_an_extension_zip_with_backend_and_shaders(tmp_path):
                      "core/paths.py", "backend/__init__.py", "backend/core/protocol.py", "backend/core/params.py"):
         assert required in names, required
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
-    require_bpy()  # Blender's own manifest check comes with the bpy module
-    validator = next(Path(importlib.util.find_spec("bpy").origin).parent.glob(
-        "*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
-    checked = subprocess.run([sys.executable, str(validator), "validate", str(path)], capture_output=True,
-                             text=True, timeout=60)
-    assert checked.returncode == 0 and "Success" in checked.stdout, checked.stdout + checked.stderr
+    validate_extension(path)  # Blender's own manifest check comes with the bpy module
     # Two builds of the same tree are byte-identical.
     again = subprocess.run([sys.executable, str(ROOT / "build.py"), "--out", str(tmp_path / "again")],
                            capture_output=True, text=True, timeout=60)
@@ -248,7 +239,7 @@ def test_check_backend_reports_missing_torch_in_words(tmp_path, extension_zip):
     python = python_without_torch(tmp_path / "no_torch")
     output = run_bpy(tmp_path, extension_zip, f"""
         message = refused(bpy.ops.fabric.check_backend, "The backend cannot run yet", python={python!r})
-        assert "PyTorch (torch) is not installed for {python}" in message, message
+        assert "PyTorch (torch), which renders and fits the fabric model, is not installed for {python}" in message
         assert ext.core.check_job.backend_check.last.problems
         print("CHECK OK")
     """)
@@ -294,6 +285,24 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
         os.environ["FAKE_BACKEND_MODE"] = "error"
         refused(bpy.ops.fabric.fit, "Internal backend error: the optimiser diverged")
         assert "linen.003" not in bpy.data.materials
+        # The Fit panel shows the error wrapped in a box with a button that opens the fit's log as a text.
+        drawn = []
+        class Recorder:
+            def __getattr__(self, name):
+                def call(*args, **kw):
+                    drawn.append((name, kw.get("text", args[0] if args else None)))
+                    return Recorder()
+                return call
+        failed = ext.ui.operators.ActiveFit.process
+        from types import SimpleNamespace
+        ext.ui.panels.VIEW3D_PT_woven_fabric_fit.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        assert ("operator", "fabric.open_fit_log") in drawn and ("box", None) in drawn, drawn
+        assert [d for d in drawn if d[0] == "label" and "Internal backend error" in (d[1] or "")], drawn
+        assert bpy.ops.fabric.open_fit_log(filepath=str(failed.log_path)) == {{"FINISHED"}}
+        assert bpy.ops.fabric.open_fit_log(filepath=str(failed.log_path)) == {{"FINISHED"}}  # the same text again
+        logs = [t for t in bpy.data.texts if t.name.startswith("backend.log")]
+        assert len(logs) == 1 and "error: the optimiser diverged" in logs[0].as_string(), logs
+        refused(bpy.ops.fabric.open_fit_log, "the log cannot be read", filepath=str(results / "no.log"))
 
         # An earlier fit's folder becomes a material again (named after the photo, not the folder).
         assert bpy.ops.fabric.load_fit(filepath=str(results / "linen_001" / "params.json")) == {{"FINISHED"}}

@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from addon_support import python_without_torch  # noqa: E402
 
+import backend.core.dependencies  # noqa: E402
 import backend.core.formats  # noqa: E402
 import backend.core.pairs  # noqa: E402
 import backend.core.params  # noqa: E402
@@ -35,7 +36,7 @@ import backend.core.rig  # noqa: E402
 import backend.core.weave  # noqa: E402
 from blender_addon.core import backend_bridge as bridge  # noqa: E402
 from blender_addon.core import backend_setup as setup  # noqa: E402
-from blender_addon.core import batch, captures, declarations, paths, rig_settings  # noqa: E402
+from blender_addon.core import batch, captures, checklist, declarations, gpu_env, paths, rig_settings  # noqa: E402
 from blender_addon.core.check_job import BackendCheckJob  # noqa: E402
 
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
@@ -301,7 +302,8 @@ def test_cancel_ends_the_process_cleanly(tmp_path, photos, monkeypatch):
     while not fit.done:
         fit.poll()
         time.sleep(0.01)
-    # 130: the backend handled SIGTERM itself (no SIGKILL after the grace period was needed).
+    # 130: the backend stopped on the stop line on its stdin (no kill after the grace period was needed):
+    # the cancel every platform delivers, Windows included, where SIGTERM cannot be caught.
     assert fit.state == bridge.CANCELLED and fit.returncode == 130
     assert "cancelled" in fit.status.lower()
     _assert_reaped(fit.pid)
@@ -314,7 +316,7 @@ def test_a_run_past_its_time_limit_is_stopped_and_fails(tmp_path, photos, monkey
     _assert_reaped(fit.pid)
 
 
-def test_cancel_kills_a_backend_that_ignores_sigterm(tmp_path, photos, monkeypatch):
+def test_cancel_kills_a_backend_that_ignores_the_stop_request(tmp_path, photos, monkeypatch):
     fit = run_fit(tmp_path, photos, "stubborn", monkeypatch)
     _wait_for_progress(fit)
     assert fit.cancel(grace=0.5) == bridge.CANCELLED
@@ -329,12 +331,36 @@ def no_torch_python(tmp_path_factory) -> str:
     return python_without_torch(tmp_path_factory.mktemp("venv") / "no_torch")
 
 
-def test_check_backend_says_in_words_that_torch_is_missing(no_torch_python):
+def test_check_backend_names_every_missing_dependency_in_words(no_torch_python):
     check = setup.check_backend(bridge.Backend(no_torch_python))
-    assert not check.ok
-    assert any(p.startswith("PyTorch (torch) is not installed for") and "pip install torch" in p
-               for p in check.problems), check.problems
+    assert not check.ok and check.torch_version == "" and check.device == ""
+    # One sentence per runtime dependency: what it is, what for, the pip line that installs it.
+    for dependency in backend.core.dependencies.RUNTIME:
+        assert any(p.startswith(f"{dependency.label} ({dependency.module}), which {dependency.role}, is not "
+                                f"installed for {no_torch_python}") and
+                   p.endswith(f'-m pip install "{dependency.requirement}"') for p in check.problems), dependency
     assert "The backend cannot run yet:" in check.summary()
+
+
+def test_check_backend_imports_the_fit_command_itself(tmp_path):
+    """Dependencies that import but do not work (here: empty stand-ins) stop the fit command's import."""
+    packages = tmp_path / "site-packages"
+    for dependency in backend.core.dependencies.RUNTIME:
+        (packages / dependency.module).mkdir(parents=True)
+        (packages / dependency.module / "__init__.py").write_text(
+            "__version__ = '0.0'\nclass cuda:\n    is_available = staticmethod(lambda: False)\n")
+    check = setup.check_backend(setup.bundled_backend(sys.executable, packages))
+    assert [p for p in check.problems if p.startswith("The backend's fit command cannot be imported: ")] == \
+        check.problems and len(check.problems) == 1, check.problems
+
+
+def test_check_of_the_bundled_backend_says_to_reinstall_the_zip(tmp_path):
+    packages = tmp_path / "site-packages"  # the extension's packages, with PyTorch missing
+    packages.mkdir()
+    check = setup.check_backend(setup.bundled_backend(sys.executable, packages))
+    torch_problem = next(p for p in check.problems if p.startswith("PyTorch (torch)"))
+    assert f"is missing from the extension's packages in {packages}: reinstall the extension zip" in torch_problem
+    assert check.label == "Blender's Python with the extension's packages"
 
 
 def test_check_backend_missing_interpreter():
@@ -346,6 +372,10 @@ def test_check_backend_accepts_the_project_environment():
     check = setup.check_backend(bridge.Backend(sys.executable, BACKEND_SCRIPT))
     assert check.ok, check.summary()
     assert any(note.startswith("Backend ") and "PyTorch" in note for note in check.notes), check.notes
+    import torch  # the test environment's own, which this check found
+    assert check.torch_version == torch.__version__
+    assert check.device == (f"CUDA: {torch.cuda.get_device_name(0)}" if torch.cuda.is_available() else "CPU")
+    assert Path(check.torch_file).resolve() == Path(torch.__file__).resolve()
 
 
 def test_the_check_job_runs_one_check_at_a_time_and_keeps_the_last():
@@ -458,3 +488,153 @@ def test_the_batch_refuses_bad_arguments_before_any_fit(tmp_path, capsys):
     assert batch.main([str(tmp_path), "--pattern", "basket"], library=library) == 1
     assert batch.main(["--help"], library=library) == 0
     assert library.added == [] and library.written == []
+
+
+# -- the bundled backend: isolation and precedence ----------------------------------------------------
+
+def test_a_backend_with_packages_runs_isolated_with_exactly_those_on_its_path(tmp_path):
+    packages = tmp_path / "site-packages"
+    (packages / "only_here").mkdir(parents=True)
+    (packages / "only_here" / "__init__.py").write_text("")
+    isolated = setup.bundled_backend(sys.executable, packages)
+    assert isolated.command(["fit"])[:5] == [sys.executable, "-S", "-P", "-m", "backend"]
+    env = isolated.environment()
+    assert env["PYTHONPATH"].split(os.pathsep) == [str(ROOT), str(packages)] and env["PYTHONNOUSERSITE"] == "1"
+    probe = ("import importlib.util as u, json, sys\n"
+             "print(json.dumps([sys.flags.no_site, [u.find_spec(m) is not None for m in "
+             "('only_here', 'pytest', 'numpy', 'backend')]]))")
+    done = subprocess.run(isolated.python_command(["-c", probe]), env=env, capture_output=True, text=True,
+                          cwd=tmp_path)
+    # The test environment's packages (pytest, numpy) are out of reach; the backend and the folder are not.
+    assert json.loads(done.stdout) == [1, [True, False, False, True]], done.stderr
+    assert bridge.Backend(sys.executable).command(["fit"])[:3] == [sys.executable, "-m", "backend"]
+
+
+def test_resolve_backend_puts_the_bundled_backend_after_explicit_choices(monkeypatch, tmp_path):
+    bundled = setup.bundled_backend("/blender/python", tmp_path)
+    monkeypatch.delenv(setup.ENV_PYTHON, raising=False)
+    monkeypatch.delenv(setup.ENV_BACKEND_SCRIPT, raising=False)
+    assert setup.resolve_backend(bundled=bundled, detect=False) == bundled
+    assert setup.resolve_backend(script="fake.py", bundled=bundled).script == "fake.py"
+    assert setup.resolve_backend("/explicit/python", bundled=bundled) == bridge.Backend("/explicit/python")
+    monkeypatch.setenv(setup.ENV_PYTHON, "/env/python")
+    assert setup.resolve_backend(bundled=bundled) == bridge.Backend("/env/python")
+    gpu = setup.bundled_backend("/blender/python", tmp_path / "site", tmp_path / "gpu")
+    assert gpu.packages == (str(tmp_path / "gpu"), str(tmp_path / "site"))
+
+
+def test_the_batch_keeps_the_bundled_backends_packages(tmp_path):
+    preferred = setup.bundled_backend(sys.executable, tmp_path)
+    args = batch.build_parser().parse_args([str(tmp_path), "--backend-script", BACKEND_SCRIPT])
+    chosen = batch._backend(args, preferred)
+    assert chosen.packages == (str(tmp_path),) and chosen.script == BACKEND_SCRIPT
+    flagged = batch._backend(batch.build_parser().parse_args([str(tmp_path), "--python", "/other/python"]), preferred)
+    assert flagged.python == "/other/python" and flagged.packages == ()
+
+
+# -- the first-run checklist --------------------------------------------------------------------------
+
+def test_the_first_run_checklist_in_words():
+    states = lambda items: [item.state for item in items]  # noqa: E731
+    pending = checklist.first_run_checklist(None, False, None, "")
+    assert states(pending) == ["pending", "pending", "pending", "ok"]
+    assert pending[0].text == "Backend: not checked yet (press Check Backend)"
+    assert checklist.first_run_checklist(None, True, None, "")[0].text == "Backend: checking ..."
+    ready = setup.BackendCheck("/py", label="Blender's Python with the extension's packages",
+                               torch_version="2.13.0+cpu", device="CPU")
+    items = checklist.first_run_checklist(ready, False, None, "")
+    assert [(i.state, i.text) for i in items] == [
+        ("ok", "Backend: Blender's Python with the extension's packages: /py"), ("ok", "PyTorch 2.13.0+cpu"),
+        ("ok", "Device: CPU"),
+        ("ok", "OSL: Cycles can run the fitted shader (Cycles on the CPU or OptiX, Open Shading Language on)")]
+    no_osl = checklist.first_run_checklist(ready, False, None, "this Blender's Cycles was built without OSL")
+    assert no_osl[3] == checklist.Item("problem", "OSL: this Blender's Cycles was built without OSL; materials "
+                                                  "render with the approximate fallback")
+    assert checklist.first_run_checklist(ready, False, "cuda", "")[2].state == "problem"
+    gpu = dataclasses.replace(ready, device="CUDA: RTX 4090")
+    assert checklist.first_run_checklist(gpu, False, "cuda", "")[2] == checklist.Item("ok", "Device: CUDA: RTX 4090")
+    assert "choose the CUDA device" in checklist.first_run_checklist(gpu, False, None, "")[2].text
+    missing = setup.BackendCheck("/nowhere", problems=["The Python interpreter /nowhere does not exist."])
+    assert states(checklist.first_run_checklist(missing, False, None, "")) == ["problem", "problem", "pending", "ok"]
+    no_torch = setup.BackendCheck("/py", problems=["PyTorch (torch), which ..., is not installed for /py: ..."])
+    assert states(checklist.first_run_checklist(no_torch, False, None, "")) == ["ok", "problem", "pending", "ok"]
+
+
+# -- the GPU route's install, with a stand-in pip -------------------------------------------------------
+
+FAKE_PIP = '''
+import os, sys, time
+target = sys.argv[sys.argv.index("--target") + 1]
+mode = os.environ["FAKE_PIP_MODE"]
+print("Collecting torch==2.13.0", flush=True)
+print("  Downloading torch-2.13.0+cu130-cp311-cp311-win_amd64.whl (2.6 GB)", flush=True)
+print("Progress 50 of 100", flush=True)
+if mode == "slow":
+    time.sleep(60)
+if mode == "fail":
+    print("ERROR: No matching distribution found for torch==2.13.0", flush=True)
+    sys.exit(1)
+os.makedirs(os.path.join(target, "torch"))
+open(os.path.join(target, "torch", "__init__.py"), "w").close()
+print("Installing collected packages: torch", flush=True)
+print("Successfully installed torch-2.13.0+cu130", flush=True)
+'''
+
+
+@pytest.fixture
+def fake_pip(tmp_path):
+    """A folder of packages whose ``pip`` is a stand-in (``python -S -P -m pip`` runs it)."""
+    packages = tmp_path / "packages"
+    (packages / "pip").mkdir(parents=True)
+    (packages / "pip" / "__init__.py").write_text("")
+    (packages / "pip" / "__main__.py").write_text(FAKE_PIP)
+    return setup.bundled_backend(sys.executable, packages)
+
+
+def _earlier_install(folder: Path) -> Path:
+    (folder / "torch").mkdir(parents=True)
+    (folder / "torch" / "__init__.py").write_text("# the earlier install\n")
+    return folder
+
+
+def test_the_gpu_install_reports_progress_and_replaces_the_folder_when_done(fake_pip, tmp_path, monkeypatch):
+    monkeypatch.setenv("FAKE_PIP_MODE", "ok")
+    folder = _earlier_install(tmp_path / "user" / gpu_env.FOLDER_NAME)
+    job = gpu_env.TorchInstall(fake_pip, folder, "torch==2.13.0").start(online=True)
+    assert job.wait(timeout=HANG_S) == gpu_env.SUCCEEDED, job.error
+    assert gpu_env.installed(folder) and (folder / "torch" / "__init__.py").read_text() == ""  # the new one
+    assert not job.partial.exists() and job.progress == 1.0
+    assert job.status == f"Installed torch==2.13.0 in {folder}"
+    assert "Downloading torch-2.13.0+cu130-cp311-cp311-win_amd64.whl (2.6 GB)" in [line.strip() for line in job.output]
+    assert gpu_env.pip_arguments(Path("T"), "torch==2.13.0", gpu_env.CUDA_INDEX)[-2:] == ["--index-url",
+                                                                                         gpu_env.CUDA_INDEX]
+
+
+def test_the_gpu_install_can_be_cancelled_and_a_failure_changes_nothing(fake_pip, tmp_path, monkeypatch):
+    folder = _earlier_install(tmp_path / gpu_env.FOLDER_NAME)
+    monkeypatch.setenv("FAKE_PIP_MODE", "slow")
+    job = gpu_env.TorchInstall(fake_pip, folder, "torch==2.13.0").start(online=True)
+    for _ in range(HANG_S * 50):
+        job.poll()
+        if job.progress == 0.5:
+            break
+        time.sleep(0.02)
+    assert job.state == gpu_env.RUNNING and job.status.startswith("Downloading torch-2.13.0")
+    job.cancel()
+    assert job.wait(timeout=HANG_S) == gpu_env.CANCELLED
+    assert job.error == "The GPU PyTorch install was cancelled; nothing was changed."
+    monkeypatch.setenv("FAKE_PIP_MODE", "fail")
+    failed = gpu_env.TorchInstall(fake_pip, folder, "torch==2.13.0").start(online=True)
+    assert failed.wait(timeout=HANG_S) == gpu_env.FAILED
+    assert failed.error == ("pip could not install torch==2.13.0: ERROR: No matching distribution found for "
+                            "torch==2.13.0")
+    assert (folder / "torch" / "__init__.py").read_text() == "# the earlier install\n"  # untouched both times
+
+
+def test_the_gpu_install_refuses_offline_or_without_the_bundled_packages(fake_pip, tmp_path):
+    with pytest.raises(gpu_env.InstallRefused, match="Allow Online Access in Edit > Preferences > System > Network"):
+        gpu_env.TorchInstall(fake_pip, tmp_path / "gpu", "torch==2.13.0").start(online=False)
+    with pytest.raises(gpu_env.InstallRefused, match="install the extension zip made for your platform"):
+        gpu_env.TorchInstall(bridge.Backend(sys.executable), tmp_path / "gpu", "torch==2.13.0").start(online=True)
+    assert not (tmp_path / "gpu").exists() and not (tmp_path / "gpu.partial").exists()
+    assert gpu_env.torch_requirement() == backend.core.dependencies.TORCH.requirement

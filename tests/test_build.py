@@ -1,6 +1,5 @@
 """build.py bundles what runs in the add-on and nothing else: the bundled backend fits, its
 development tools (benchmarks, dataset, training) are left out and their commands are gone."""
-import importlib.util
 import os
 import subprocess
 import sys
@@ -8,14 +7,6 @@ import zipfile
 
 import pytest
 from conftest import ROOT
-
-
-@pytest.fixture(scope="module")
-def build_module():
-    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")

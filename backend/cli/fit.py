@@ -10,9 +10,17 @@ Writes DIR/params.json (spec names, plus the interchange string, rig, fit detail
 and DIR/transmission.png (16-bit re-renders of the fit at the rig's film size (512) and 64 spp, the
 photos' framing), DIR/report.png and DIR/metrics.json (FLIP, 16 x 16 colour L1 and spectrum
 correlation for both images, wall time). Progress goes to the terminal, or as JSON lines with
---json-progress (:mod:`backend.core.protocol`). SIGINT/SIGTERM stop the fit: the best parameters so
-far are written to DIR/params.partial.json and the exit code is 130. An existing fit in DIR is never
-overwritten without --overwrite.
+--json-progress (:mod:`backend.core.protocol`). An existing fit in DIR is never overwritten without
+--overwrite.
+
+params.json is written as soon as the fit ends, before anything optional: a failure in the
+re-renders, metrics or report afterwards is a warning (with its traceback on stderr) and loses
+nothing; the run still ends with its result.
+
+Stopping: SIGINT/SIGTERM (a terminal), or with --stop-on-stdin a ``stop`` line on stdin or the end
+of stdin (a caller that cannot send signals, e.g. on Windows, or that went away; the protocol's
+control line). The best parameters so far go to DIR/params.partial.json (or, once params.json is
+written, stay there) and the exit code is 130.
 """
 from __future__ import annotations
 
@@ -20,6 +28,8 @@ import argparse
 import dataclasses
 import json
 import signal
+import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -30,7 +40,7 @@ import torch
 from .. import __version__
 from ..core.params import PARAMETERS, FabricParams
 from ..core.priors import PATTERNS
-from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
+from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, STOP_REQUEST, Reporter
 from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG, CaptureRig, RigError
 from ..fit.gram import GramWeightsError
 from ..fit.pipeline import fit
@@ -74,25 +84,49 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
+def watch_stop_requests(stream, stop: threading.Event) -> threading.Thread:
+    """Sets ``stop`` when a ``stop`` line arrives on ``stream`` or the stream ends (the caller is gone)."""
+    def watch():
+        try:
+            for line in stream:
+                if line.strip() == STOP_REQUEST:
+                    break
+        except (OSError, ValueError):
+            pass
+        stop.set()
+
+    thread = threading.Thread(target=watch, daemon=True, name="fit-stop-requests")
+    thread.start()
+    return thread
+
+
 def run_fit(args) -> int:
-    """The command: signals stop the fit cleanly, every failure becomes one protocol error line."""
+    """The command: stop requests end the fit cleanly, every failure becomes one protocol error line."""
     reporter = Reporter(json_lines=args.json_progress)
     reporter.start("fit", device=args.device)
-    stop = {"requested": False}
+    stop = threading.Event()
 
     def request_stop(signum, frame):
-        stop["requested"] = True
+        stop.set()
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    if args.stop_on_stdin:
+        watch_stop_requests(sys.stdin, stop)
     out = Path(args.out)
+    written: dict[str, str] = {}
     try:
-        return fit_to_folder(args, reporter, out, lambda: stop["requested"])
+        return fit_to_folder(args, reporter, out, stop.is_set, written)
     except FitCancelled as cancelled:
-        if cancelled.params is not None and out.is_dir():
+        if "params" in written:
+            message = (f"the fit was cancelled after it ended: its parameters are in {written['params']}; "
+                       "the re-renders, metrics or report may be missing")
+        elif cancelled.params is not None and out.is_dir():
             (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True)
                                                      + "\n")
-        reporter.error("cancelled", "the fit was cancelled; the best parameters so far are in params.partial.json"
-                       if cancelled.params is not None else "the fit was cancelled before any result")
+            message = "the fit was cancelled; the best parameters so far are in params.partial.json"
+        else:
+            message = "the fit was cancelled before any result"
+        reporter.error("cancelled", message)
         return EXIT_CANCELLED
     except (FitInputError, PhotoError, RigError, GramWeightsError) as exc:
         reporter.error("input", str(exc), getattr(exc, "file", None))
@@ -106,8 +140,9 @@ def run_fit(args) -> int:
             signal.signal(sig, handler)
 
 
-def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
-    """Loads the photos, fits them and writes the results folder (see the module docstring)."""
+def fit_to_folder(args, reporter: Reporter, out: Path, should_stop, written: dict[str, str]) -> int:
+    """Loads the photos, fits them and writes the results folder (see the module docstring); each file
+    is recorded in ``written`` (name -> path) as soon as it exists."""
     started = time.perf_counter()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise FitInputError(f"--device {args.device}: CUDA is not available in this PyTorch build or on this machine")
@@ -144,6 +179,17 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
     # the placement the fit read from the photos: the re-renders and params.json's rig use it
     rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4),
                               sample_rotation_deg=round(result.sample_rotation_deg, 4))
+    at_bounds = result.params.at_bounds(FITTED)
+    extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
+             "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
+                     "at_bounds": at_bounds,
+                     "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
+                                  "size": result.size, "spp": result.spp, "seed": settings.seed}},
+             "photos": photos.info}
+    (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
+    written["params"] = str(out / "params.json")
+
+    # Everything below is optional: a failure is a warning, params.json stays.
     reporter.progress("render", 0, 1)
 
     def render_progress(done, total):
@@ -151,38 +197,59 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
             raise FitCancelled(result.params)
         reporter.progress("render", done, total)
 
-    renders = _final_renders(result.params, rig, settings.device, args.output_spp, render_progress)
-    files = {"reflection": str(write_png(out / "reflection.png", renders[0])),
-             "transmission": str(write_png(out / "transmission.png", renders[1]))}
-    reporter.progress("report", 0, 1)
+    def optional(what: str, make):
+        try:
+            return make()
+        except FitCancelled:
+            raise
+        except Exception as exc:
+            traceback.print_exc()
+            reporter.warning(f"{what} could not be written ({type(exc).__name__}: {exc}); the fitted parameters "
+                             f"are in {written['params']}")
+            return None
+
+    def write_renders():
+        images = _final_renders(result.params, rig, settings.device, args.output_spp, render_progress)
+        for name, image in zip(("reflection", "transmission"), images):
+            written[name] = str(write_png(out / f"{name}.png", image))
+        return images
+
+    renders = optional("the re-renders (and so the metrics and report)", write_renders)
+    metrics = None
+    if renders is not None:
+        reporter.progress("report", 0, 1)
+        metrics = optional("metrics.json (and so report.png)",
+                           lambda: _write_metrics(out, photos, renders, result, rig, settings, started, truth,
+                                                  at_bounds))
+    if metrics is not None:
+        written["metrics"] = str(out / "metrics.json")
+        report = optional("report.png", lambda: write_report(
+            out / "report.png", (photos.reflection, photos.transmission), renders, metrics, result.params, rig,
+            time.perf_counter() - started, at_bounds))
+        if report is not None:
+            written["report"] = str(report)
+    reporter.progress("report", 1, 1)
+    reporter.info(f"wrote {out}: {', '.join(Path(path).name for path in written.values())}")
+    reporter.result(out_dir=str(out), params=written["params"], files=dict(written), metrics=metrics or {})
+    return 0
+
+
+def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings: FitSettings, started: float,
+                   truth: FabricParams | None, at_bounds: list[str]) -> dict:
+    """metrics.json: the renders against the photos, wall time, peak memory, stage timings; the metrics."""
     metrics = {"reflection": compare(photos.reflection, renders[0]),
                "transmission": compare(photos.transmission, renders[1])}
-    wall = time.perf_counter() - started
     peak_mb = peak_memory_mb(torch.device(settings.device))
-    at_bounds = result.params.at_bounds(FITTED)
-    summary = {"metrics": metrics, "wall_s": round(wall, 2), "peak_mb": None if peak_mb is None else round(peak_mb, 1),
+    summary = {"metrics": metrics, "wall_s": round(time.perf_counter() - started, 2),
+               "peak_mb": None if peak_mb is None else round(peak_mb, 1),
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
                "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
                "at_bounds": at_bounds}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
-    files["metrics"] = str(out / "metrics.json")
     (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
-    files["report"] = str(write_report(out / "report.png", (photos.reflection, photos.transmission), renders,
-                                       metrics, result.params, rig, wall, at_bounds))
-    extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
-             "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
-                     "at_bounds": at_bounds,
-                     "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
-                                  "size": result.size, "spp": result.spp, "seed": settings.seed}},
-             "photos": photos.info}
-    files["params"] = str(out / "params.json")
-    (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
-    reporter.progress("report", 1, 1)
-    reporter.info(f"wrote {out}: params.json, reflection.png, transmission.png, report.png, metrics.json")
-    reporter.result(out_dir=str(out), params=files["params"], files=files, metrics=metrics)
-    return 0
+    return metrics
 
 
 def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
@@ -259,4 +326,7 @@ def add_parser(sub) -> None:
     p.add_argument("--output-spp", type=int, default=OUTPUT_SPP,
                    help="samples per pixel of the re-renders (default 64)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier fit in --out")
+    p.add_argument("--stop-on-stdin", action="store_true",
+                   help="stop (keeping the best parameters) on a 'stop' line on stdin or when stdin ends: for callers "
+                        "that cannot send signals")
     p.set_defaults(run=run_fit)

@@ -15,9 +15,13 @@ With ``--json-progress`` a command writes one JSON object per line on stdout, no
                "file": "path or null"}
 
 Exit codes: 0 success, 2 bad input (the error names the file and the problem), 1 internal error,
-130 cancelled (SIGINT/SIGTERM; partial results are kept, see the fit command). The last line of a
-run is always a ``result`` or an ``error``. This module is plain Python (the Blender add-on parses
-the same lines).
+130 cancelled (partial results are kept, see the fit command). The last line of a run is always a
+``result`` or an ``error``.
+
+Stopping, the other way: SIGINT/SIGTERM from a terminal; a caller that cannot send a catchable
+signal (Windows has none: ``Popen.terminate`` kills) starts ``fit --stop-on-stdin`` with a pipe on
+stdin and writes :data:`STOP_REQUEST` and a newline; closing that pipe (the caller ended) stops the
+fit too. This module is plain Python (the Blender add-on parses and writes the same lines).
 """
 from __future__ import annotations
 
@@ -30,6 +34,7 @@ from .. import __version__
 
 STAGES = ("load", "init", "search", "optimise", "render", "report")
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_CANCELLED = 0, 1, 2, 130
+STOP_REQUEST = "stop"  # a line on the stdin of ``fit --stop-on-stdin``
 
 
 class ProtocolError(ValueError):

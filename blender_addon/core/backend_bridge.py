@@ -12,17 +12,19 @@ Outcomes, each with a message a person can read:
 - ``failed``: an ``error`` event (its message, and the file it names), or a crash (a non-zero exit
   without an error event: the exit code or signal and the last lines of stderr), or an exit
   without a result, or a process that could not be started at all;
-- ``cancelled``: :meth:`FitProcess.request_cancel` sends SIGTERM (the backend then writes a
-  ``cancelled`` error and keeps its partial results) and, if the process is still alive after a
-  grace period, SIGKILL. The process runs in its own session so that the signal reaches any worker
-  it started, and it is always reaped (no zombie).
+- ``cancelled``: :meth:`FitProcess.request_cancel` writes the protocol's stop line on the
+  backend's stdin (``fit --stop-on-stdin``: the backend then writes a ``cancelled`` error and keeps
+  its best parameters). That works on every platform, unlike SIGTERM, which Windows cannot catch.
+  If the process is still alive after a grace period it is killed (on POSIX its whole session, so
+  that any worker it started goes too). It is always reaped (no zombie). Should Blender end without
+  cancelling, the pipe closes and the backend stops the same way.
 
 A stdout line that is not a protocol event (a library printing on stdout) does not end the fit: it
 becomes a ``warning`` event saying so, and is quoted in the error if the run then ends badly.
 
 Which backend runs is a :class:`Backend`: an interpreter plus, optionally, a script that replaces
-``-m backend`` (the tests' fake backend). Choosing and checking the interpreter is
-backend_setup.py's job.
+``-m backend`` (the tests' fake backend), and, for the extension's bundled backend, the package
+folders it runs with in isolation. Choosing and checking the interpreter is backend_setup.py's job.
 """
 from __future__ import annotations
 
@@ -47,7 +49,9 @@ STAGE_WEIGHTS = {"load": 0.02, "init": 0.05, "search": 0.15, "optimise": 0.68, "
 STAGE_NAMES = {"load": "Loading photos", "init": "Initial guess", "search": "Searching the weave",
                "optimise": "Optimising", "render": "Rendering", "report": "Writing the report"}
 
-CANCEL_GRACE_S = 3.0       # SIGTERM, then SIGKILL after this long
+# The stop line, then a kill after this long: an iteration (or a render tile) in progress ends first,
+# and the best parameters are written.
+CANCEL_GRACE_S = 10.0
 EXIT_WITHOUT_EOF_S = 2.0   # a grandchild may hold stdout open after the backend exited
 STDERR_LINES = 200
 
@@ -60,20 +64,39 @@ class BackendError(RuntimeError):
 
 @dataclass(frozen=True)
 class Backend:
-    """How to start the backend: an interpreter and, optionally, a script replacing ``-m backend``."""
+    """How to start the backend: an interpreter and, optionally, a script replacing ``-m backend``.
+
+    With ``packages`` the interpreter runs isolated (``-S``: none of its own site-packages, no user
+    site; ``-P``: not the working folder) and imports from the backend's folder, these folders and
+    its standard library, nothing else: Blender's own Python with the extension's installed wheels
+    (and, for the GPU route, the CUDA PyTorch folder first). Without, it runs with its own
+    environment (an external Python that has PyTorch). ``label`` says in words which backend this
+    is (for the preferences); it is not part of the identity.
+    """
 
     python: str
     script: str = ""
+    packages: tuple[str, ...] = ()
+    label: str = field(default="", compare=False)
+
+    def python_command(self, arguments: list[str]) -> list[str]:
+        """The interpreter with its isolation flags, then ``arguments``."""
+        return [self.python, *(("-S", "-P") if self.packages else ()), *arguments]
 
     def command(self, arguments: list[str]) -> list[str]:
         entry = [self.script] if self.script else ["-m", "backend"]
-        return [self.python, *entry, *arguments]
+        return self.python_command([*entry, *arguments])
 
     def environment(self) -> dict[str, str]:
-        """The caller's environment with the backend package first on PYTHONPATH, unbuffered output."""
+        """The caller's environment with the backend package first on PYTHONPATH (and with ``packages``
+        nothing else), unbuffered output."""
         env = dict(os.environ)
         root = str(paths.backend_root())
-        env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+        if self.packages:
+            env["PYTHONPATH"] = os.pathsep.join([root, *self.packages])
+            env["PYTHONNOUSERSITE"] = "1"
+        else:
+            env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
         env["PYTHONUNBUFFERED"] = "1"
         # A PYTHONHOME meant for Blender's bundled Python would break any other interpreter.
         env.pop("PYTHONHOME", None)
@@ -103,7 +126,7 @@ class FitRequest:
         if self.device is not None and self.device not in DEVICES:
             raise BackendError(f"Unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
         args = ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir),
-                "--pattern", self.pattern, "--json-progress"]
+                "--pattern", self.pattern, "--json-progress", "--stop-on-stdin"]
         for flag, value in (("--iterations", self.iterations), ("--size", self.size),
                             ("--device", self.device), ("--rig", self.rig_json),
                             ("--output-spp", self.output_spp)):
@@ -197,7 +220,7 @@ class FitProcess:
             "creationflags": getattr(subprocess, "CREATE_NEW_PROCESS_GROUP", 0)}
         try:
             self._process = subprocess.Popen(
-                command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                 env=self.backend.environment(), text=True, encoding="utf-8", errors="replace", bufsize=1,
                 **kwargs)
         except FileNotFoundError:
@@ -339,7 +362,7 @@ class FitProcess:
         if self._process is not None and not any(thread.is_alive() for thread in self._threads):
             # Closing a pipe that a reader thread still blocks on could hang; a grandchild holding
             # stdout open only delays the closing until that thread ends on its own.
-            for stream in (self._process.stdout, self._process.stderr):
+            for stream in (self._process.stdin, self._process.stdout, self._process.stderr):
                 try:
                     stream.close()
                 except OSError:
@@ -353,30 +376,36 @@ class FitProcess:
         return self
 
     # -- cancelling ---------------------------------------------------------------------------
-    def _signal(self, sig: int):
+    def _ask_to_stop(self):
+        """The protocol's stop line on the backend's stdin: a stop request every platform delivers."""
+        try:
+            self._process.stdin.write(declarations.protocol().STOP_REQUEST + "\n")
+            self._process.stdin.flush()
+        except (OSError, ValueError):
+            pass  # the backend closed its input or has ended: nothing left to ask
+
+    def _kill(self):
         if self._process is None or self._process.poll() is not None:
             return
         try:
             if os.name == "posix":
-                os.killpg(self._process.pid, sig)  # the process leads its own session
-            elif sig == getattr(signal, "SIGKILL", None):
-                self._process.kill()
+                os.killpg(self._process.pid, signal.SIGKILL)  # the process leads its own session
             else:
-                self._process.terminate()
+                self._process.kill()
         except (ProcessLookupError, PermissionError):
             pass
 
     def request_cancel(self, grace: float = CANCEL_GRACE_S):
-        """Asks the backend to stop (SIGTERM) and returns at once; poll() kills it after ``grace`` s."""
+        """Asks the backend to stop and returns at once; poll() kills it after ``grace`` s."""
         if self.state != RUNNING or self._cancel_deadline is not None:
             return
         self._cancel_deadline = time.monotonic() + grace
         self.status = "Cancelling"
-        self._signal(signal.SIGTERM)
+        self._ask_to_stop()
 
     def _escalate_cancel(self):
         if self._cancel_deadline is not None and time.monotonic() > self._cancel_deadline:
-            self._signal(getattr(signal, "SIGKILL", signal.SIGTERM))
+            self._kill()
 
     def wait(self, timeout: float | None = None, interval: float = 0.05, on_event=None) -> str:
         """Blocks until the run ends (batch mode); past ``timeout`` seconds the run is cancelled."""

@@ -10,11 +10,13 @@ pairs at all, an unusable rig or backend) exits with 1; when the library cannot 
 fitted pair counts as failed.
 
 The backend is chosen as for the panel: ``--python`` / ``--backend-script``, else the add-on
-preferences, else ``WOVEN_FABRIC_PYTHON`` / ``WOVEN_FABRIC_BACKEND_SCRIPT``, else auto-detection.
+preferences (the extension's bundled backend when nothing is set), else ``WOVEN_FABRIC_PYTHON`` /
+``WOVEN_FABRIC_BACKEND_SCRIPT``, else auto-detection.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -201,8 +203,9 @@ def main(argv: list[str] | None, *, library,
 
 
 def _backend(args, preferred: backend_bridge.Backend | None) -> backend_bridge.Backend:
-    """Flags first, then the preferences, then the environment and auto-detection."""
+    """Flags first, then the preferences (the bundled backend with its packages included), then the
+    environment and auto-detection."""
     python, script = args.python, args.backend_script
-    if preferred is not None:
-        python, script = python or preferred.python, script or preferred.script
-    return backend_setup.resolve_backend(python, script)
+    if preferred is not None and not python:
+        return dataclasses.replace(preferred, script=script or preferred.script)
+    return backend_setup.resolve_backend(python, script or (preferred.script if preferred else ""))

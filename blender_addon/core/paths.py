@@ -5,15 +5,20 @@ Two layouts are supported:
   sit inside the add-on folder;
 - the repository: ``blender_addon/``, ``backend/`` and ``shaders/`` are siblings.
 
+:func:`bundled_wheels` says whether this is a platform zip (its manifest lists the backend's
+wheels, which Blender installed into the extensions' site-packages).
+
 :func:`backend_module` imports a torch-free backend module (``core.params``, ``core.rig``, ...)
 under a private package name, so that no top-level ``backend`` module is added to Blender's Python;
 declarations.py says which facts the add-on reads that way.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import sys
+import tomllib
 from pathlib import Path
 
 _ADDON = Path(__file__).resolve().parent.parent  # blender_addon/ (the extension folder when installed)
@@ -35,6 +40,16 @@ def shader_path() -> Path:
         if path.is_file():
             return path
     raise FileNotFoundError(f"shaders/woven_fabric.osl was not found next to {_ADDON}; reinstall the add-on")
+
+
+@functools.cache  # the manifest of an installed extension does not change while it is loaded
+def bundled_wheels() -> tuple[str, ...]:
+    """The wheels the extension's manifest lists (a platform zip); () for the plain zip or a checkout."""
+    try:
+        with open(_ADDON / "blender_manifest.toml", "rb") as fh:
+            return tuple(tomllib.load(fh).get("wheels", ()))
+    except (OSError, tomllib.TOMLDecodeError):
+        return ()
 
 
 def backend_module(name: str):

@@ -2,9 +2,12 @@
 
 Cycles compiles a Script node with ``oslquery``, which lives in Blender's bundled site-packages;
 the pip ``bpy`` module does not put that folder on ``sys.path``, so :func:`ensure_oslquery` does.
+:func:`osl_problem` says whether this Blender can run the shader at all (the preferences' checklist).
 """
 from __future__ import annotations
 
+import functools
+import importlib.util
 import os
 import sys
 
@@ -17,6 +20,21 @@ def ensure_oslquery() -> None:
                         f"python{sys.version_info.major}.{sys.version_info.minor}", "site-packages")
     if os.path.isdir(path) and path not in sys.path:
         sys.path.append(path)
+
+
+@functools.cache  # asked on every redraw of the preferences; the answer is the build's
+def osl_problem() -> str:
+    """Why Cycles cannot run the Woven Fabric OSL shader in this Blender, or "" when it can."""
+    try:
+        import _cycles  # Cycles' compiled module: whether this build has OSL at all
+    except ImportError:
+        return "the Cycles add-on is not available"
+    if not getattr(_cycles, "with_osl", False):
+        return "this Blender's Cycles was built without Open Shading Language"
+    ensure_oslquery()
+    if importlib.util.find_spec("oslquery") is None:
+        return "Cycles cannot compile OSL scripts here (its oslquery module is missing)"
+    return ""
 
 
 def compile_script(node) -> str:

@@ -19,7 +19,7 @@ import bpy
 from ..core import backend_bridge, backend_setup, captures, rig_settings
 from ..core.check_job import backend_check
 from ..scene import drape, materials
-from . import preferences, properties
+from . import layout, preferences, properties
 
 TIMER_INTERVAL_S = 0.1
 
@@ -41,13 +41,6 @@ class ActiveFit:
 
 def active_fit() -> backend_bridge.FitProcess | None:
     return ActiveFit.process if ActiveFit.running() else None
-
-
-def _redraw_areas(context, area_type: str):
-    for window in context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == area_type:
-                area.tag_redraw()
 
 
 def _abspath(path: str) -> Path:
@@ -132,7 +125,7 @@ class FABRIC_OT_fit(bpy.types.Operator):
         self._warned = len(fit.warnings)
         if settings is not None and (settings.fit_progress, settings.fit_status) != (fit.progress, fit.status):
             settings.fit_progress, settings.fit_status = fit.progress, fit.status
-            _redraw_areas(context, "VIEW_3D")
+            layout.redraw_areas("VIEW_3D")
         if not fit.done:
             return {"PASS_THROUGH"}
         return self._end(context, self._finish(context, fit, settings))
@@ -179,7 +172,7 @@ class FABRIC_OT_fit(bpy.types.Operator):
         if self._timer is not None:
             context.window_manager.event_timer_remove(self._timer)
             self._timer = None
-        _redraw_areas(context, "VIEW_3D")
+        layout.redraw_areas("VIEW_3D")
         return result
 
     def cancel(self, context):
@@ -230,14 +223,9 @@ class FABRIC_OT_check_backend(bpy.types.Operator):
             self.report({"INFO"} if check.ok else {"ERROR"}, check.summary())
             return {"FINISHED"} if check.ok else {"CANCELLED"}
         backend_check.start(backend, device)
-        bpy.app.timers.register(_redraw_preferences_while_checking, first_interval=0.5)
+        layout.redraw_while(lambda: backend_check.running, "PREFERENCES")
         self.report({"INFO"}, f"Checking {backend.python} ...")
         return {"FINISHED"}
-
-
-def _redraw_preferences_while_checking():
-    _redraw_areas(bpy.context, "PREFERENCES")
-    return 0.5 if backend_check.running else None
 
 
 class FABRIC_OT_detect_python(bpy.types.Operator):
@@ -374,6 +362,24 @@ class FABRIC_OT_open_results(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class FABRIC_OT_open_fit_log(bpy.types.Operator):
+    """Open the fit's backend log (everything it wrote on stderr) in Blender's text editor"""
+
+    bl_idname = "fabric.open_fit_log"
+    bl_label = "Open Log"
+
+    filepath: bpy.props.StringProperty(subtype="FILE_PATH", options={"SKIP_SAVE"})
+
+    def execute(self, context):
+        try:
+            text = layout.show_text_file(context, Path(self.filepath))
+        except OSError as exc:
+            self.report({"ERROR"}, f"{self.filepath}: the log cannot be read ({exc.strerror or exc})")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"The backend log is the text {text.name!r}")
+        return {"FINISHED"}
+
+
 @bpy.app.handlers.persistent
 def _cancel_on_load(*_args):
     """A fit reads into the old file's scene: stop it before another file replaces that scene."""
@@ -382,7 +388,7 @@ def _cancel_on_load(*_args):
 
 CLASSES = (FABRIC_OT_fit, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_OT_detect_python,
            FABRIC_OT_reset_rig, FABRIC_OT_load_fit, FABRIC_OT_assign_material, FABRIC_OT_add_drape_preview,
-           FABRIC_OT_open_results)
+           FABRIC_OT_open_results, FABRIC_OT_open_fit_log)
 
 
 def register():

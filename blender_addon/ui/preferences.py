@@ -1,64 +1,207 @@
-"""Add-on preferences: which Python runs the backend, on which device, where fit results go.
+"""Add-on preferences: which Python runs the backend, on which device, where fit results go; the
+first-run checklist; the GPU route.
 
-Empty settings fall back to the environment (``WOVEN_FABRIC_PYTHON``,
-``WOVEN_FABRIC_BACKEND_SCRIPT``) and then to auto-detection: the project's ``.venv`` beside the
-backend, else Blender's own Python if PyTorch imports there (see backend_setup.resolve_backend).
-Below the buttons the preferences show the last "Check Backend" (core/check_job.py).
+With the zip made for the artist's platform nothing needs setting: the backend runs in Blender's
+own Python with the extension's installed wheels (:func:`bundled_backend`). An external Python (a
+CUDA environment, a development checkout) can still be named; then the environment
+(``WOVEN_FABRIC_PYTHON``, ``WOVEN_FABRIC_BACKEND_SCRIPT``) and auto-detection follow (see
+backend_setup.resolve_backend).
+
+The checklist (core/checklist.py) shows which backend is in use, its PyTorch version and device,
+and whether Cycles can run the OSL shader; it is filled by a backend check on a thread
+(core/check_job.py), started when the preferences are first drawn and by *Check Backend*.
+
+The GPU route (platform zips only): *Install GPU PyTorch* downloads a CUDA build of PyTorch into the
+extension's user folder (core/gpu_env.py) with a progress bar and *Cancel*, only when Blender
+allows online access; once installed, *Use the GPU PyTorch* puts it before the bundled packages.
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import bpy
 
-from ..core import backend_bridge, backend_setup, captures
+from ..core import backend_bridge, backend_setup, captures, checklist, gpu_env, paths
 from ..core.check_job import backend_check
+from ..scene import cycles_osl
+from . import layout
 
 # Preferences belong to the add-on's package, not to this ui sub-package.
 ADDON_PACKAGE = __package__.rpartition(".")[0]
+CHECKLIST_ICONS = {checklist.OK: "CHECKMARK", checklist.PROBLEM: "ERROR", checklist.PENDING: "TIME"}
 
 
 class WovenFabricPreferences(bpy.types.AddonPreferences):
     bl_idname = ADDON_PACKAGE
 
     python_path: bpy.props.StringProperty(
-        name="Backend Python", subtype="FILE_PATH",
-        description="Python interpreter with PyTorch that runs the fitting backend. "
-                    "Empty: the project's .venv, else Blender's own Python if PyTorch imports there")
+        name="External Python", subtype="FILE_PATH",
+        description="A Python 3.11 interpreter with PyTorch that runs the fitting backend instead (for example a "
+                    "CUDA environment). Empty: Blender's own Python with the packages the extension installed")
     backend_script: bpy.props.StringProperty(
         name="Backend Script", subtype="FILE_PATH",
         description="Advanced: a script run instead of 'python -m backend' (for example a test stand-in). "
                     "Empty: the backend bundled with the add-on")
     device: bpy.props.EnumProperty(
         name="Device", default="AUTO",
-        items=(("AUTO", "Automatic", "The backend's default device"),
+        items=(("AUTO", "Automatic", "The backend's default device (the CPU)"),
                ("CPU", "CPU", "Fit on the CPU"),
                ("CUDA", "CUDA", "Fit on an NVIDIA GPU (needs a CUDA build of PyTorch)")))
     results_folder: bpy.props.StringProperty(
         name="Results Folder", subtype="DIR_PATH",
         description="Where each fit gets a new folder. Empty: 'fabric_fits' beside the saved .blend, "
                     "else the temporary folder")
+    use_gpu_torch: bpy.props.BoolProperty(
+        name="Use the GPU PyTorch", default=False,
+        description="Run the backend with the CUDA build of PyTorch installed below, instead of the bundled "
+                    "CPU build")
+    cuda_index: bpy.props.StringProperty(
+        name="CUDA Package Index", default=gpu_env.CUDA_INDEX,
+        description="The package index the GPU PyTorch is installed from (PyTorch's index of a CUDA version)")
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.prop(self, "python_path")
-        layout.prop(self, "device")
-        layout.prop(self, "results_folder")
-        layout.prop(self, "backend_script")
-        row = layout.row()
-        row.operator("fabric.detect_python", icon="VIEWZOOM")
-        row.operator("fabric.check_backend", icon="CHECKMARK")
-        check = backend_check.last
-        if backend_check.running:
-            layout.label(text="Checking the backend ...", icon="TIME")
-        elif check is not None:
-            box = layout.box()
-            box.label(text=f"{check.python}:", icon="CHECKMARK" if check.ok else "ERROR")
-            for problem in check.problems:
-                box.label(text=problem, icon="X")
-            for note in check.notes:
-                box.label(text=note, icon="INFO")
+        layout_ = self.layout
+        _start_first_check()
+        _draw_checklist(layout_.box(), context)
+        column = layout_.column()
+        column.use_property_split = True
+        row = column.row(align=True)
+        row.prop(self, "python_path")
+        row.operator("fabric.detect_python", text="", icon="VIEWZOOM")
+        column.prop(self, "device")
+        column.prop(self, "results_folder")
+        if paths.bundled_wheels():
+            _draw_gpu_route(layout_.box(), self, context)
+        column = layout_.column()
+        column.use_property_split = True
+        column.prop(self, "backend_script")
+
+
+def _draw_checklist(box, context):
+    header = box.row()
+    header.label(text="First-Run Checklist", icon="PREFERENCES")
+    header.operator("fabric.check_backend", icon="FILE_REFRESH")
+    check = backend_check.last
+    items = checklist.first_run_checklist(check, backend_check.running, selected_device(context),
+                                          cycles_osl.osl_problem())
+    for item in items:
+        layout.wrapped_labels(box, item.text, context, icon=CHECKLIST_ICONS[item.state])
+    if check is not None and not backend_check.running:
+        for problem in check.problems:
+            layout.wrapped_labels(box, problem, context, icon="X")
+
+
+_first_check_started = False
+
+
+def _start_first_check():
+    """Checks the backend the first time the preferences are drawn (on a thread: the draw never waits)."""
+    global _first_check_started
+    if _first_check_started or backend_check.last is not None or backend_check.running:
+        return
+    _first_check_started = True
+    backend = saved_backend()
+    if backend is not None:
+        backend_check.start(backend, selected_device())
+        layout.redraw_while(lambda: backend_check.running, "PREFERENCES")
+
+
+def _draw_gpu_route(box, prefs, context):
+    box.label(text="GPU PyTorch (NVIDIA CUDA, optional)", icon="MEMORY")
+    job = GpuInstall.job
+    if job is not None and not job.done:
+        row = box.row(align=True)
+        row.progress(factor=job.progress, text=job.status, type="BAR")
+        row.operator("fabric.cancel_gpu_torch", text="", icon="CANCEL")
+        return
+    folder = gpu_folder()
+    if gpu_env.installed(folder):
+        box.prop(prefs, "use_gpu_torch")
+        layout.wrapped_labels(box, f"Installed in {folder}", context, icon="CHECKMARK")
+    if job is not None and job.state == gpu_env.FAILED:
+        layout.wrapped_labels(box, job.error, context, icon="ERROR")
+    column = box.column()
+    column.enabled = online_access()
+    column.operator("fabric.install_gpu_torch", icon="IMPORT",
+                    text="Reinstall GPU PyTorch" if gpu_env.installed(folder) else "Install GPU PyTorch")
+    if not online_access():
+        layout.wrapped_labels(box, "Needs online access: turn on Allow Online Access in Edit > Preferences > "
+                                   "System > Network.", context, icon="INFO")
+    column = box.column()
+    column.use_property_split = True
+    column.prop(prefs, "cuda_index")
+
+
+class GpuInstall:
+    """The one GPU PyTorch install that may run, reachable from its buttons and its timer."""
+
+    job: gpu_env.TorchInstall | None = None
+
+    @classmethod
+    def running(cls) -> bool:
+        return cls.job is not None and not cls.job.done
+
+
+class FABRIC_OT_install_gpu_torch(bpy.types.Operator):
+    """Download a CUDA build of PyTorch (a few GB) into the extension's user folder, for NVIDIA GPUs"""
+
+    bl_idname = "fabric.install_gpu_torch"
+    bl_label = "Install GPU PyTorch"
+
+    @classmethod
+    def poll(cls, context):
+        return not GpuInstall.running()
+
+    def execute(self, context):
+        prefs = preferences(context)
+        packages = backend_setup.bundled_backend(sys.executable, extensions_site_packages()) \
+            if paths.bundled_wheels() else backend_bridge.Backend(sys.executable)
+        job = gpu_env.TorchInstall(packages, gpu_folder(), gpu_env.torch_requirement(),
+                                   (prefs.cuda_index if prefs else "") or None)
+        try:
+            job.start(online=online_access())
+        except gpu_env.InstallRefused as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        GpuInstall.job = job
+        bpy.app.timers.register(_poll_gpu_install, first_interval=layout.REDRAW_INTERVAL_S)
+        self.report({"INFO"}, f"Installing {job.requirement} into {job.folder} ...")
+        return {"FINISHED"}
+
+
+class FABRIC_OT_cancel_gpu_torch(bpy.types.Operator):
+    """Stop the GPU PyTorch install; nothing is changed"""
+
+    bl_idname = "fabric.cancel_gpu_torch"
+    bl_label = "Cancel GPU PyTorch Install"
+
+    @classmethod
+    def poll(cls, context):
+        return GpuInstall.running()
+
+    def execute(self, context):
+        GpuInstall.job.cancel()
+        return {"FINISHED"}
+
+
+def _poll_gpu_install():
+    """Timer: follows the install; once it succeeds, the GPU PyTorch is chosen and checked."""
+    job = GpuInstall.job
+    if job is None:
+        return None
+    job.poll()
+    layout.redraw_areas("PREFERENCES")
+    if not job.done:
+        return layout.REDRAW_INTERVAL_S
+    prefs = preferences()
+    if job.state == gpu_env.SUCCEEDED and prefs is not None:
+        prefs.use_gpu_torch = True
+        if prefs.device == "AUTO":
+            prefs.device = "CUDA"
+        backend_check.start(selected_backend(), selected_device())
+        layout.redraw_while(lambda: backend_check.running, "PREFERENCES")
+    return None
 
 
 def preferences(context=None):
@@ -68,16 +211,39 @@ def preferences(context=None):
     return addon.preferences if addon else None
 
 
+def extensions_site_packages() -> Path:
+    """Where Blender installs the wheels of extensions (for this Blender's Python version)."""
+    return Path(bpy.utils.user_resource("EXTENSIONS"), ".local", "lib",
+                "python{}.{}".format(*sys.version_info[:2]), "site-packages")
+
+
+def gpu_folder(create: bool = False) -> Path:
+    """The GPU route's PyTorch folder in the extension's user folder (kept across updates)."""
+    return Path(bpy.utils.extension_path_user(ADDON_PACKAGE, path=gpu_env.FOLDER_NAME, create=create))
+
+
+def bundled_backend(context=None) -> backend_bridge.Backend | None:
+    """Blender's own Python with the extension's installed wheels, when this is a platform zip."""
+    if not paths.bundled_wheels():
+        return None
+    prefs = preferences(context)
+    gpu = None
+    if prefs is not None and prefs.use_gpu_torch and gpu_env.installed(gpu_folder()):
+        gpu = gpu_folder()
+    return backend_setup.bundled_backend(sys.executable, extensions_site_packages(), gpu)
+
+
 def selected_backend(context=None, detect: bool = True) -> backend_bridge.Backend:
-    """The backend the preferences (or the environment, or auto-detection) point at."""
+    """The backend the preferences (or the environment, the bundled packages, auto-detection) point at."""
     prefs = preferences(context)
     python = bpy.path.abspath(prefs.python_path) if prefs and prefs.python_path else ""
     script = bpy.path.abspath(prefs.backend_script) if prefs and prefs.backend_script else ""
-    return backend_setup.resolve_backend(python, script, detect=detect)
+    return backend_setup.resolve_backend(python, script, detect=detect, bundled=bundled_backend(context))
 
 
 def saved_backend() -> backend_bridge.Backend | None:
-    """The backend the preferences or the environment name, without auto-detection; None if none."""
+    """The backend the preferences, the environment or the bundled packages name, without
+    auto-detection; None if none."""
     try:
         return selected_backend(detect=False)
     except backend_bridge.BackendError:
@@ -96,9 +262,22 @@ def results_parent(context=None) -> Path:
     return captures.default_results_parent(bpy.data.filepath)
 
 
+def online_access() -> bool:
+    return bool(bpy.app.online_access)
+
+
+CLASSES = (WovenFabricPreferences, FABRIC_OT_install_gpu_torch, FABRIC_OT_cancel_gpu_torch)
+
+
 def register():
-    bpy.utils.register_class(WovenFabricPreferences)
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
 
 
 def unregister():
-    bpy.utils.unregister_class(WovenFabricPreferences)
+    if GpuInstall.running():
+        GpuInstall.job.cancel()
+    if bpy.app.timers.is_registered(_poll_gpu_install):
+        bpy.app.timers.unregister(_poll_gpu_install)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)
