@@ -6,6 +6,7 @@
     DIR/catalogue.json, .csv one row per pair (catalogue.py)
     DIR/logs/<name>.log      what the pair's fits said (warnings, errors, tracebacks), every attempt
     DIR/.staging/            results being written
+    DIR/.incomplete/         incomplete results folders found by --resume, moved aside
 
 Only the batch's driver writes here (the fits run in temporary folders on whichever machine Ray
 chose and send their files back). A pair's files go into ``.staging/<name>`` first and the folder
@@ -14,8 +15,9 @@ folder under a pair's name; a leftover ``.staging`` is emptied by the next run.
 
 Nothing is overwritten: a new batch refuses a DIR that already holds results (the catalogue or a
 pair's folder) unless it resumes. Resuming keeps every complete folder; an incomplete one (a copy
-cut short, a file deleted by hand) is moved aside to ``DIR/<name>.incomplete-N`` and the pair is
-fitted again.
+cut short, a file deleted by hand) is moved aside to ``DIR/.incomplete/<name>-N`` and the pair is
+fitted again. (Folders whose names start with a dot are the batch's own: the Blender batch's
+``--from-results`` passes them by.)
 """
 from __future__ import annotations
 
@@ -26,8 +28,15 @@ from pathlib import Path
 from ..core.results import is_complete
 from .catalogue import CSV_NAME, JSON_NAME
 
-LOGS, STAGING = "logs", ".staging"
-RESERVED = (LOGS, STAGING, JSON_NAME, CSV_NAME)  # names of the batch's own files: no pair may use them
+LOGS, STAGING, INCOMPLETE = "logs", ".staging", ".incomplete"
+RESERVED = (LOGS, STAGING, INCOMPLETE, JSON_NAME, CSV_NAME)  # the batch's own files: no pair may use these names
+
+
+def name_problem(name: str) -> str | None:
+    """Why a pair's name cannot be a folder of DIR (one of the batch's own names, or hidden), or None."""
+    if name in RESERVED or name.startswith("."):
+        return f"the name {name!r} is reserved for the batch's own files in the output folder; rename the photos"
+    return None
 
 
 class OutputError(ValueError):
@@ -45,7 +54,7 @@ def prepare(out: Path, names: list[str], resume: bool) -> tuple[list[str], list[
         raise OutputError(f"{out}: already holds {found}; pass --resume to keep them and fit the rest, "
                           "or choose a new --out")
     (out / LOGS).mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(out / STAGING, ignore_errors=True)
+    remove_staging(out)  # a killed batch's leftovers: never renamed, so never a result
     kept, moved = [], []
     for name in earlier:
         if is_complete(out / name):
@@ -56,9 +65,11 @@ def prepare(out: Path, names: list[str], resume: bool) -> tuple[list[str], list[
 
 
 def move_aside(folder: Path) -> Path:
-    """Renames an incomplete results folder to ``<name>.incomplete-N`` (the first free N)."""
+    """Moves an incomplete results folder to ``DIR/.incomplete/<name>-N`` (the first free N)."""
+    aside = folder.parent / INCOMPLETE
+    aside.mkdir(exist_ok=True)
     for number in range(1, 100000):
-        target = folder.with_name(f"{folder.name}.incomplete-{number}")
+        target = aside / f"{folder.name}-{number}"
         if not target.exists():
             folder.rename(target)
             return target
@@ -77,6 +88,11 @@ def write_result(out: Path, name: str, files: dict[str, bytes]) -> Path:
         move_aside(target)
     staging.rename(target)
     return target
+
+
+def remove_staging(out: Path) -> None:
+    """Removes ``.staging`` when the batch ends (every pair's files are in place by then)."""
+    shutil.rmtree(out / STAGING, ignore_errors=True)
 
 
 def write_log(out: Path, name: str, attempt: int, text: str) -> Path:

@@ -102,11 +102,10 @@ def plan(photos: str | Path, out: str | Path, resume: bool) -> BatchPlan:
     rows = {p.name: catalogue.row(p.name, "failed", reason=p.message) for p in problems}
     usable = []
     for pair in pairs:
-        if pair.name in output.RESERVED:
+        problem = output.name_problem(pair.name)
+        if problem:
             rows[pair.name] = catalogue.row(pair.name, "failed", reflection=pair.reflection,
-                                            transmission=pair.transmission,
-                                            reason=f"the name {pair.name!r} is one of the batch's own files in the "
-                                                   "output folder; rename the photos")
+                                            transmission=pair.transmission, reason=problem)
         else:
             usable.append(pair)
     if not usable and not problems:
@@ -148,6 +147,7 @@ class _Run:
             if row["status"] in ("kept", "failed"):
                 self.reporter.pair(name, row["status"], reason=row["reason"],
                                    out_dir=str(self.plan.out / name) if row["status"] == "kept" else None)
+        self._progress(force=True)
         cancelled = False
         while self.queue or self.running:
             if should_stop():
@@ -158,6 +158,7 @@ class _Run:
             for handle in self.executor.wait(list(self.running), POLL_S):
                 self._finish(handle)
             self._progress()
+        output.remove_staging(self.plan.out)
         self._progress(force=True)
         return BatchSummary(self.plan.rows, *self.catalogue_paths, cancelled=cancelled)
 

@@ -61,7 +61,7 @@ def run_batch(args) -> int:
                       f"{args.cpus_per_fit:g} CPU(s) each), {counts['kept']} kept from an earlier run, "
                       f"{counts['failed']} unusable")
         for folder in plan.moved:
-            reporter.warning(f"{folder}: an incomplete results folder, moved aside; its pair is fitted again")
+            reporter.warning(f"an incomplete results folder was moved to {folder}; its pair is fitted again")
         executor = connection.executor(args.cpus_per_fit, args.gpus_per_fit)
         summary = _run_until_stopped(plan, options, executor, reporter)
     finally:
