@@ -324,3 +324,14 @@ def test_the_batch_refuses_bad_input_before_starting_ray(tmp_path, monkeypatch, 
     with pytest.raises(SystemExit):
         main(["batch", str(photos), "--out", str(tmp_path / "out"), "--cpus-per-fit", "0"])
     assert "--cpus-per-fit: must be more than 0" in capsys.readouterr().err
+
+
+def test_a_resume_with_nothing_left_to_fit_needs_no_ray(tmp_path, monkeypatch, capsys):
+    photos = make_photos(tmp_path / "photos", ["denim", "linen"])
+    run(photos, tmp_path / "out", ScriptedEngine())
+    monkeypatch.setitem(sys.modules, "ray", None)
+    assert main(["batch", str(photos), "--out", str(tmp_path / "out"), "--resume", "--json-progress"]) == 0
+    events = [decode(line) for line in capsys.readouterr().out.splitlines()]
+    assert events[-1]["event"] == "result" and (events[-1]["done"], events[-1]["failed"]) == (2, 0)
+    rows = json.loads((tmp_path / "out" / "catalogue.json").read_text())["pairs"]
+    assert [(r["name"], r["status"]) for r in rows] == [("denim", "kept"), ("linen", "kept")]

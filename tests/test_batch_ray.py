@@ -8,7 +8,6 @@ and fitted at ``--size 32`` with 2 iterations: seconds of fitting, not minutes.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import io
 import json
 import os
@@ -20,11 +19,11 @@ import pytest
 
 from backend.batch import scheduler
 from backend.batch.ray_executor import connect
+from backend.bench.batch import small_rig
 from backend.cli.main import main
 from backend.core.params import FabricParams
 from backend.core.protocol import Reporter, decode
 from backend.core.results import RESULT_FILES
-from backend.core.rig import DEFAULT_RIG
 from backend.fit.folder import EXAMPLE_PARAMS
 from backend.image.png import write_png
 from backend.model.render import render_pair
@@ -44,9 +43,7 @@ def ray_session():
 def photos(tmp_path_factory) -> tuple[Path, Path]:
     """good_R/T.png (the example fabric, rendered) and broken_R/T.png (a truncated PNG), and their rig."""
     folder = tmp_path_factory.mktemp("photos")
-    scale = FILM / DEFAULT_RIG.film_size
-    rig = dataclasses.replace(DEFAULT_RIG, film_size=FILM, vignette_sigma_px=DEFAULT_RIG.vignette_sigma_px * scale,
-                              glow_sigma_px=DEFAULT_RIG.glow_sigma_px * scale)
+    rig = small_rig(FILM)
     pair = render_pair(FabricParams.from_interchange(EXAMPLE_PARAMS), rig, size=FILM, spp=2, seed=5)
     write_png(folder / "good_R.png", pair.reflection, bits=8)
     write_png(folder / "good_T.png", pair.transmission, bits=8)

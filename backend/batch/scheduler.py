@@ -125,9 +125,10 @@ def plan(photos: str | Path, out: str | Path, resume: bool) -> BatchPlan:
     return BatchPlan(photos, out, to_fit, rows, moved)
 
 
-def run(plan: BatchPlan, options: BatchOptions, executor: Executor, reporter: Reporter,
+def run(plan: BatchPlan, options: BatchOptions, executor: Executor | None, reporter: Reporter,
         should_stop: Callable[[], bool] = lambda: False) -> BatchSummary:
-    """Fits every pair of the plan; never raises for a pair (see the module docstring)."""
+    """Fits every pair of the plan (``executor`` may be None when there is none to fit); never raises
+    for a pair (see the module docstring)."""
     return _Run(plan, options, executor, reporter).loop(should_stop)
 
 

@@ -37,8 +37,18 @@ def run_batch(args) -> int:
     try:
         rig_text = _rig_text(args.rig)
         plan = scheduler.plan(args.photos, args.out, args.resume)
-        connection = connect(args.ray_address)
     except (scheduler.BatchError, OutputError, RigError) as exc:
+        reporter.error("input", str(exc))
+        return EXIT_INPUT
+    for folder in plan.moved:
+        reporter.warning(f"an incomplete results folder was moved to {folder}; its pair is fitted again")
+    counts = {s: sum(r["status"] == s for r in plan.rows.values()) for s in ("kept", "failed")}
+    if not plan.to_fit:  # nothing for Ray to do: the catalogue is still brought up to date
+        reporter.info(f"nothing to fit: {counts['kept']} pair(s) kept from an earlier run, {counts['failed']} unusable")
+        return _report(scheduler.run(plan, _options(args, 1, rig_text), None, reporter), plan, reporter)
+    try:
+        connection = connect(args.ray_address)
+    except scheduler.BatchError as exc:
         reporter.error("input", str(exc))
         return EXIT_INPUT
     executor = None
@@ -50,25 +60,25 @@ def run_batch(args) -> int:
         if problem:
             reporter.warning(problem + "; the fits wait until the cluster has such a machine")
         workers = args.workers or connection.capacity(args.cpus_per_fit, args.gpus_per_fit)
-        options = scheduler.BatchOptions(
-            workers=workers, fit_options=_fit_options(args), rig_text=rig_text,
-            threads=max(1, round(args.cpus_per_fit)), timeout_s=args.timeout,
-            settings={"fit": _fit_options(args), "rig": args.rig, "workers": workers,
-                      "cpus_per_fit": args.cpus_per_fit, "gpus_per_fit": args.gpus_per_fit,
-                      "ray_address": args.ray_address})
-        counts = {s: sum(r["status"] == s for r in plan.rows.values()) for s in ("kept", "failed")}
         reporter.info(f"{connection.describe()}; {len(plan.to_fit)} pair(s) to fit ({workers} at a time, "
                       f"{args.cpus_per_fit:g} CPU(s) each), {counts['kept']} kept from an earlier run, "
                       f"{counts['failed']} unusable")
-        for folder in plan.moved:
-            reporter.warning(f"an incomplete results folder was moved to {folder}; its pair is fitted again")
         executor = connection.executor(args.cpus_per_fit, args.gpus_per_fit)
-        summary = _run_until_stopped(plan, options, executor, reporter)
+        summary = _run_until_stopped(plan, _options(args, workers, rig_text), executor, reporter)
     finally:
         if executor is not None:
             executor.abandon()
         connection.close()
     return _report(summary, plan, reporter)
+
+
+def _options(args, workers: int, rig_text: str | None) -> scheduler.BatchOptions:
+    fit_options = _fit_options(args)
+    return scheduler.BatchOptions(
+        workers=workers, fit_options=fit_options, rig_text=rig_text, threads=max(1, round(args.cpus_per_fit)),
+        timeout_s=args.timeout,
+        settings={"fit": fit_options, "rig": args.rig, "workers": workers, "cpus_per_fit": args.cpus_per_fit,
+                  "gpus_per_fit": args.gpus_per_fit, "ray_address": args.ray_address})
 
 
 def _run_until_stopped(plan, options, executor, reporter) -> scheduler.BatchSummary:
