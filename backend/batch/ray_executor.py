@@ -74,8 +74,9 @@ class RayConnection:
 
 
 def connect(address: str | None) -> RayConnection:
-    """Starts a local Ray (``address`` None) or joins the cluster at ``address`` (``auto``,
-    ``HOST:6379``, ``ray://HOST:10001``); BatchError when Ray is missing or cannot be reached."""
+    """Starts a new local Ray (``address`` None) or joins the cluster at ``address`` (``auto``: the one
+    ``ray start`` runs on this machine, ``HOST:6379``, ``ray://HOST:10001``); BatchError when Ray is
+    missing or cannot be reached."""
     try:
         import ray  # the optional cluster extra: imported where the batch runs, nowhere else
     except ImportError:
@@ -83,7 +84,8 @@ def connect(address: str | None) -> RayConnection:
     if ray.is_initialized():
         return RayConnection(ray, started_here=False, local=address is None)
     try:
-        ray.init(address=address, runtime_env={"py_modules": [str(_BACKEND)]}, include_dashboard=False,
+        # "local": a new Ray on this machine, even where `ray start` left a cluster running here
+        ray.init(address=address or "local", runtime_env={"py_modules": [str(_BACKEND)]}, include_dashboard=False,
                  log_to_driver=False, logging_level=logging.WARNING)
     except (ConnectionError, ValueError, RuntimeError) as exc:
         where = f"the Ray cluster at {address}" if address else "a local Ray"
