@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -87,14 +86,14 @@ def run_fit_job(job: FitJob) -> FitOutcome:
             options["rig"] = str(tmp / "rig.json")
         events, log = io.StringIO(), io.StringIO()
         reporter = Reporter(json_lines=True, stream=events, log=log)
+        moves = {photos: Path(job.reflection).parent, out: Path(job.out_dir or out)}
+        restore = _path_restorer(moves)
         try:
             with contextlib.redirect_stderr(log):  # the traceback of an internal error goes to the log
                 code = fit_reporting(reflection, transmission, out, FolderFitOptions(**options), reporter,
                                      lambda: deadline is not None and time.monotonic() > deadline)
         except KeyboardInterrupt:  # Ray's cancel
-            return FitOutcome(job.name, "cancelled", "cancelled while fitting", log=log.getvalue())
-        moves = {photos: Path(job.reflection).parent, out: Path(job.out_dir or out)}
-        restore = _path_restorer(moves)
+            return FitOutcome(job.name, "cancelled", "cancelled while fitting", log=restore(log.getvalue()))
         error, text = _error_and_log(events.getvalue(), log.getvalue())
         if code == EXIT_OK:
             files = {path.name: path.read_bytes() for path in sorted(out.iterdir()) if path.is_file()}
@@ -105,7 +104,6 @@ def run_fit_job(job: FitJob) -> FitOutcome:
             status, error = "timeout", f"no result after {job.timeout_s:g} s (--timeout)"
         else:
             status = {EXIT_INPUT: "input", EXIT_CANCELLED: "cancelled"}.get(code, "internal")
-        shutil.rmtree(out, ignore_errors=True)
         return FitOutcome(job.name, status, restore(error or f"the fit ended with exit code {code}"), log=restore(text))
 
 
