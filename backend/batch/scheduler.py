@@ -6,8 +6,9 @@ second, not after Ray's start); :func:`run` then hands one :class:`~.job.FitJob`
 
 - ``done``: its files are written as ``DIR/<name>`` (output.py) and its row joins the catalogue;
 - ``input`` (the photos are bad: the fit's exit code 2): failed at once; a second try would fail the same way;
-- ``internal``, ``killed``, ``timeout``, or a task the engine lost (its worker or machine died):
-  reported with the reason and tried once more; failed after the second failure.
+- ``internal``, ``timeout``, ``cancelled`` by anyone but the batch, or a task the engine lost (its
+  worker or machine died, an out-of-memory kill): reported with the reason and tried once more;
+  failed after the second failure.
 
 Pairs are submitted as workers free up, so a catalogue of thousands never has its photos in the
 engine's memory at once. ``should_stop()`` (Ctrl+C) cancels the running fits, waits a little for
@@ -31,7 +32,7 @@ from ..core.protocol import Reporter
 from . import catalogue, output
 from .job import FitJob, FitOutcome
 
-RETRIED = ("internal", "killed", "timeout", "lost")
+RETRIED = ("internal", "timeout", "cancelled", "lost")  # "cancelled" while the batch is not stopping
 PROGRESS_EVERY_S = 5.0  # the progress line is also refreshed this often (its time left changes)
 POLL_S = 0.5
 
@@ -199,7 +200,7 @@ class _Run:
         elif self.stopping:
             self._final(pair, "cancelled" if outcome.status == "cancelled" else "failed", attempt,
                         reason=outcome.reason, wall_s=wall)
-        elif outcome.status in RETRIED + ("cancelled",) and attempt == 1:  # cancelled, not by us: killed
+        elif outcome.status in RETRIED and attempt == 1:
             self.reporter.pair(pair.name, "retrying", attempt, reason=outcome.reason, wall_s=wall)
             self.queue.appendleft((pair, attempt + 1))
         else:
