@@ -3,7 +3,7 @@
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit --golden DIR --real DIR [--cases ...] [--iterations N] [--json]
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
-        [--sequential-threads T] [--subprocess] [--json]      (needs Ray, the cluster extra)
+        [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def run_bench(args) -> int:
     if args.what == "batch":
         try:
             return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
-                               args.workers, args.sequential_threads, args.subprocess, args.json)
+                               args.workers, args.sequential_threads, args.subprocess, args.rounds, args.json)
         except BatchError as exc:  # no Ray
             raise InputError(f"bench batch: {exc}") from None
     return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json,
@@ -50,4 +50,5 @@ def add_parser(sub) -> None:
     p.add_argument("--sequential-threads", type=positive_int, help="batch: threads of each sequential fit "
                                                                    "(default: every core)")
     p.add_argument("--subprocess", action="store_true", help="batch: also one python -m backend fit per pair")
+    p.add_argument("--rounds", type=positive_int, default=1, help="batch: how often the ways take turns (default 1)")
     p.set_defaults(run=run_bench)
