@@ -22,6 +22,7 @@ from fake_backend import fake_params  # noqa: E402
 
 from backend.batch import catalogue, output, scheduler  # noqa: E402
 from backend.batch.job import FitJob, FitOutcome, run_fit_job  # noqa: E402
+from backend.batch.ray_executor import FitResources, RayConnection  # noqa: E402
 from backend.cli.main import main  # noqa: E402
 from backend.core.pairs import PhotoFiles  # noqa: E402
 from backend.core.protocol import ProtocolError, Reporter, decode, failed_exit_code  # noqa: E402
@@ -244,6 +245,30 @@ def test_the_time_left_comes_from_the_finished_fits(tmp_path):
     assert progress[0]["eta_s"] is None  # nothing finished yet
     assert all(e["eta_s"] is not None for e in progress if e["done"] >= 1)
     assert progress[-1]["eta_s"] == 0.0 and progress[-1]["done"] == 5
+
+
+class MachinesOnly:
+    """What RayConnection reads of Ray: its machines (one gone) and their resources."""
+
+    def __init__(self, *machines):
+        self.machines = machines
+
+    def nodes(self):
+        return [{"Alive": True, "Resources": m} for m in self.machines] + [{"Alive": False, "Resources": {"CPU": 64}}]
+
+
+def test_the_fits_at_once_follow_each_machine_s_cpus_gpus_and_memory():
+    gb = 2**30
+    ray = RayConnection(MachinesOnly({"CPU": 16, "GPU": 1, "memory": 20 * gb}, {"CPU": 4, "memory": 64 * gb}),
+                        started_here=False, local=False)
+    assert ray.capacity(FitResources(1, 0, 2)) == 10 + 4        # the first machine runs out of memory first
+    assert ray.capacity(FitResources(2, 0, 0)) == 8 + 2
+    assert ray.capacity(FitResources(1, 0.25, 2)) == 4          # four fits share the one GPU
+    assert FitResources(2, 0.5, 1.5).ray_options() == {"num_cpus": 2, "num_gpus": 0.5, "memory": int(1.5 * gb)}
+    assert ray.check_fits_on_a_machine(FitResources(16, 0, 2)) is None
+    problem = ray.check_fits_on_a_machine(FitResources(32, 0, 2))
+    assert "no machine of this Ray has that much (the largest: 16 CPUs, 1 GPUs, 20.0 GB for tasks)" in problem
+    assert RayConnection(MachinesOnly(), started_here=False, local=True).capacity(FitResources()) == 1
 
 
 # -- the task itself (in this process, no Ray) ----------------------------------------------------

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from backend.batch import scheduler
-from backend.batch.ray_executor import connect
+from backend.batch.ray_executor import FitResources, connect
 from backend.bench.batch import small_rig
 from backend.cli.main import main
 from backend.core.params import FabricParams
@@ -138,7 +138,7 @@ def test_a_task_whose_worker_dies_is_retried_once_and_reported(ray_session, phot
     for side in "RT":
         shutil.copy(photos[0] / f"good_{side}.png", folder / f"good_{side}.png")
     events = EventStream()
-    executor = connect(None).executor(1, 0)
+    executor = connect(None).executor(FitResources())
     executor.task = ray_session.remote(num_cpus=1, max_retries=0)(die)
     summary = scheduler.run(scheduler.plan(folder, tmp_path / "out", resume=False),
                             scheduler.BatchOptions(workers=1), executor, Reporter(json_lines=True, stream=events))

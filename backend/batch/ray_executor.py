@@ -8,11 +8,12 @@ versions, and Ray). A Ray already started in this process (a test, a notebook) i
 and left running.
 
 :class:`RayExecutor` makes each pair a task of :func:`~.job.run_fit_job` that asks for
-``--cpus-per-fit`` CPUs and ``--gpus-per-fit`` GPUs (Ray places it on a machine that has them;
-fractions of a GPU share one), with Ray's own retries off (``max_retries=0``: the driver retries
-once and says why) and a worker replaced after :data:`MAX_FITS_PER_WORKER` fits, so that nothing a
-fit leaves in memory piles up. A cancelled task becomes a ``cancelled`` outcome; any other Ray error
-(the worker or its machine died, Ray's out-of-memory killer, an exception outside the fit) becomes
+``--cpus-per-fit`` CPUs, ``--gpus-per-fit`` GPUs and ``--memory-per-fit`` GB
+(:class:`FitResources`; Ray places it on a machine that has them; fractions of a GPU share one),
+with Ray's own retries off (``max_retries=0``: the driver retries once and says why) and a worker
+replaced after :data:`MAX_FITS_PER_WORKER` fits, so that nothing a fit leaves in memory piles up.
+A cancelled task becomes a ``cancelled`` outcome; any other Ray error (the worker or its machine
+died, Ray's out-of-memory killer, an exception outside the fit) becomes
 :class:`~.scheduler.TaskLost` with Ray's own first line as the reason.
 """
 from __future__ import annotations
@@ -26,7 +27,35 @@ from .scheduler import BatchError, TaskLost
 
 INSTALL_HINT = "pip install -e '.[cluster]' (or pip install ray)"
 MAX_FITS_PER_WORKER = 20
+# A fit's peak memory: about 2.0 GB for a default fit (--size 256, 512-pixel film; metrics.json's
+# peak_mb), 1.1 GB for the tests' tiny ones. Reserving it keeps a many-core, little-memory machine
+# from running more fits than it can hold.
+DEFAULT_MEMORY_GB = 2.0
 _BACKEND = Path(__file__).resolve().parents[1]  # the backend package the workers import
+
+
+@dataclass(frozen=True)
+class FitResources:
+    """What Ray reserves for one fit: CPUs (also its threads), GPUs (fractions share one), memory."""
+
+    cpus: float = 1.0
+    gpus: float = 0.0
+    memory_gb: float = DEFAULT_MEMORY_GB
+
+    def ray_options(self) -> dict:
+        return {"num_cpus": self.cpus, "num_gpus": self.gpus, "memory": int(self.memory_gb * 2**30)}
+
+    def fits_in(self, resources: dict) -> int:
+        """How many such fits ``resources`` (Ray's: CPU, GPU, memory in bytes) hold at once."""
+        limits = [resources.get("CPU", 0) / self.cpus]
+        if self.gpus:
+            limits.append(resources.get("GPU", 0) / self.gpus)
+        if self.memory_gb:
+            limits.append(resources.get("memory", 0) / (self.memory_gb * 2**30))
+        return int(min(limits))
+
+    def describe(self) -> str:
+        return f"{self.cpus:g} CPU(s), {self.gpus:g} GPU(s), {self.memory_gb:g} GB each"
 
 
 @dataclass
@@ -38,35 +67,31 @@ class RayConnection:
     def resources(self) -> dict:
         return self.ray.cluster_resources()
 
-    def largest_node(self) -> dict:
-        nodes = [n.get("Resources", {}) for n in self.ray.nodes() if n.get("Alive")]
-        return max(nodes, key=lambda r: (r.get("CPU", 0), r.get("GPU", 0)), default={})
+    def machines(self) -> list[dict]:
+        return [n.get("Resources", {}) for n in self.ray.nodes() if n.get("Alive")]
 
-    def capacity(self, cpus_per_fit: float, gpus_per_fit: float) -> int:
-        """How many fits the cluster can run at once (at least 1)."""
-        total = self.resources()
-        fits = int(total.get("CPU", 0) // cpus_per_fit)
-        if gpus_per_fit:
-            fits = min(fits, int(total.get("GPU", 0) // gpus_per_fit))
-        return max(1, fits)
+    def capacity(self, fit: FitResources) -> int:
+        """How many fits the machines can run at once (at least 1)."""
+        return max(1, sum(fit.fits_in(machine) for machine in self.machines()))
 
-    def check_fits_on_a_machine(self, cpus_per_fit: float, gpus_per_fit: float) -> str | None:
-        """None when some machine has the CPUs and GPUs one fit asks for; else the problem (an error on
-        a local Ray, a warning on a cluster, whose autoscaler may still add such a machine)."""
-        node = self.largest_node()
-        if node.get("CPU", 0) >= cpus_per_fit and node.get("GPU", 0) >= gpus_per_fit:
+    def check_fits_on_a_machine(self, fit: FitResources) -> str | None:
+        """None when some machine has what one fit asks for; else the problem (an error on a local Ray,
+        a warning on a cluster, whose autoscaler may still add such a machine)."""
+        if any(fit.fits_in(machine) for machine in self.machines()):
             return None
-        return (f"--cpus-per-fit {cpus_per_fit:g} --gpus-per-fit {gpus_per_fit:g}: no machine of this Ray has that "
-                f"much (the largest: {node.get('CPU', 0):g} CPUs, {node.get('GPU', 0):g} GPUs)")
+        largest = max(self.machines(), key=lambda m: (m.get("CPU", 0), m.get("memory", 0)), default={})
+        return (f"a fit asks for {fit.describe()} (--cpus-per-fit, --gpus-per-fit, --memory-per-fit): no machine "
+                f"of this Ray has that much (the largest: {largest.get('CPU', 0):g} CPUs, {largest.get('GPU', 0):g} "
+                f"GPUs, {largest.get('memory', 0) / 2**30:.1f} GB for tasks)")
 
     def describe(self) -> str:
         total = self.resources()
-        nodes = sum(1 for n in self.ray.nodes() if n.get("Alive"))
         where = "local Ray" if self.local else "Ray cluster"
-        return f"{where}: {nodes} machine(s), {total.get('CPU', 0):g} CPUs, {total.get('GPU', 0):g} GPUs"
+        return (f"{where}: {len(self.machines())} machine(s), {total.get('CPU', 0):g} CPUs, {total.get('GPU', 0):g} "
+                f"GPUs, {total.get('memory', 0) / 2**30:.1f} GB for tasks")
 
-    def executor(self, cpus_per_fit: float, gpus_per_fit: float) -> RayExecutor:
-        return RayExecutor(self.ray, cpus_per_fit, gpus_per_fit)
+    def executor(self, fit: FitResources) -> RayExecutor:
+        return RayExecutor(self.ray, fit)
 
     def close(self) -> None:
         if self.started_here:
@@ -96,10 +121,9 @@ def connect(address: str | None) -> RayConnection:
 class RayExecutor:
     """The scheduler's Executor on Ray: handles are ObjectRefs."""
 
-    def __init__(self, ray, cpus_per_fit: float, gpus_per_fit: float, task=run_fit_job):
+    def __init__(self, ray, fit: FitResources, task=run_fit_job):
         self.ray = ray
-        self.task = ray.remote(num_cpus=cpus_per_fit, num_gpus=gpus_per_fit, max_retries=0,
-                               max_calls=MAX_FITS_PER_WORKER)(task)
+        self.task = ray.remote(**fit.ray_options(), max_retries=0, max_calls=MAX_FITS_PER_WORKER)(task)
         self.unfinished: set = set()
 
     def submit(self, job: FitJob):

@@ -36,7 +36,7 @@ from pathlib import Path
 
 from ..batch import scheduler
 from ..batch.job import FitJob, FitOutcome, run_fit_job
-from ..batch.ray_executor import connect
+from ..batch.ray_executor import FitResources, connect
 from ..core.priors import PATTERNS, sample
 from ..core.protocol import Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig
@@ -114,9 +114,9 @@ def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit:
         ray_start_s = time.perf_counter() - ray_started
         try:
             for number in range(1, rounds + 1):  # the ways take turns: a machine's changing load hits them alike
+                on_ray = connection.executor(FitResources(cpus_per_fit, 0.0, 0.0))
                 ways = [through_driver("sequential", InlineExecutor(), 1, sequential_threads, tmp / f"seq{number}"),
-                        through_driver("ray", connection.executor(cpus_per_fit, 0), workers, cpus_per_fit,
-                                       tmp / f"ray{number}")]
+                        through_driver("ray", on_ray, workers, cpus_per_fit, tmp / f"ray{number}")]
                 if with_subprocess:
                     ways.append(_subprocess_loop(tmp, rig_path, fit_options, sequential_threads, tmp / f"sub{number}"))
                 for row in ways:

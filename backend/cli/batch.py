@@ -1,7 +1,7 @@
 """``python -m backend batch``: fit every photo pair of a folder on Ray, on this machine or a cluster.
 
-    batch PHOTOS/ --out DIR [--workers N] [--cpus-per-fit K] [--gpus-per-fit G] [--ray-address ADDR]
-        [--resume] [--timeout S] [--json-progress] [--pattern ...] [--iterations N] [--size N]
+    batch PHOTOS/ --out DIR [--workers N] [--cpus-per-fit K] [--gpus-per-fit G] [--memory-per-fit GB]
+        [--ray-address ADDR] [--resume] [--timeout S] [--json-progress] [--pattern ...] [--iterations N] [--size N]
         [--rig RIG.json] [--strict] [--seed S] [--camera-blur auto|PX] [--init network|prior] [--output-spp N]
 
 Every ``<name>_R.* / <name>_T.*`` pair of PHOTOS (the Blender batch's rule, backend/core/pairs.py)
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..batch import scheduler
 from ..batch.output import OutputError
-from ..batch.ray_executor import connect
+from ..batch.ray_executor import DEFAULT_MEMORY_GB, FitResources, connect
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, Reporter, failed_exit_code
 from ..core.rig import CaptureRig, RigError
 from .common import positive_int
@@ -53,17 +53,17 @@ def run_batch(args) -> int:
         return EXIT_INPUT
     executor = None
     try:
-        problem = connection.check_fits_on_a_machine(args.cpus_per_fit, args.gpus_per_fit)
+        fit = FitResources(args.cpus_per_fit, args.gpus_per_fit, args.memory_per_fit)
+        problem = connection.check_fits_on_a_machine(fit)
         if problem and connection.local:
             reporter.error("input", problem)
             return EXIT_INPUT
         if problem:
             reporter.warning(problem + "; the fits wait until the cluster has such a machine")
-        workers = args.workers or connection.capacity(args.cpus_per_fit, args.gpus_per_fit)
+        workers = args.workers or connection.capacity(fit)
         reporter.info(f"{connection.describe()}; {len(plan.to_fit)} pair(s) to fit ({workers} at a time, "
-                      f"{args.cpus_per_fit:g} CPU(s) each), {counts['kept']} kept from an earlier run, "
-                      f"{counts['failed']} unusable")
-        executor = connection.executor(args.cpus_per_fit, args.gpus_per_fit)
+                      f"{fit.describe()}), {counts['kept']} kept from an earlier run, {counts['failed']} unusable")
+        executor = connection.executor(fit)
         summary = _run_until_stopped(plan, _options(args, workers, rig_text), executor, reporter)
     finally:
         if executor is not None:
@@ -78,7 +78,8 @@ def _options(args, workers: int, rig_text: str | None) -> scheduler.BatchOptions
         workers=workers, fit_options=fit_options, rig_text=rig_text, threads=max(1, round(args.cpus_per_fit)),
         timeout_s=args.timeout,
         settings={"fit": fit_options, "rig": args.rig, "workers": workers, "cpus_per_fit": args.cpus_per_fit,
-                  "gpus_per_fit": args.gpus_per_fit, "ray_address": args.ray_address})
+                  "gpus_per_fit": args.gpus_per_fit, "memory_per_fit": args.memory_per_fit,
+                  "ray_address": args.ray_address})
 
 
 def _run_until_stopped(plan, options, executor, reporter) -> scheduler.BatchSummary:
@@ -153,6 +154,9 @@ def add_parser(sub) -> None:
                    help="CPUs Ray reserves for each fit, and its torch threads (default 1)")
     p.add_argument("--gpus-per-fit", type=_non_negative, default=0.0,
                    help="GPUs for each fit (fractions share one; default 0: fit on the CPU)")
+    p.add_argument("--memory-per-fit", type=_non_negative, default=DEFAULT_MEMORY_GB, metavar="GB",
+                   help=f"memory Ray reserves for each fit (default {DEFAULT_MEMORY_GB:g}: a default fit's peak; "
+                        "0: none)")
     p.add_argument("--ray-address", help="a running Ray cluster (auto, HOST:6379 or ray://HOST:10001); "
                                          "default: start a local Ray on this machine")
     p.add_argument("--resume", action="store_true", help="keep the complete results in DIR and fit the rest")
