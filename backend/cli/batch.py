@@ -148,8 +148,8 @@ def add_parser(sub) -> None:
     p.add_argument("photos", help="folder of photo pairs")
     p.add_argument("--out", required=True, help="results folder: DIR/<name>/ per pair, DIR/catalogue.json and .csv")
     p.add_argument("--workers", type=positive_int,
-                   help="fits handed to Ray at once (default: as many as the CPUs (and GPUs) of the machine or "
-                        "cluster allow; more only wait in Ray's queue)")
+                   help="fits handed to Ray at once (default: as many as the machines' CPUs, GPUs and memory "
+                        "allow; more only wait in Ray's queue)")
     p.add_argument("--cpus-per-fit", type=_positive, default=1.0,
                    help="CPUs Ray reserves for each fit, and its torch threads (default 1)")
     p.add_argument("--gpus-per-fit", type=_non_negative, default=0.0,
