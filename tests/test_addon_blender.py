@@ -395,6 +395,20 @@ def test_batch_runs_from_the_bpy_module_in_a_checkout(tmp_path, photos):
     assert "2 fitted, 0 failed" in done.stdout and (tmp_path / "lib.blend").is_file()
 
 
+def test_the_checkout_batch_makes_a_library_from_results_without_fitting(tmp_path, photos):
+    results = tmp_path / "results"   # fitted elsewhere (`python -m backend batch --out results`)
+    for name in ("linen", "wool"):
+        subprocess.run([sys.executable, str(FAKE_BACKEND), "fit", str(photos / f"{name}_R.png"),
+                        str(photos / f"{name}_T.png"), "--out", str(results / name)], check=True, timeout=TIMEOUT_S)
+    (results / "logs").mkdir()
+    environment = {**os.environ, "BLENDER_USER_RESOURCES": str(tmp_path / "blender_user"),
+                   "WOVEN_FABRIC_PYTHON": "/nonexistent/python"}  # no backend is needed
+    done = subprocess.run([sys.executable, "-m", "blender_addon.batch", "--from-results", str(results)],
+                          capture_output=True, text=True, timeout=TIMEOUT_S, env=environment, cwd=ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "2 imported, 0 failed" in done.stdout and (results / "fabric_materials.blend").is_file()
+
+
 def test_drape_preview_builds_a_cloth_scene(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, f"""
         import importlib.util

@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from addon_support import python_without_torch  # noqa: E402
+from fake_backend import fake_params  # noqa: E402
 
 import backend.core.dependencies  # noqa: E402
 import backend.core.formats  # noqa: E402
@@ -32,6 +33,7 @@ import backend.core.pairs  # noqa: E402
 import backend.core.params  # noqa: E402
 import backend.core.priors  # noqa: E402
 import backend.core.protocol  # noqa: E402
+import backend.core.results  # noqa: E402
 import backend.core.rig  # noqa: E402
 import backend.core.weave  # noqa: E402
 from blender_addon.core import backend_bridge as bridge  # noqa: E402
@@ -69,8 +71,8 @@ def test_the_addon_reads_the_backends_own_declarations():
     """Each shared fact comes from the backend's file itself, so the two sides cannot drift."""
     for name, module in (("core.formats", backend.core.formats), ("core.pairs", backend.core.pairs),
                          ("core.params", backend.core.params), ("core.priors", backend.core.priors),
-                         ("core.protocol", backend.core.protocol), ("core.rig", backend.core.rig),
-                         ("core.weave", backend.core.weave)):
+                         ("core.protocol", backend.core.protocol), ("core.results", backend.core.results),
+                         ("core.rig", backend.core.rig), ("core.weave", backend.core.weave)):
         assert Path(paths.backend_module(name).__file__).resolve() == Path(module.__file__).resolve(), name
     for suffix in (*backend.core.formats.PHOTO_SUFFIXES, ".txt"):
         for case in (suffix, suffix.upper()):
@@ -81,6 +83,7 @@ def test_the_addon_reads_the_backends_own_declarations():
     assert declarations.default_params() == backend.core.params.FabricParams().to_dict()
     assert rig_settings.defaults() == backend.core.rig.DEFAULT_RIG.to_dict()
     assert declarations.protocol().STAGES == backend.core.protocol.STAGES
+    assert declarations.result_files() == backend.core.results.RESULT_FILES
 
 
 def test_rig_fields_are_the_capture_rigs_fields_with_its_defaults(tmp_path):
@@ -478,6 +481,54 @@ def test_the_batch_fits_good_pairs_and_counts_bad_ones(tmp_path, monkeypatch, ca
     failing = RecordingLibrary(fail_write=True)
     assert batch.main([str(photos), "--fits", str(tmp_path / "again")], library=failing) == 4
     assert "ERROR cannot write" in capsys.readouterr().out
+
+
+def write_results(folder: Path, name: str, files=None) -> Path:
+    """A results folder as `python -m backend fit --out` leaves it (some files only, when ``files`` says)."""
+    folder.mkdir(parents=True)
+    for file in files or backend.core.results.RESULT_FILES:
+        content = {"params.json": json.dumps({**fake_params(name), "photos": {
+            "reflection": {"path": f"/photos/{name}_R.png"}, "transmission": {"path": f"/photos/{name}_T.png"}}}),
+                   "metrics.json": "{}"}.get(file)
+        (folder / file).write_text(content) if content else (folder / file).write_bytes(PNG_1x1)
+    return folder
+
+
+def test_the_batch_builds_a_library_from_results_without_fitting(tmp_path, capsys):
+    results = tmp_path / "results"   # what `python -m backend batch --out results` leaves
+    write_results(results / "linen", "linen")
+    write_results(results / "wool", "wool")
+    write_results(results / "half", "half", files=["params.json", "reflection.png"])  # a copy cut short
+    (results / "logs").mkdir()
+    (results / "logs" / "wool.log").write_text("warning: ...")
+    write_results(results / ".staging" / "denim", "denim")  # the batch's own hidden folders are passed by
+    (results / "catalogue.json").write_text("{}")
+    library = RecordingLibrary()
+    # No backend is asked for: a misconfigured one would make this fail.
+    code = batch.main(["--from-results", str(results), "--width-cm", "4"], library=library,
+                      preferred_backend=lambda: bridge.Backend("/nonexistent/python", ""))
+    out = capsys.readouterr().out
+    assert code == 1, out
+    assert library.added == [("linen", "twill1", 4.0, "linen", "reflection.png"),
+                             ("wool", "twill1", 4.0, "wool", "reflection.png")]
+    assert library.written == [results / "fabric_materials.blend"]
+    assert "FAIL half: incomplete results folder" in out and "no metrics.json, transmission.png, report.png" in out
+    assert "2 imported, 1 failed" in out
+
+    single = RecordingLibrary()  # one fit's folder, given itself
+    assert batch.main(["--from-results", str(results / "linen"), "--out", str(tmp_path / "one.blend")],
+                      library=single) == 0
+    assert [a[0] for a in single.added] == ["linen"] and single.written == [tmp_path / "one.blend"]
+    assert batch.main(["--from-results", str(tmp_path / "results" / "logs")], library=RecordingLibrary()) == 1
+    assert "no fit results" in capsys.readouterr().out
+    assert batch.main([str(results), "--from-results", str(results)], library=RecordingLibrary()) == 1
+    assert "either the folder of photo pairs or --from-results" in capsys.readouterr().err
+
+
+def test_the_batch_exit_code_is_the_backends(tmp_path):
+    report = batch.BatchReport(failed=[("pair", "bad")] * 300)
+    assert report.exit_code == backend.core.protocol.failed_exit_code(300) == 125
+    assert batch.BatchReport(failed=[("pair", "bad")] * 3).exit_code == 3
 
 
 def test_the_batch_refuses_bad_arguments_before_any_fit(tmp_path, capsys):

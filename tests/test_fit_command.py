@@ -15,10 +15,10 @@ import textwrap
 import pytest
 from conftest import ROOT
 
-from backend.cli.fit import EXAMPLE_PARAMS
 from backend.core.params import FabricParams
 from backend.core.protocol import EXIT_CANCELLED, STOP_REQUEST, decode
 from backend.core.rig import DEFAULT_RIG
+from backend.fit.folder import EXAMPLE_PARAMS
 from backend.image.png import write_png
 from backend.model.render import render_pair
 
@@ -27,7 +27,7 @@ HANG_S = 120  # a liveness bound, not a timing
 # argv[1]: JSON {"fail": "renders" | "metrics" | "report" | "", "steps": N}; the rest: the fit command.
 STAND_IN = textwrap.dedent("""
     import json, sys, time
-    import backend.cli.fit as command
+    import backend.fit.folder as command
     from backend.cli.main import main
     from backend.core.params import FabricParams
     from backend.fit.settings import FitCancelled, FitResult

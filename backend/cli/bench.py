@@ -1,13 +1,17 @@
-"""``python -m backend bench render|fit``: performance figures (never timed tests).
+"""``python -m backend bench render|fit|batch``: performance figures (never timed tests).
 
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
         [--no-novel-light] [--fit-args "EXTRA FIT ARGUMENTS"]
+    bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
+        [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
 """
 from __future__ import annotations
 
 import shlex
 
+from ..batch.scheduler import BatchError
+from ..bench.batch import bench_batch
 from ..bench.fit import bench_fit
 from ..bench.render import bench_render
 from .common import InputError, device, positive_int
@@ -21,12 +25,19 @@ def run_bench(args) -> int:
         extra = (["--iterations", str(args.iterations)] if args.iterations else []) + shlex.split(args.fit_args)
         return bench_fit(synthetic, args.real, args.cases, extra, args.json, keep=args.keep,
                          novel_light=not args.no_novel_light)
-    return bench_render(size=args.size, spp=args.spp, runs=args.runs, as_json=args.json, device=device(args.device))
+    if args.what == "batch":
+        try:
+            return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
+                               args.workers, args.sequential_threads, args.subprocess, args.rounds, args.json)
+        except BatchError as exc:  # no Ray
+            raise InputError(f"bench batch: {exc}") from None
+    return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json,
+                        device=device(args.device))
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render", "fit"])
+    p.add_argument("what", choices=["render", "fit", "batch"])
     p.add_argument("--json", action="store_true", help="JSON lines")
     p.add_argument("--synthetic", nargs="*", default=[],
                    help="fit: folders with cases.json and <name>_R/_T images (golden renders, photo-like sets)")
@@ -36,9 +47,18 @@ def add_parser(sub) -> None:
     p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
     p.add_argument("--fit-args", default="", help='fit: extra arguments of every fit, one string ("--size 512")')
     p.add_argument("--cases", nargs="*", help="fit: only these names")
-    p.add_argument("--iterations", type=int, help="fit: iterations per pair (default: the fit's default)")
-    p.add_argument("--size", type=positive_int, default=512)
+    p.add_argument("--iterations", type=int, help="iterations per fit (fit: the fit's default; batch: 20)")
+    p.add_argument("--size", type=positive_int, help="render: image size (default 512); batch: the fits' working "
+                                                     "size (default 64)")
     p.add_argument("--spp", type=positive_int, default=4)
     p.add_argument("--runs", type=positive_int, default=5)
     p.add_argument("--device", default="cpu")
+    p.add_argument("--pairs", type=positive_int, default=4, help="batch: synthetic pairs (default 4)")
+    p.add_argument("--film", type=positive_int, default=128, help="batch: the pairs' film size (default 128)")
+    p.add_argument("--cpus-per-fit", type=positive_int, default=1, help="batch: threads of each Ray fit (default 1)")
+    p.add_argument("--workers", type=positive_int, help="batch: Ray fits at once (default: cores / cpus-per-fit)")
+    p.add_argument("--sequential-threads", type=positive_int, help="batch: threads of each sequential fit "
+                                                                   "(default: every core)")
+    p.add_argument("--subprocess", action="store_true", help="batch: also one python -m backend fit per pair")
+    p.add_argument("--rounds", type=positive_int, default=1, help="batch: how often the ways take turns (default 1)")
     p.set_defaults(run=run_bench)

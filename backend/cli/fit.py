@@ -4,18 +4,12 @@
         [--iterations N] [--size N] [--device cpu|cuda] [--json-progress] [--rig RIG.json]
         [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior]
         [--vgg-weights PATH] [--camera-blur auto|PX] [--sample-rotation auto|DEG] [--output-spp N] [--overwrite]
+        [--stop-on-stdin]
     fit --example --out DIR      (renders a known fabric, then fits it)
 
-Writes DIR/params.json (spec names, plus the interchange string, rig, fit details), DIR/reflection.png
-and DIR/transmission.png (16-bit re-renders of the fit at the rig's film size (512) and 64 spp, the
-photos' framing), DIR/report.png and DIR/metrics.json (FLIP, 16 x 16 colour L1 and spectrum
-correlation for both images, wall time). Progress goes to the terminal, or as JSON lines with
---json-progress (:mod:`backend.core.protocol`). An existing fit in DIR is never overwritten without
---overwrite.
-
-params.json is written as soon as the fit ends, before anything optional: a failure in the
-re-renders, metrics or report afterwards is a warning (with its traceback on stderr) and loses
-nothing; the run still ends with its result.
+The job itself, its outputs and its error contract are :mod:`backend.fit.folder`'s; this module
+adds the command line and the stop requests. Progress goes to the terminal, or as JSON lines with
+--json-progress (:mod:`backend.core.protocol`).
 
 Stopping: SIGINT/SIGTERM (a terminal), or with --stop-on-stdin a ``stop`` line on stdin or the end
 of stdin (a caller that cannot send signals, e.g. on Windows, or that went away; the protocol's
@@ -26,62 +20,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import signal
 import sys
 import threading
-import time
-import traceback
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from .. import __version__
-from ..core.params import PARAMETERS, FabricParams
 from ..core.priors import PATTERNS
-from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, STOP_REQUEST, Reporter
-from ..core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG, CaptureRig, RigError
-from ..fit.gram import GramWeightsError
-from ..fit.pipeline import fit
-from ..fit.report import write_report
-from ..fit.settings import FitCancelled, FitSettings
-from ..image.metrics import compare
-from ..image.photos import PhotoError, load_pair
-from ..image.png import write_png
-from ..init.network import INIT_CHOICES, fit_initialiser
-from ..model.memory import peak_memory_mb
-from ..model.render import render_pair
+from ..core.protocol import STOP_REQUEST, Reporter
+from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
+from ..fit.folder import EXAMPLE_PARAMS, FolderFitOptions, fit_reporting
+from ..init.network import INIT_CHOICES
 
-EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
-                  "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
-OUTPUT_SPP = 64
-FITTED = tuple(s.name for s in PARAMETERS if s.optimised or (s.searched and s.name != "tiles"))
-
-
-class FitInputError(ValueError):
-    def __init__(self, message: str, file: str | None = None):
-        super().__init__(message)
-        self.file = file
-
-
-def make_example(folder: Path, rig: CaptureRig = DEFAULT_RIG) -> tuple[Path, Path, FabricParams]:
-    """Renders the bundled example fabric as a photo pair (8-bit, like a phone's) into ``folder``."""
-    params = FabricParams.from_interchange(EXAMPLE_PARAMS)
-    pair = render_pair(params, rig, size=rig.film_size, spp=16, seed=12345)
-    folder.mkdir(parents=True, exist_ok=True)
-    reflection = write_png(folder / "example_R.png", pair.reflection, bits=8)
-    transmission = write_png(folder / "example_T.png", pair.transmission, bits=8)
-    return reflection, transmission, params
-
-
-def _prepare_out(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise FitInputError(f"{out}: exists and is not a folder", str(out))
-    if (out / "params.json").exists() and not overwrite:
-        raise FitInputError(f"{out}: already holds a fit (params.json); choose a new folder or pass --overwrite",
-                            str(out / "params.json"))
-    out.mkdir(parents=True, exist_ok=True)
+__all__ = ["EXAMPLE_PARAMS", "add_fit_options", "add_parser", "run_fit", "watch_stop_requests"]
 
 
 def watch_stop_requests(stream, stop: threading.Event) -> threading.Thread:
@@ -112,149 +62,13 @@ def run_fit(args) -> int:
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     if args.stop_on_stdin:
         watch_stop_requests(sys.stdin, stop)
-    out = Path(args.out)
-    written: dict[str, str] = {}
+    options = FolderFitOptions(**{f.name: getattr(args, f.name) for f in dataclasses.fields(FolderFitOptions)})
     try:
-        return fit_to_folder(args, reporter, out, stop.is_set, written)
-    except FitCancelled as cancelled:
-        if "params" in written:
-            message = (f"the fit was cancelled after it ended: its parameters are in {written['params']}; "
-                       "the re-renders, metrics or report may be missing")
-        elif cancelled.params is not None and out.is_dir():
-            (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True)
-                                                     + "\n")
-            message = "the fit was cancelled; the best parameters so far are in params.partial.json"
-        else:
-            message = "the fit was cancelled before any result"
-        reporter.error("cancelled", message)
-        return EXIT_CANCELLED
-    except (FitInputError, PhotoError, RigError, GramWeightsError) as exc:
-        reporter.error("input", str(exc), getattr(exc, "file", None))
-        return EXIT_INPUT
-    except Exception as exc:  # the caller gets a readable line, never a silent death
-        traceback.print_exc()
-        reporter.error("internal", f"{type(exc).__name__}: {exc}")
-        return EXIT_INTERNAL
+        return fit_reporting(args.reflection, args.transmission, Path(args.out), options, reporter, stop.is_set,
+                             example=args.example)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-
-
-def fit_to_folder(args, reporter: Reporter, out: Path, should_stop, written: dict[str, str]) -> int:
-    """Loads the photos, fits them and writes the results folder (see the module docstring); each file
-    is recorded in ``written`` (name -> path) as soon as it exists."""
-    started = time.perf_counter()
-    if args.device.startswith("cuda") and not torch.cuda.is_available():
-        raise FitInputError(f"--device {args.device}: CUDA is not available in this PyTorch build or on this machine")
-    rig = CaptureRig.load(args.rig) if args.rig else DEFAULT_RIG
-    if args.size is not None and args.size > rig.film_size:
-        raise FitInputError(f"--size {args.size}: larger than the photos' working size ({rig.film_size} px, the rig's "
-                            "film size); the loss cannot see more than the photos hold")
-    _prepare_out(out, args.overwrite)
-    truth = None
-    if args.example:
-        reflection_path, transmission_path, truth = make_example(out / "example_photos", rig)
-    else:
-        if not args.reflection or not args.transmission:
-            raise FitInputError("fit needs REFLECTION and TRANSMISSION photos (or --example)")
-        reflection_path, transmission_path = Path(args.reflection), Path(args.transmission)
-    reporter.progress("load", 0, 1)
-    photos = load_pair(reflection_path, transmission_path, size=rig.film_size, crop=args.crop,
-                       flat_field=args.flat_field, strict=args.strict)
-    for warning in photos.warnings:
-        reporter.warning(warning)
-    reporter.progress("load", 1, 1)
-
-    settings = FitSettings(pattern=args.pattern, iterations=args.iterations, size=args.size, seed=args.seed,
-                           device=args.device, vgg_weights=args.vgg_weights,
-                           camera_blur=_given(args.camera_blur, rig.camera_blur_px),
-                           sample_rotation=_given(args.sample_rotation, rig.sample_rotation_deg))
-    initial_for = fit_initialiser(args.init, photos.reflection, photos.transmission, rig, reporter.warning)
-    result = fit(photos.reflection, photos.transmission, rig, settings,
-                 progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
-                 initial_for=initial_for,
-                 pattern_probabilities=initial_for.pattern_probabilities if initial_for is not None else None,
-                 should_stop=should_stop)
-
-    # the placement the fit read from the photos: the re-renders and params.json's rig use it
-    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4),
-                              sample_rotation_deg=round(result.sample_rotation_deg, 4))
-    at_bounds = result.params.at_bounds(FITTED)
-    extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
-             "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
-                     "at_bounds": at_bounds,
-                     "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
-                                  "size": result.size, "spp": result.spp, "seed": settings.seed}},
-             "photos": photos.info}
-    (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
-    written["params"] = str(out / "params.json")
-
-    # Everything below is optional: a failure is a warning, params.json stays.
-    reporter.progress("render", 0, 1)
-
-    def render_progress(done, total):
-        if should_stop():
-            raise FitCancelled(result.params)
-        reporter.progress("render", done, total)
-
-    def optional(what: str, make):
-        try:
-            return make()
-        except FitCancelled:
-            raise
-        except Exception as exc:
-            traceback.print_exc()
-            reporter.warning(f"{what} could not be written ({type(exc).__name__}: {exc}); the fitted parameters "
-                             f"are in {written['params']}")
-            return None
-
-    def write_renders():
-        images = _final_renders(result.params, rig, settings.device, args.output_spp, render_progress)
-        for name, image in zip(("reflection", "transmission"), images):
-            written[name] = str(write_png(out / f"{name}.png", image))
-        return images
-
-    renders = optional("the re-renders (and so the metrics and report)", write_renders)
-    metrics = None
-    if renders is not None:
-        reporter.progress("report", 0, 1)
-        metrics = optional("metrics.json (and so report.png)",
-                           lambda: _write_metrics(out, photos, renders, result, rig, settings, started, truth,
-                                                  at_bounds))
-    if metrics is not None:
-        written["metrics"] = str(out / "metrics.json")
-        report = optional("report.png", lambda: write_report(
-            out / "report.png", (photos.reflection, photos.transmission), renders, metrics, result.params, rig,
-            time.perf_counter() - started, at_bounds))
-        if report is not None:
-            written["report"] = str(report)
-    reporter.progress("report", 1, 1)
-    reporter.info(f"wrote {out}: {', '.join(Path(path).name for path in written.values())}")
-    reporter.result(out_dir=str(out), params=written["params"], files=dict(written), metrics=metrics or {})
-    return 0
-
-
-def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings: FitSettings, started: float,
-                   truth: FabricParams | None, at_bounds: list[str]) -> dict:
-    """metrics.json: the renders against the photos, wall time, peak memory, stage timings; the metrics."""
-    metrics = {"reflection": compare(photos.reflection, renders[0]),
-               "transmission": compare(photos.transmission, renders[1])}
-    peak_mb = peak_memory_mb(torch.device(settings.device))
-    summary = {"metrics": metrics, "wall_s": round(time.perf_counter() - started, 2),
-               "peak_mb": None if peak_mb is None else round(peak_mb, 1),
-               "timings": {k: round(v, 2) for k, v in result.timings.items()},
-               "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
-               "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
-               "at_bounds": at_bounds}
-    if truth is not None:
-        summary["example_truth"] = truth.to_dict()
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return metrics
-
-
-def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
-    pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress)
-    return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 
 def _working_size(text: str) -> int:
@@ -266,14 +80,6 @@ def _working_size(text: str) -> int:
     if value < 32:
         raise argparse.ArgumentTypeError(f"must be at least 32 pixels, got {value}")
     return value
-
-
-def _given(option: str, rig_value: float) -> float | None:
-    """A fixed capture value (camera blur, sample rotation): the command line's number, else a rig
-    file's non-zero value (the same camera and holder again); None (read it from the photos)."""
-    if option != "auto":
-        return float(option)
-    return rig_value if rig_value != 0 else None
 
 
 def _auto_or_number(limit: float, unit: str, low: float | None = None):
@@ -294,37 +100,47 @@ def _auto_or_number(limit: float, unit: str, low: float | None = None):
     return parse
 
 
+# The options of the fit itself, which a batch passes on to every pair's fit (FolderFitOptions' names).
+BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "camera_blur", "sample_rotation",
+                     "init", "output_spp")
+
+
+def add_fit_options(p) -> None:
+    """Adds the options of :data:`BATCH_FIT_OPTIONS` (the fit and the batch command share them)."""
+    p.add_argument("--pattern", default=FolderFitOptions.pattern, choices=("auto",) + PATTERNS)
+    p.add_argument("--iterations", type=int, default=FolderFitOptions.iterations)
+    p.add_argument("--size", type=_working_size, default=FolderFitOptions.size, metavar="N",
+                   help="working size of the loss in pixels, 32 up to the photos' working size (the rig's film "
+                        "size, 512); default: 256, or 512 where the yarns are too dense for 256")
+    p.add_argument("--rig", help="capture rig JSON (default: the paper's rig)")
+    p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
+    p.add_argument("--seed", type=int, default=FolderFitOptions.seed)
+    p.add_argument("--camera-blur", default=FolderFitOptions.camera_blur,
+                   type=_auto_or_number(MAX_CAMERA_BLUR_PX, "pixels", 0.0), metavar="auto|PX",
+                   help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's "
+                        "non-zero camera_blur_px is kept) or fixed")
+    p.add_argument("--sample-rotation", default=FolderFitOptions.sample_rotation,
+                   type=_auto_or_number(MAX_SAMPLE_ROTATION_DEG, "degrees"), metavar="auto|DEG",
+                   help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the "
+                        "photos (auto, default; a rig file's non-zero sample_rotation_deg is kept) or fixed")
+    p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
+                   help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
+    p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,
+                   help="samples per pixel of the re-renders (default 64)")
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser("fit", help="fit fabric parameters to a reflection/transmission photo pair")
     p.add_argument("reflection", nargs="?", help="photo lit from the front")
     p.add_argument("transmission", nargs="?", help="photo lit from behind")
     p.add_argument("--out", required=True, help="output folder (a new one, or --overwrite)")
     p.add_argument("--example", action="store_true", help="render the bundled example fabric and fit it")
-    p.add_argument("--pattern", default="auto", choices=("auto",) + PATTERNS)
-    p.add_argument("--iterations", type=int, default=FitSettings.iterations)
-    p.add_argument("--size", type=_working_size, default=None, metavar="N",
-                   help="working size of the loss in pixels, 32 up to the photos' working size (the rig's film "
-                        "size, 512); default: 256, or 512 where the yarns are too dense for 256")
-    p.add_argument("--device", default="cpu")
+    add_fit_options(p)
+    p.add_argument("--device", default=FolderFitOptions.device)
     p.add_argument("--json-progress", action="store_true", help="JSON lines on stdout (see backend/core/protocol.py)")
-    p.add_argument("--rig", help="capture rig JSON (default: the paper's rig)")
     p.add_argument("--crop", type=int, nargs=4, metavar=("X", "Y", "W", "H"), help="square crop box in photo pixels")
     p.add_argument("--flat-field", help="photo of a uniform target under the same light (vignetting)")
-    p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--camera-blur", default="auto", type=_auto_or_number(MAX_CAMERA_BLUR_PX, "pixels", 0.0),
-                   metavar="auto|PX",
-                   help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's "
-                        "non-zero camera_blur_px is kept) or fixed")
-    p.add_argument("--sample-rotation", default="auto", type=_auto_or_number(MAX_SAMPLE_ROTATION_DEG, "degrees"),
-                   metavar="auto|DEG",
-                   help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the "
-                        "photos (auto, default; a rig file's non-zero sample_rotation_deg is kept) or fixed")
-    p.add_argument("--init", choices=INIT_CHOICES, default="network",
-                   help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--vgg-weights", help="a VGG-19 features state dict: adds the paper's Gram loss (slow on a CPU)")
-    p.add_argument("--output-spp", type=int, default=OUTPUT_SPP,
-                   help="samples per pixel of the re-renders (default 64)")
     p.add_argument("--overwrite", action="store_true", help="replace an earlier fit in --out")
     p.add_argument("--stop-on-stdin", action="store_true",
                    help="stop (keeping the best parameters) on a 'stop' line on stdin or when stdin ends: for callers "

@@ -7,10 +7,11 @@
     train DATASET --out WEIGHTS [...]          (backend/cli/train.py)
     evaluate-init [--heldout DIR] [--golden DIR] [...]  (backend/cli/evaluate_init.py)
     photolike --out DIR --count N [--seed S]   (backend/cli/photolike.py)
-    bench render|fit [...]                     (backend/cli/bench.py)
+    bench render|fit|batch [...]               (backend/cli/bench.py)
+    batch PHOTOS/ --out DIR [...]              (backend/cli/batch.py; needs Ray, the cluster extra)
 
-The development commands (dataset, train, evaluate-init, photolike, bench) are not part of the Blender
-extension (``build.py`` leaves them out): where their modules are absent the commands are too.
+The development commands (dataset, train, evaluate-init, photolike, bench) and the batch are not part of
+the Blender extension (``build.py`` leaves them out): where their modules are absent the commands are too.
 
 Bad input (unreadable files, malformed or out-of-range parameters) ends with exit code 2 and a
 one-line message naming the file and the problem, never a traceback.
@@ -25,8 +26,8 @@ from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT
 from . import fit, render
 from .common import INPUT_ERRORS, input_error_message
 
-# Modules of the development commands, in the order --help lists them.
-DEVELOPMENT_COMMANDS = ("dataset", "train", "evaluate_init", "photolike", "bench")
+# Modules of the development commands and the batch, in the order --help lists them.
+DEVELOPMENT_COMMANDS = ("dataset", "train", "evaluate_init", "photolike", "bench", "batch")
 
 
 def _development_modules():

@@ -12,6 +12,12 @@ fitted pair counts as failed.
 The backend is chosen as for the panel: ``--python`` / ``--backend-script``, else the add-on
 preferences (the extension's bundled backend when nothing is set), else ``WOVEN_FABRIC_PYTHON`` /
 ``WOVEN_FABRIC_BACKEND_SCRIPT``, else auto-detection.
+
+``--from-results DIR`` builds the library from fits made elsewhere (``python -m backend batch`` on a
+cluster, or ``fit``) without fitting and without a backend: every complete results folder in DIR
+(or DIR itself, when it is one) becomes an asset material named after its folder; a folder that
+holds some result files but not all (a copy cut short) counts as failed; other folders (``logs``,
+names starting with a dot) are passed by.
 """
 from __future__ import annotations
 
@@ -27,7 +33,7 @@ from pathlib import Path
 from . import backend_bridge, backend_setup, captures, declarations, rig_settings
 
 CLI_COMMAND = "fabric_fit"
-MAX_EXIT = 125
+LIBRARY_NAME = "fabric_materials.blend"
 
 
 @dataclass
@@ -38,7 +44,7 @@ class BatchReport:
 
     @property
     def exit_code(self) -> int:
-        return min(len(self.failed), MAX_EXIT)
+        return declarations.protocol().failed_exit_code(len(self.failed))
 
 
 @dataclass
@@ -89,19 +95,67 @@ def run_batch(folder: str | Path, library_path: str | Path | None = None, *, bac
         report.fitted.append((pair.name, material, str(out_dir)))
         log(f"OK   {prefix}: material {material} ({out_dir})")
 
-    if report.fitted:
-        target = Path(library_path) if library_path else folder / "fabric_materials.blend"
-        target = target if options.overwrite else captures.unused_path(target)
-        try:
-            library.write(target)
-        except (OSError, RuntimeError) as exc:
-            log(f"ERROR cannot write {target}: {exc}")
-            report.failed.extend((name, f"not saved: {exc}") for name, _, _ in report.fitted)
-            report.fitted.clear()
-            return report
-        report.library = target
-        log(f"Wrote {len(report.fitted)} material(s) to {target}")
+    _write_library(report, library, Path(library_path) if library_path else folder / LIBRARY_NAME, options.overwrite,
+                   log)
     return report
+
+
+def import_results(results: str | Path, library_path: str | Path | None = None, *, library,
+                   width_cm: float | None = None, overwrite: bool = False, log=print) -> BatchReport:
+    """Adds every complete results folder of ``results`` to ``library`` (no fit; see the module
+    docstring) and writes it to ``library_path``; never raises for a folder."""
+    results = Path(results).resolve()
+    report = BatchReport()
+    if not declarations.missing_result_files(results):
+        folders = [results]
+    else:
+        folders = [f for f in sorted(results.iterdir()) if f.is_dir() and not f.name.startswith(".")]
+    expected = declarations.result_files()
+    for folder in folders:
+        missing = declarations.missing_result_files(folder)
+        if len(missing) == len(expected):
+            continue  # not a results folder (logs/, anything else)
+        try:
+            if missing:
+                raise ValueError(f"incomplete results folder {folder}: no {', '.join(missing)}")
+            params = captures.read_fit_params({"out_dir": str(folder)})
+            material = library.add(folder.name, params, width_cm, folder, _description(params, folder),
+                                   folder / "reflection.png")
+        except Exception as exc:  # one folder's trouble never stops the library
+            report.failed.append((folder.name, str(exc) or type(exc).__name__))
+            log(f"FAIL {folder.name}: {report.failed[-1][1]}")
+            continue
+        report.fitted.append((folder.name, material, str(folder)))
+        log(f"OK   {folder.name}: material {material}")
+    if not report.fitted and not report.failed:
+        report.failed.append(("", f"{results}: no fit results (folders with {', '.join(expected)})"))
+        log(f"ERROR {report.failed[-1][1]}")
+    _write_library(report, library, Path(library_path) if library_path else results / LIBRARY_NAME, overwrite, log)
+    return report
+
+
+def _description(params: dict, folder: Path) -> str:
+    photos = params.get("photos") if isinstance(params.get("photos"), dict) else {}
+    names = [Path(str((photos.get(side) or {}).get("path") or "")).name for side in ("reflection", "transmission")]
+    source = f" from {names[0]} and {names[1]}" if all(names) else ""
+    return f"Woven fabric fitted{source} ({folder})"
+
+
+def _write_library(report: BatchReport, library, target: Path, overwrite: bool, log) -> None:
+    """Writes the fitted materials (when there are any) to ``target``, or a new name beside it; when it
+    cannot, every fitted pair counts as failed."""
+    if not report.fitted:
+        return
+    target = target if overwrite else captures.unused_path(target)
+    try:
+        library.write(target)
+    except (OSError, RuntimeError) as exc:
+        log(f"ERROR cannot write {target}: {exc}")
+        report.failed.extend((name, f"not saved: {exc}") for name, _, _ in report.fitted)
+        report.fitted.clear()
+        return
+    report.library = target
+    log(f"Wrote {len(report.fitted)} material(s) to {target}")
 
 
 def _rig_file(path: Path | None) -> dict:
@@ -153,9 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog=f"blender --command {CLI_COMMAND}",
         description="Fit every <name>_R.* / <name>_T.* photo pair of a folder and save one asset material "
                     "per pair in a .blend. Exit code: the number of failed pairs.")
-    parser.add_argument("folder", help="folder with the photo pairs")
-    parser.add_argument("--out", help="the .blend to write (default: FOLDER/fabric_materials.blend; an "
-                                      "existing file is kept and a new name chosen unless --overwrite)")
+    parser.add_argument("folder", nargs="?", help="folder with the photo pairs")
+    parser.add_argument("--from-results", metavar="DIR", help="no fitting: make the materials from the results "
+                        "folders in DIR (python -m backend batch --out DIR, or fit --out folders)")
+    parser.add_argument("--out", help="the .blend to write (default: FOLDER/fabric_materials.blend or "
+                                      "DIR/fabric_materials.blend; an existing file is kept and a new name chosen "
+                                      "unless --overwrite)")
     parser.add_argument("--fits", help="parent of the per-pair result folders (default: FOLDER/fabric_fits)")
     parser.add_argument("--pattern", choices=declarations.fit_patterns(), default=declarations.AUTO_PATTERN)
     parser.add_argument("--iterations", type=int)
@@ -185,6 +242,14 @@ def main(argv: list[str] | None, *, library,
         return 0 if not exc.code else 1
     started = time.monotonic()
     try:
+        if bool(args.folder) == bool(args.from_results):
+            raise ValueError("give either the folder of photo pairs or --from-results DIR")
+        if args.from_results:
+            if not Path(args.from_results).is_dir():
+                raise ValueError(f"{args.from_results}: not a folder")
+            report = import_results(args.from_results, args.out, library=library, width_cm=args.width_cm,
+                                    overwrite=args.overwrite)
+            return _summary(report, "imported", started)
         backend = _backend(args, preferred_backend())
         options = BatchOptions(args.pattern, args.iterations, args.size, args.device, args.rig, args.width_cm,
                                args.timeout, args.overwrite, args.output_spp)
@@ -195,7 +260,12 @@ def main(argv: list[str] | None, *, library,
     except (backend_bridge.BackendError, ValueError, OSError) as exc:
         print(f"ERROR {exc}", file=sys.stderr)
         return 1
-    print(f"{len(report.fitted)} fitted, {len(report.failed)} failed in {time.monotonic() - started:.1f} s"
+    return _summary(report, "fitted", started)
+
+
+def _summary(report: BatchReport, done: str, started: float) -> int:
+    """Prints the batch's last lines and returns its exit code."""
+    print(f"{len(report.fitted)} {done}, {len(report.failed)} failed in {time.monotonic() - started:.1f} s"
           + (f"; library {report.library}" if report.library else ""))
     for name, reason in report.failed:
         print(f"  failed {name or '(folder)'}: {reason}")

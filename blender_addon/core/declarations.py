@@ -10,6 +10,7 @@ without torch), so the panel, the batch, the node group and the shader cannot dr
 - the capture rig (``core.rig.CaptureRig``; its field defaults are the spec's rig);
 - the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
   (``core.pairs.find_pairs``);
+- the files of a complete fit's results folder (``core.results``);
 - the JSON-lines progress protocol (``core.protocol``).
 """
 from __future__ import annotations
@@ -59,6 +60,16 @@ def is_raw(suffix: str) -> bool:
 def find_pairs(folder: str | Path) -> tuple[list, list]:
     """``(pairs, problems)`` of a folder by the backend's one ``<name>_R.* / <name>_T.*`` rule."""
     return backend_module("core.pairs").find_pairs(folder)
+
+
+def result_files() -> tuple[str, ...]:
+    """The files a finished fit leaves in its results folder (params.json, the re-renders, ...)."""
+    return backend_module("core.results").RESULT_FILES
+
+
+def missing_result_files(folder: str | Path) -> list[str]:
+    """The result files ``folder`` lacks: empty for a complete fit."""
+    return backend_module("core.results").missing_files(folder)
 
 
 def protocol():
