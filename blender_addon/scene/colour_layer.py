@@ -49,7 +49,7 @@ def add_colour_layer(material, mode: str = "MULTIPLY", size: int | None = None, 
         target = inputs[shader_params.MAP_REPLACE]
         previous = target.links[0].from_socket if target.is_linked else None
         tree.links.new(_combined_alpha(tree, previous, alpha, (x + 300, y - 80)), target)
-    _make_active_slot(material, texture, image)
+    make_active_slot(material, image)
     return image
 
 
@@ -86,11 +86,15 @@ def _combined_alpha(tree, previous, alpha, location):
     return maximum.outputs[0]
 
 
-def _make_active_slot(material, texture, image) -> None:
-    """The layer becomes the node the material's paint slots follow, and the active slot."""
-    for node in material.node_tree.nodes:
-        node.select = node == texture
-    material.node_tree.nodes.active = texture
+def make_active_slot(material, image) -> None:
+    """The layer's node becomes the active one (the node the material's paint slots follow) and the
+    image the active paint slot and the paint canvas. Blender lists a material's slots once the
+    material is on an object (texture paint mode refreshes the list)."""
+    texture = next((n for n in material.node_tree.nodes if n.type == "TEX_IMAGE" and n.image == image), None)
+    if texture is not None:
+        for node in material.node_tree.nodes:
+            node.select = node == texture
+        material.node_tree.nodes.active = texture
     images = list(material.texture_paint_images)
     if image in images:
         material.paint_active_slot = images.index(image)

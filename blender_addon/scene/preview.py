@@ -19,10 +19,10 @@ from ..core import shader_params
 from . import node_group, rig_scene
 
 REPEATS = 6.0
-SIZE = 128
+SIZE = 96
 
 
-def render_preview(material, size: int = SIZE, samples: int = 16) -> np.ndarray:
+def render_preview(material, size: int = SIZE, samples: int = 8) -> np.ndarray:
     """The preview as (size, size, 4) display RGBA in [0, 1], row 0 = top."""
     scene = bpy.data.scenes.new(".Woven Fabric preview")
     made = []
