@@ -1,11 +1,13 @@
 """A rendered preview of a fabric material: what the Asset Browser shows for a fit.
 
-A small Cycles render (CPU, Open Shading Language: the fitted shader) in a temporary scene that is
-removed afterwards, so the user's scenes are untouched: a square of the fabric, tilted towards the
-camera, lit by a key light in front and a rim light behind (which shows what the fabric lets
-through), in front of a dark backdrop. The square's own uv scale (the object property that overrides
-the material's, shader_params.OBJECT_UV_SCALE) shows about :data:`REPEATS` weave repeats across it,
-whatever the material's scale, so the weave is readable at icon size.
+In Blender's interface Blender's own preview job renders it (without holding the interface). Without
+an interface (the batch, scripts), a small Cycles render (CPU, Open Shading Language: the fitted
+shader) in a temporary scene that is removed afterwards, so the user's scenes are untouched: a
+square of the fabric, tilted towards the camera, lit by a key light in front and a rim light behind
+(which shows what the fabric lets through), in front of a dark backdrop. The square's own uv scale
+(the object property that overrides the material's, shader_params.OBJECT_UV_SCALE) shows about
+:data:`REPEATS` weave repeats across it, whatever the material's scale, so the weave is readable at
+icon size.
 """
 from __future__ import annotations
 
@@ -103,9 +105,17 @@ def set_preview(block, pixels: np.ndarray) -> None:
 
 
 def preview_from_render(material, fallback_image: str | Path | None = None) -> str:
-    """Gives ``material`` a rendered preview; where Cycles cannot render, the image file
-    ``fallback_image`` (the fit's re-render of the photo) instead. Returns what was used:
-    ``"render"``, ``"image"`` or ``""`` (no preview)."""
+    """Gives ``material`` a rendered preview. Returns what was used:
+
+    - ``"job"`` in Blender's interface: Blender's own preview renderer, as a background job (a Cycles
+      render here would hold the interface for seconds);
+    - ``"render"`` without an interface (batch, scripts): :func:`render_preview`;
+    - ``"image"`` where that cannot render: the image file ``fallback_image`` (the fit's re-render
+      of the photo); ``""``: no preview.
+    """
+    if not bpy.app.background:
+        material.asset_generate_preview()
+        return "job"
     try:
         set_preview(material, render_preview(material))
         return "render"
