@@ -44,6 +44,16 @@ def python_without_torch(folder: Path) -> str:
     return str(folder / "bin" / "python")
 
 
+def extension_zip_for_tests(folder: Path) -> Path:
+    """The extension zip to test: ``WOVEN_FABRIC_TEST_ZIP`` if set, else one built into ``folder``."""
+    if os.environ.get("WOVEN_FABRIC_TEST_ZIP"):
+        return Path(os.environ["WOVEN_FABRIC_TEST_ZIP"])
+    spec = importlib.util.spec_from_file_location("woven_fabric_build", ROOT / "build.py")
+    build = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(build)
+    return build.build(folder)
+
+
 def run_blender(script: str, tmp_path: Path, timeout: int = 300) -> dict:
     """Runs `script` with the bpy module in a fresh interpreter; returns the JSON it prints last.
 

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from addon_support import python_without_torch, require_bpy, validate_extension  # noqa: E402
+from addon_support import extension_zip_for_tests, python_without_torch, require_bpy, validate_extension  # noqa: E402
 
 from backend.core.params import FabricParams  # noqa: E402
 from backend.core.priors import PATTERNS  # noqa: E402
@@ -56,10 +56,8 @@ def write_png(path: Path, rgb: tuple[int, int, int], size: int = 16):
 
 
 @pytest.fixture(scope="module")
-def extension_zip(tmp_path_factory, build_module) -> Path:
-    if os.environ.get("WOVEN_FABRIC_TEST_ZIP"):
-        return Path(os.environ["WOVEN_FABRIC_TEST_ZIP"])
-    return build_module.build(tmp_path_factory.mktemp("dist"))
+def extension_zip(tmp_path_factory) -> Path:
+    return extension_zip_for_tests(tmp_path_factory.mktemp("dist"))
 
 
 @pytest.fixture
@@ -370,10 +368,14 @@ def test_batch_command_fits_good_pairs_and_counts_bad_ones(tmp_path, extension_z
         bpy.ops.wm.open_mainfile(filepath={str(library)!r})
         assets = sorted(m.name for m in bpy.data.materials if m.asset_data is not None)
         assert assets == ["linen", "wool"], assets
+        catalogs = ext.core.asset_catalogs
+        written = catalogs.parse((Path({str(library)!r}).parent / catalogs.CATALOG_FILE).read_text())
         for name in assets:
             material = bpy.data.materials[name]
-            assert "fabric" in [t.name for t in material.asset_data.tags]
-            assert tuple(material.preview.image_size) == (128, 128)
+            tags = [t.name for t in material.asset_data.tags]
+            assert tags[:3] == ["fabric", "woven", "twill1"] and len(tags) == 4, tags  # + a colour name
+            assert material.asset_data.catalog_id == written["Fabrics/twill1"]
+            assert tuple(material.preview.image_size) == (96, 96)  # rendered (scene/preview.py)
         print("BATCH OK")
     """)
     assert "BATCH OK" in output

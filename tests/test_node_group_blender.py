@@ -26,7 +26,8 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
         from backend.core.params import FabricParams
         group = node_group.ensure_node_group()
         again = node_group.ensure_node_group()
-        inputs = [(i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None))
+        inputs = [(i.parent.name, i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None),
+                   i.description)
                   for i in group.interface.items_tree if i.item_type == "SOCKET" and i.in_out == "INPUT"]
         outputs = [i.name for i in group.interface.items_tree if i.item_type == "SOCKET" and i.in_out == "OUTPUT"]
         p = FabricParams(pattern="satin1", tiles=(151.9, 84.7), roughness=(0.18, 0.75), thickness=(1.58, 2.79),
@@ -40,11 +41,11 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
         mesh.materials.append(mat)
         first = node_group.read_params(mat)
         node = [n for n in mat.node_tree.nodes if n.type == "GROUP"][0]
-        uv_default = node.inputs["uv scale"].default_value
+        uv_default = node_group.input_sockets(node)["uv scale"].default_value
         node_group.apply_params(mat, dict(p.to_dict(), pattern="plain", roughness=[0.5, 0.25]),
                                 width_cm=5.0, cloth_size_cm=120.0)
         second = node_group.read_params(mat)
-        uv_scale = node.inputs["uv scale"].default_value
+        uv_scale = node_group.input_sockets(node)["uv scale"].default_value
         targets = sorted(n.target for n in mat.node_tree.nodes if n.type == "OUTPUT_MATERIAL")
         script = group.nodes["Woven Fabric OSL"]
         has_bytecode = bool(script.bytecode)
@@ -54,17 +55,19 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
         reloaded = node_group.read_params(mat)
         atlases = {{im.name: (im.packed_file is not None, list(im.size)) for im in bpy.data.images
                    if im.name.startswith(node_group.ATLAS_PREFIX)}}
-        header = bpy.data.images[node_group.ATLAS_PREFIX + "header"]
-        px = list(header.pixels[:8])
+        warp = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+        px = list(warp.pixels[:8])
         emit({{"same_group": group == again, "inputs": inputs, "outputs": outputs, "first": first,
               "second": second, "reloaded": reloaded, "uv_default": uv_default, "uv_scale": uv_scale,
-              "targets": targets, "bytecode": has_bytecode, "atlases": atlases, "header_px": px,
+              "targets": targets, "bytecode": has_bytecode, "atlases": atlases, "warp_px": px,
               "groups": sorted(g.name for g in bpy.data.node_groups)}})
     """, tmp_path)
     specs = shader_params.socket_specs()
-    assert [i[0] for i in result["inputs"]] == [s.name for s in specs]
-    for (name, socket_type, lo, hi), s in zip(result["inputs"], specs):
+    # Readable labels and tooltips in panels (the spec names stay the identifiers: input_sockets).
+    assert [(i[0], i[1]) for i in result["inputs"]] == [(s.panel, s.label) for s in specs]
+    for (panel, name, socket_type, lo, hi, tooltip), s in zip(result["inputs"], specs):
         assert socket_type == {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}[s.kind]
+        assert tooltip == s.description
         if s.kind != "COLOR":
             assert lo == pytest.approx(s.lo, rel=1e-6) and hi == pytest.approx(s.hi, rel=1e-6), name
     assert result["outputs"] == ["BSDF", "Fallback"]
@@ -91,8 +94,8 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["uv_default"] == 1.0
     V = 2 * 8 * math.tan(math.radians(26.5))
     assert result["uv_scale"] == pytest.approx(120.0 * V / (10 * 5.0), rel=1e-5)
-    assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("header", "matrix", "warp", "weft")}
+    assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("matrix", "warp", "weft")}
     assert all(packed for packed, _ in result["atlases"].values())
-    w, h, px = shader_weave.fallback_atlases()["header"]
-    assert result["header_px"][:3] == pytest.approx(px[:3]) and result["header_px"][4:7] == pytest.approx(px[3:6])
+    w, h, px = shader_weave.fallback_atlases()["warp"]
+    assert result["warp_px"][:3] == pytest.approx(px[:3]) and result["warp_px"][4:7] == pytest.approx(px[3:6])
     assert {"Woven Fabric", "Woven Fabric fallback"} <= set(result["groups"])

@@ -123,6 +123,9 @@ class NumpyBuilder:
     def separate(self, v, i):
         return v[i]
 
+    def pick(self, index, values):
+        return np.asarray(values)[np.clip(np.round(index), 0, len(values) - 1).astype(int)]
+
     def lookup(self, name, u, v):
         w, h, img = self.atlases[name]
         u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
@@ -147,8 +150,31 @@ def test_sockets_follow_the_declaration():
     for name in ("diffuse_reflection map", "diffuse_transmission map"):
         assert specs[name].kind == "COLOR" and specs[name].default == (1.0, 1.0, 1.0)
         expected.add(name)
-    expected.add("uv scale")
+    expected |= {"uv scale", "diffuse map replace"}
     assert set(specs) == expected
+
+
+def test_sockets_have_readable_labels_in_panels():
+    """The node shows the declaration's labels and tooltips in the Weave / Warp / Weft / Colour /
+    Advanced panels; the spec names stay the identifiers (a label may repeat in another panel)."""
+    specs = shader_params.socket_specs()
+    assert [s.panel for s in specs] == sorted((s.panel for s in specs), key=shader_params.PANELS.index)
+    assert {s.panel for s in specs} == set(shader_params.PANELS)
+    assert len({(s.panel, s.label) for s in specs}) == len(specs)
+    by_name = {s.name: s for s in specs}
+    for spec in declarations.parameters():
+        names = [f"{spec.name} {y}" for y in ("warp", "weft")] if spec.per_yarn else [spec.name]
+        for yarn, name in enumerate(names):
+            s = by_name[name]
+            assert s.label.startswith(spec.label) and "_" not in s.label, s
+            assert spec.doc.split(" ", 1)[1] in s.description and f"params.json: {spec.name}" in s.description
+            if spec.per_yarn and spec.name != "tiles":
+                assert s.panel == ("Warp", "Weft")[yarn]
+    assert by_name["roughness warp"].label == by_name["roughness weft"].label == "Roughness"
+    assert {by_name[n].panel for n in ("pattern", "tiles warp", "tiles weft", "uv scale")} == {"Weave"}
+    assert {by_name[n].panel for n in ("diffuse_reflection", "diffuse_reflection map",
+                                       "diffuse_transmission map", "diffuse map replace")} == {"Colour"}
+    assert by_name["noise"].panel == "Advanced"
 
 
 def test_osl_parameters_match_the_sockets():

@@ -192,12 +192,18 @@ def _fit_pair(pair, backend, library, options, rig, fits_parent, prefix, log) ->
         if fit.details:
             log(fit.details)
         raise RuntimeError(fit.error or f"fit {fit.state}")
-    params = captures.read_fit_params(fit.result)
-    preview = (fit.result.get("files") or {}).get("reflection") or pair.reflection
-    description = (f"Woven fabric fitted from {pair.reflection.name} and {pair.transmission.name} "
-                   f"({out_dir})")
+    params, description, preview = fitted_asset(pair, fit.result, out_dir)
     material = library.add(pair.name, params, rig.get("width_cm"), out_dir, description, preview)
     return material, out_dir
+
+
+def fitted_asset(pair, result: dict, out_dir: Path) -> tuple[dict, str, Path]:
+    """(params, asset description, preview image) of a pair's successful fit (its ``result`` event)."""
+    params = captures.read_fit_params(result)
+    preview = Path((result.get("files") or {}).get("reflection") or pair.reflection)
+    description = (f"Woven fabric fitted from {pair.reflection.name} and {pair.transmission.name} "
+                   f"({out_dir})")
+    return params, description, preview
 
 
 # -- command line -------------------------------------------------------------------------------

@@ -4,7 +4,8 @@ EEVEE and GPU Cycles (without OptiX OSL) cannot run ``shaders/woven_fabric.osl``
 then uses a fallback built from Math / Vector Math / Image Texture nodes that computes the same
 weave geometry (spec section 3, like ``backend/model/layers.py``) from UV: band tests, the interlacing
 matrix and the backend's interval tables (read from the float atlases of
-:func:`shader_weave.fallback_atlases`), gap scaling, the visible yarn (front layer, or the back
+:func:`shader_weave.fallback_atlases`; the per-preset constants are picked by the pattern with Math
+nodes, ``pick``), gap scaling, the visible yarn (front layer, or the back
 layer through a gap in front), its bent-cylinder normal and twisted fiber direction with height
 scaling. It skips the tension and noise and shades with standard BSDFs (see scene/node_group.py).
 
@@ -33,6 +34,7 @@ FUNCTIONS = {
     "vadd": (2, "vec", "ADD"), "vsub": (2, "vec", "SUBTRACT"), "vmul": (2, "vec", "MULTIPLY"),
     "scale": (2, "vec", "SCALE"), "vpow": (2, "vec", "POWER"),
     "lookup": (3, "lookup", None),
+    "pick": (None, "pick", None),
 }
 BINARY = {ast.Add: "ADD", ast.Sub: "SUBTRACT", ast.Mult: "MULTIPLY", ast.Div: "DIVIDE", ast.Pow: "POWER"}
 
@@ -41,28 +43,7 @@ INPUTS = ("pattern", "tiles_warp", "tiles_weft", "uv_scale", "gap_scale_warp", "
 OUTPUTS = ("coverage", "vis_warp", "vis_weft", "normal", "fiber", "across", "fiber_normal")
 
 _PROGRAM = """
-hu = (pattern + 0.5) / {presets}
-h0 = lookup("header", hu, 0.5 / {head_rows})
-h1 = lookup("header", hu, 1.5 / {head_rows})
-h2 = lookup("header", hu, 2.5 / {head_rows})
-h3 = lookup("header", hu, 3.5 / {head_rows})
-h4 = lookup("header", hu, 4.5 / {head_rows})
-h5 = lookup("header", hu, 5.5 / {head_rows})
-cols = x(h0)
-rows = y(h0)
-warp_w = z(h0)
-warp_p = x(h1)
-warp_off = y(h1)
-weft_w = z(h1)
-weft_p = x(h2)
-weft_off = y(h2)
-umax_warp = z(h2)
-umax_weft = x(h3)
-tile_w = z(h3)
-tile_h = x(h4)
-mrow0 = y(h4)
-wrow0 = z(h4)
-frow0 = x(h5)
+{header}
 su = x(UV) * tiles_warp * uv_scale
 sv = y(UV) * tiles_weft * uv_scale
 X = fract(su) * tile_w
@@ -125,14 +106,20 @@ across = normalize(cross(fiber, fiber_normal))
 """
 
 
+# Names the program gives the header values (shader_weave.FALLBACK_HEADER).
+_HEADER_NAMES = {"warp_width": "warp_w", "warp_pitch": "warp_p", "warp_offset": "warp_off", "weft_width": "weft_w",
+                 "weft_pitch": "weft_p", "weft_offset": "weft_off", "tile_width": "tile_w", "tile_height": "tile_h",
+                 "matrix_row0": "mrow0", "warp_row0": "wrow0", "weft_row0": "frow0"}
+
+
 def program() -> list[tuple[str, str]]:
-    """The fallback geometry program: (name, expression) assignments, atlas sizes filled in."""
+    """The fallback geometry program: (name, expression) assignments, tables filled in."""
     atlases = shader_weave.fallback_atlases()
     sizes = {f"A_{name}_w": w for name, (w, h, _) in atlases.items()}
     sizes.update({f"A_{name}_h": h for name, (w, h, _) in atlases.items()})
-    return parse(_PROGRAM.format(presets=atlases["header"][0], head_rows=atlases["header"][1],
-                                 pi=repr(math.pi), deg=repr(math.pi / 180.0),
-                                 **{k: v for k, v in sizes.items() if not k.startswith("A_header")}))
+    header = "\n".join(f"{_HEADER_NAMES.get(name, name)} = pick(pattern, {', '.join(repr(v) for v in values)})"
+                        for name, values in shader_weave.fallback_header().items() if name != "s_min")
+    return parse(_PROGRAM.format(header=header, pi=repr(math.pi), deg=repr(math.pi / 180.0), **sizes))
 
 
 def parse(text: str) -> list[tuple[str, str]]:
@@ -148,8 +135,9 @@ def run(builder, env: dict, assignments=None) -> dict:
     """Evaluates the program with `builder` starting from `env` (inputs); returns the final env.
 
     A builder provides: ``const(x)``, ``math(op, *args)`` (Math node ops), ``vec(op, *args)``
-    (Vector Math ops; DOT_PRODUCT returns a scalar), ``combine(x, y, z)``, ``separate(v, i)``
-    and ``lookup(atlas_name, u, v)`` (an RGB value, as a vector).
+    (Vector Math ops; DOT_PRODUCT returns a scalar), ``combine(x, y, z)``, ``separate(v, i)``,
+    ``lookup(atlas_name, u, v)`` (an RGB value, as a vector) and ``pick(index, values)``
+    (``values[round(index)]``, the index clamped to the list).
     """
     env = dict(env)
     for name, expr in assignments or program():
@@ -172,6 +160,10 @@ def _emit(node, b, env):
         return b.math(BINARY[type(node.op)], _emit(node.left, b, env), _emit(node.right, b, env))
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
         n, kind, op = FUNCTIONS[node.func.id]
+        if kind == "pick":
+            if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
+                raise TypeError("fallback program: pick takes an index and constant values")
+            return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
         if len(node.args) != n:
             raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
         args = [_emit(a, b, env) for a in node.args]

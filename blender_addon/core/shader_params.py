@@ -2,18 +2,23 @@
 
 Plain Python (no bpy, no torch): everything here is testable without Blender.
 
-Sockets (one per scalar component, spec section 2 names, ranges = the backend's lo/hi):
+Sockets (one per scalar component, ranges = the backend's lo/hi). Each has an *identifier*, the spec
+name that params.json, the backend, the OSL shader and the tests use (``roughness warp``), and a
+readable *label* and tooltip from the declaration (``ParamSpec.label`` / ``doc`` / ``unit``) under one
+of the node's :data:`PANELS`:
 
-- ``pattern``: integer, the preset index in ``backend.core.weave.PRESETS`` order
-  (0 plain, 1 twill0, 2 twill1, 3 satin0, 4 satin1);
-- per-yarn scalars as ``"<name> warp"`` and ``"<name> weft"`` (``tiles warp`` = tu, the repeats
-  along U; ``tiles weft`` = tv, along V);
-- ``specular_albedo warp`` / ``specular_albedo weft``: colours;
-- ``diffuse_reflection`` / ``diffuse_transmission``: colours, each followed by a colour-map input
-  ``"<name> map"`` (default white) that multiplies it: plug an image texture there to paint a
-  spatially varying diffuse albedo (the paper's teaser);
-- scalars under their own name;
-- ``uv scale``: extra repeats factor for real-world scale (see :func:`uv_scale`), default 1.
+- Weave: ``pattern`` (integer, the preset index in ``backend.core.weave.PRESETS`` order: 0 plain,
+  1 twill0, 2 twill1, 3 satin0, 4 satin1), ``tiles warp`` / ``tiles weft`` (tu, the repeats along U;
+  tv, along V) and ``uv scale`` (extra repeats factor for real-world scale, see :func:`uv_scale`;
+  default 1; an object's ``woven_fabric_uv_scale`` property, written by Set Real-World Scale,
+  overrides it for that object);
+- Warp / Weft: every other per-yarn value, as ``"<name> warp"`` and ``"<name> weft"``
+  (``specular_albedo`` as colours);
+- Colour: the RGB values (``diffuse_reflection`` / ``diffuse_transmission``), each followed by a
+  colour-map input ``"<name> map"`` (default white) that multiplies it, and ``diffuse map replace``
+  (default 0): where it is 1 the maps replace the diffuse colours instead of multiplying them,
+  ``k_d' = (1 - f) k_d map + f map`` (Add Colour Layer links a painted image's alpha there);
+- Advanced: the remaining scalars.
 
 The OSL parameter of a socket is its name with spaces replaced by underscores
 (``roughness warp`` -> ``roughness_warp``).
@@ -42,14 +47,23 @@ YARNS = ("warp", "weft")
 MAP_SUFFIX = " map"
 UV_SCALE = "uv scale"
 PATTERN = "pattern"
+MAP_REPLACE = "diffuse map replace"
+COLOUR_MAPS = ("diffuse_reflection" + MAP_SUFFIX, "diffuse_transmission" + MAP_SUFFIX)
+PANELS = ("Weave", "Warp", "Weft", "Colour", "Advanced")
+# Object property that overrides the material's uv scale for that object (Set Real-World Scale).
+OBJECT_UV_SCALE = "woven_fabric_uv_scale"
+_WEAVE_PARAMS = ("tiles",)
+_AXES = ("U", "V")  # tiles warp counts repeats along U, tiles weft along V
 
 
 @dataclass(frozen=True)
 class SocketSpec:
     """One input of the node group (and of the OSL shader).
 
-    kind: "INT", "FLOAT" or "COLOR". param: the params.json key it comes from (None for the
-    extras: maps and uv scale). yarn: 0 (warp) or 1 (weft) for per-yarn values, else None.
+    name: the identifier (spec name). kind: "INT", "FLOAT" or "COLOR". param: the params.json key
+    it comes from (None for the extras: maps, map replace, uv scale). yarn: 0 (warp) or 1 (weft) for
+    per-yarn values, else None. label: the readable name on the node, unique within its panel.
+    description: the tooltip.
     """
 
     name: str
@@ -60,6 +74,8 @@ class SocketSpec:
     param: str | None
     yarn: int | None
     description: str
+    label: str = ""
+    panel: str = "Advanced"
 
     @property
     def osl(self) -> str:
@@ -83,33 +99,63 @@ def pattern_name(index: int) -> str:
     return names[max(0, min(int(round(index)), len(names) - 1))]
 
 
+def _range_text(lo: float, hi: float, unit: str = "") -> str:
+    return f"{lo:g} to {hi:g}" + (f" {unit}" if unit else "")
+
+
+def _panel(spec) -> str:
+    if spec.name in _WEAVE_PARAMS:
+        return "Weave"
+    if spec.rgb and not spec.per_yarn:
+        return "Colour"
+    return "Advanced"
+
+
 def socket_specs() -> list[SocketSpec]:
-    """Every group input, in UI order (pattern, the declaration, maps after their albedo, uv scale)."""
+    """Every group input, in UI order (panel by panel, see :data:`PANELS`)."""
     declaration = declarations.parameters()
     defaults = declarations.default_params()
     names = declarations.preset_names()
-    specs = [SocketSpec(PATTERN, "INT", names.index(defaults["pattern"]), 0, len(names) - 1, PATTERN, None,
-                        "weave preset: " + ", ".join(f"{i} {n}" for i, n in enumerate(names)))]
+    presets = ", ".join(f"{i} {n}" for i, n in enumerate(names))
+    by_panel: dict[str, list[SocketSpec]] = {panel: [] for panel in PANELS}
+    by_panel["Weave"].append(SocketSpec(PATTERN, "INT", names.index(defaults["pattern"]), 0, len(names) - 1,
+                                        PATTERN, None, f"Weave preset: {presets}. params.json: pattern",
+                                        "Pattern", "Weave"))
     for spec in declaration:
         value = defaults[spec.name]
-        unit = f" ({spec.unit})" if spec.unit else ""
+        kind = "COLOR" if spec.rgb else "FLOAT"
+        doc = spec.doc if "_" in spec.doc.split(" ", 1)[0] else spec.doc[:1].upper() + spec.doc[1:]
         if spec.per_yarn:
-            for yarn, label in enumerate(YARNS):
-                specs.append(SocketSpec(f"{spec.name} {label}", "COLOR" if spec.rgb else "FLOAT",
-                                        tuple(value[yarn]) if spec.rgb else value[yarn], spec.lo, spec.hi,
-                                        spec.name, yarn, f"{spec.doc}, {label}{unit}"))
+            for yarn, yarn_name in enumerate(YARNS):
+                weave = spec.name in _WEAVE_PARAMS
+                label = f"{spec.label} {_AXES[yarn]}" if weave else spec.label
+                panel = "Weave" if weave else yarn_name.capitalize()
+                by_panel[panel].append(SocketSpec(
+                    f"{spec.name} {yarn_name}", kind, tuple(value[yarn]) if spec.rgb else value[yarn], spec.lo,
+                    spec.hi, spec.name, yarn,
+                    f"{doc}, {yarn_name} yarns ({_range_text(spec.lo, spec.hi, spec.unit)}). "
+                    f"params.json: {spec.name}[{yarn}]", label, panel))
         else:
-            specs.append(SocketSpec(spec.name, "COLOR" if spec.rgb else "FLOAT",
-                                    tuple(value) if spec.rgb else value, spec.lo, spec.hi,
-                                    spec.name, None, spec.doc + unit))
-        if spec.name in ("diffuse_reflection", "diffuse_transmission"):
-            specs.append(SocketSpec(spec.name + MAP_SUFFIX, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
-                                    f"colour map multiplying {spec.name} (plug an image texture)"))
+            panel = _panel(spec)
+            by_panel[panel].append(SocketSpec(
+                spec.name, kind, tuple(value) if spec.rgb else value, spec.lo, spec.hi, spec.name, None,
+                f"{doc} ({_range_text(spec.lo, spec.hi, spec.unit)}). params.json: {spec.name}", spec.label,
+                panel))
+            if spec.name + MAP_SUFFIX in COLOUR_MAPS:
+                by_panel[panel].append(SocketSpec(
+                    spec.name + MAP_SUFFIX, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
+                    f"Colour map multiplying {spec.label.lower()} (plug an image texture; white: no change)",
+                    f"{spec.label} map", panel))
         if spec.name == "tiles":
-            specs.append(SocketSpec(UV_SCALE, "FLOAT", 1.0, 1e-4, 1e4, None, None,
-                                    "multiplies tiles: cloth_size_cm * V / (plane_size * width_cm) for "
-                                    "real-world scale, 1 for the rig's UV layout"))
-    return specs
+            by_panel["Weave"].append(SocketSpec(
+                UV_SCALE, "FLOAT", 1.0, 1e-4, 1e4, None, None,
+                "Multiplies the tiles for real-world scale: cloth_size_cm * V / (plane_size * width_cm); 1 for "
+                "the rig's UV layout. An object's Set Real-World Scale value overrides it", "UV scale", "Weave"))
+    by_panel["Colour"].append(SocketSpec(
+        MAP_REPLACE, "FLOAT", 0.0, 0.0, 1.0, None, None,
+        "0: the colour maps multiply the diffuse colours; 1: they replace them (link a painted image's alpha "
+        "to replace only where painted)", "Map replaces colour", "Colour"))
+    return [s for panel in PANELS for s in by_panel[panel]]
 
 
 def _clamp(x: float, lo: float, hi: float) -> float:

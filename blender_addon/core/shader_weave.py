@@ -11,7 +11,8 @@ into
   WEAVE TABLES`` markers (:func:`osl_table_block`, :func:`update_osl_source`; a test fails when the
   committed shader and the backend drift apart: ``python -m blender_addon.core.shader_weave``
   rewrites the block);
-- small float images for the standard-node fallback (:func:`fallback_atlases`).
+- the standard-node fallback's per-preset constants (:func:`fallback_header`) and small float
+  images (:func:`fallback_atlases`).
 
 Layout of one preset in the OSL array, from its base offset (``WF_BASE[pattern]``)::
 
@@ -138,19 +139,37 @@ def update_osl_source(path: str | Path | None = None) -> bool:
     return False
 
 
-# -- fallback images ------------------------------------------------------------------------
+# -- fallback tables ------------------------------------------------------------------------
 FALLBACK_HEADER = ("cols", "rows", "warp_width", "warp_pitch", "warp_offset", "weft_width", "weft_pitch",
                    "weft_offset", "umax_warp", "umax_weft", "s_min", "tile_width", "tile_height",
-                   "matrix_row0", "warp_row0", "weft_row0", "unused0", "unused1")
+                   "matrix_row0", "warp_row0", "weft_row0")
+
+
+def fallback_header() -> dict[str, list[float]]:
+    """FALLBACK_HEADER name -> its value for each preset (pattern-index order): the standard-node
+    fallback picks them by the pattern with Math nodes; ``*_row0`` are the preset's first rows in
+    :func:`fallback_atlases`."""
+    columns = {name: [] for name in FALLBACK_HEADER}
+    rows = {"matrix": 0, "warp": 0, "weft": 0}
+    for weave in declarations.weave_presets().values():
+        values = [float(weave.cols), float(weave.rows), weave.warp_width, weave.warp_pitch, weave.warp_offset,
+                  weave.weft_width, weave.weft_pitch, weave.weft_offset, math.radians(weave.umax_deg[0]),
+                  math.radians(weave.umax_deg[1]), weave.s_min, weave.tile_width, weave.tile_height,
+                  float(rows["matrix"]), float(rows["warp"]), float(rows["weft"])]
+        for name, value in zip(FALLBACK_HEADER, values):
+            columns[name].append(float(value))
+        rows["matrix"] += weave.rows
+        rows["warp"] += 2 * weave.rows
+        rows["weft"] += 2 * weave.cols
+    return columns
 
 
 def fallback_atlases() -> dict[str, tuple[int, int, list[float]]]:
     """RGB float images (width, height, flat RGB pixels, first row = bottom) of every preset.
 
     The standard-node fallback reads them with closest interpolation at pixel centres
-    ((x + 0.5) / width, (y + 0.5) / height):
+    ((x + 0.5) / width, (y + 0.5) / height), the preset's first row from :func:`fallback_header`:
 
-    - ``header``: one column per preset (pattern index), 6 rows of 3 values: FALLBACK_HEADER;
     - ``matrix``: pixel (column j, matrix_row0 + row i) = P[i][j];
     - ``warp``: pixel (yarn j, warp_row0 + interval k) = (centre, length, layer) of warp j;
     - ``weft``: pixel (yarn i, weft_row0 + interval k) = (centre, length, layer) of weft i.
@@ -159,27 +178,14 @@ def fallback_atlases() -> dict[str, tuple[int, int, list[float]]]:
     width = {"matrix": max(w.cols for w in weaves), "warp": max(w.cols for w in weaves),
              "weft": max(w.rows for w in weaves)}
     rows = {"matrix": [], "warp": [], "weft": []}
-    headers = []
     for weave in weaves:
-        start = {name: len(rows[name]) for name in rows}
         for r in range(weave.rows):
             rows["matrix"].append([(float(c), 0.0, 0.0) for c in weave.matrix[r]])
         for name, yarn in (("warp", 0), ("weft", 1)):
             table = weave.interval_table(yarn)
             for k in range(len(table[0])):
                 rows[name].append([(e.centre, e.length, float(e.layer)) for e in (t[k] for t in table)])
-        headers.append([float(weave.cols), float(weave.rows), weave.warp_width, weave.warp_pitch,
-                        weave.warp_offset, weave.weft_width, weave.weft_pitch, weave.weft_offset,
-                        math.radians(weave.umax_deg[0]), math.radians(weave.umax_deg[1]), weave.s_min,
-                        weave.tile_width, weave.tile_height, float(start["matrix"]), float(start["warp"]),
-                        float(start["weft"]), 0.0, 0.0])
     out = {}
-    n_head = len(FALLBACK_HEADER) // 3
-    px = []
-    for r in range(n_head):
-        for h in headers:
-            px += h[3 * r:3 * r + 3]
-    out["header"] = (len(headers), n_head, px)
     for name, table in rows.items():
         px = []
         for row in table:

@@ -33,6 +33,7 @@ import math
 import sys
 
 import bpy
+import numpy as np
 
 from ..core import paths, shader_fallback, shader_params, shader_weave
 from . import cycles_osl
@@ -47,7 +48,7 @@ _ERROR = "woven_fabric_osl_error"
 # On a material: the photographed width and the cloth size its uv scale was set for.
 WIDTH_KEY = "woven_fabric_width_cm"
 CLOTH_SIZE_KEY = "woven_fabric_cloth_size_cm"
-_BUILD = 1  # bump when the node layout changes
+_BUILD = 2  # bump when the node layout changes
 
 _SOCKET_TYPES = {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}
 # The fallback's shading weights (same expression language; the geometry program comes first).
@@ -77,8 +78,10 @@ gloss_m_rough = sqrt(sqrt(alpha_mc))
 gloss_s_aniso = min((1 - alpha_c) / 0.9, 1)
 gloss_m_aniso = min((1 - alpha_mc) / 0.9, 1)
 tt_color = vadd(scale(km, 0.5 * exp(-0.4 * Tm)), scale(ks, 0.08 * exp(-0.4 * T)))
-kd_r = vmul(diffuse_reflection, diffuse_reflection_map)
-kd_t = vmul(diffuse_transmission, diffuse_transmission_map)
+keep = 1 - diffuse_map_replace
+replace = diffuse_map_replace
+kd_r = vadd(scale(vmul(diffuse_reflection, diffuse_reflection_map), keep), scale(diffuse_reflection_map, replace))
+kd_t = vadd(scale(vmul(diffuse_transmission, diffuse_transmission_map), keep), scale(diffuse_transmission_map, replace))
 diffuse_flat = scale(kd_r, 1 - diffuse_normal_weight)
 diffuse_yarn = scale(kd_r, diffuse_normal_weight)
 translucent_flat = scale(kd_t, 1 - diffuse_normal_weight)
@@ -109,21 +112,27 @@ def _rgba(value) -> tuple:
     return v[:3] + (1.0,) if len(v) >= 3 else (v[0], v[0], v[0], 1.0)
 
 
-def _sync_interface(tree, outputs: tuple[str, ...]) -> None:
-    """Makes the tree's interface exactly the socket list (keeps sockets that already match)."""
+def _sync_interface(tree, outputs: tuple[str, ...], readable: bool) -> None:
+    """Makes the tree's interface exactly the socket list (keeps it when it already matches).
+
+    ``readable``: the sockets carry their labels inside the panels of :data:`shader_params.PANELS`
+    (the group the user sees); otherwise their identifiers, flat (the internal fallback group).
+    """
     specs = shader_params.socket_specs()
-    wanted = [(s.name, "INPUT", _SOCKET_TYPES[s.kind]) for s in specs] + \
-             [(name, "OUTPUT", "NodeSocketShader") for name in outputs]
-    items = [item for item in tree.interface.items_tree if item.item_type == "SOCKET"]
-    current = [(i.name, i.in_out, i.socket_type) for i in items]
-    if current != wanted:
+    wanted = [("", name, "OUTPUT", "NodeSocketShader") for name in outputs]
+    wanted += [(s.panel if readable else "", s.label if readable else s.name, "INPUT", _SOCKET_TYPES[s.kind])
+               for s in specs]
+    if _interface_layout(tree) != wanted:
         tree.interface.clear()
-        for name, in_out, socket_type in wanted:
-            tree.interface.new_socket(name=name, in_out=in_out, socket_type=socket_type)
-    by_name = {i.name: i for i in tree.interface.items_tree
-               if i.item_type == "SOCKET" and i.in_out == "INPUT"}
+        panels = {}
+        for panel, name, in_out, socket_type in wanted:
+            if panel and panel not in panels:
+                panels[panel] = tree.interface.new_panel(panel, default_closed=panel == "Advanced")
+            tree.interface.new_socket(name=name, in_out=in_out, socket_type=socket_type,
+                                      parent=panels.get(panel))
+    items = _input_items(tree, readable)
     for s in specs:
-        item = by_name[s.name]
+        item = items[s.name]
         item.description = s.description
         if s.kind == "COLOR":
             item.default_value = _rgba(s.default)
@@ -133,15 +142,60 @@ def _sync_interface(tree, outputs: tuple[str, ...]) -> None:
             item.default_value = int(s.default) if s.kind == "INT" else float(s.default)
 
 
+def _interface_layout(tree) -> list[tuple[str, str, str, str]]:
+    """(panel, name, in/out, type) of every socket of the tree's interface, in order."""
+    return [(item.parent.name if item.parent is not None and item.parent.index >= 0 else "", item.name,
+             item.in_out, item.socket_type)
+            for item in tree.interface.items_tree if item.item_type == "SOCKET"]
+
+
+def _input_items(tree, readable: bool = True) -> dict:
+    """Socket identifier (spec name) -> interface item of the group's inputs."""
+    found = {}
+    for item in tree.interface.items_tree:
+        if item.item_type == "SOCKET" and item.in_out == "INPUT":
+            panel = item.parent.name if item.parent is not None and item.parent.index >= 0 else ""
+            found[(panel, item.name)] = item
+    return {s.name: found[(s.panel, s.label) if readable else ("", s.name)] for s in shader_params.socket_specs()}
+
+
+def input_sockets(node) -> dict:
+    """Socket identifier (spec name, e.g. ``roughness warp``) -> the group node's input socket.
+
+    The node shows readable labels in panels (two inputs may share a label, one per yarn), so the
+    spec names are matched through the interface: label and panel give the item, its identifier
+    the node's socket.
+    """
+    items = _input_items(node.node_tree)
+    return {name: _socket_by_identifier(node.inputs, item.identifier) for name, item in items.items()}
+
+
+def _atlas_pixels() -> dict[str, tuple[int, int, np.ndarray]]:
+    """name -> (width, height, RGBA float32 pixels) of the fallback's atlases, as generated."""
+    out = {}
+    for name, (w, h, px) in shader_weave.fallback_atlases().items():
+        rgb = np.asarray(px, dtype=np.float32).reshape(-1, 3)
+        out[name] = (w, h, np.concatenate([rgb, np.ones((len(rgb), 1), np.float32)], 1).ravel())
+    return out
+
+
+def _write_atlas(image, pixels: np.ndarray) -> None:
+    # Only an image with edited pixels gets packed, so the pixels are written last and packed at
+    # once (as OpenEXR, float).
+    image.pixels.foreach_set(pixels)
+    image.pack()
+    if image.packed_file is None:  # pragma: no cover - depends on Blender's packing rules
+        raise RuntimeError(f"could not pack the fallback atlas {image.name!r}")
+
+
 def _atlas_images() -> dict:
     """The fallback's float atlases as packed, non-colour images (created afresh each build).
 
-    Order matters: a generated image is regenerated (its pixels lost) when its colour space
-    changes, and only an image with edited pixels gets packed, so the pixels are written last
-    and packed at once (as OpenEXR, float).
+    A generated image is regenerated (its pixels lost) when its colour space changes, so each is
+    made non-colour at creation.
     """
     images = {}
-    for name, (w, h, px) in shader_weave.fallback_atlases().items():
+    for name, (w, h, pixels) in _atlas_pixels().items():
         full = ATLAS_PREFIX + name
         old = bpy.data.images.get(full)
         if old is not None:
@@ -149,15 +203,36 @@ def _atlas_images() -> dict:
         image = bpy.data.images.new(full, w, h, alpha=False, float_buffer=True, is_data=True)
         image.alpha_mode = "CHANNEL_PACKED"
         image.use_fake_user = True
-        rgba = []
-        for i in range(0, len(px), 3):
-            rgba += [px[i], px[i + 1], px[i + 2], 1.0]
-        image.pixels.foreach_set(rgba)
-        image.pack()
-        if image.packed_file is None:  # pragma: no cover - depends on Blender's packing rules
-            raise RuntimeError(f"could not pack the fallback atlas {full!r}")
+        _write_atlas(image, pixels)
         images[name] = image
     return images
+
+
+def repair_atlases() -> list[str]:
+    """Restores any fallback atlas whose pixels were changed (painted over, edited by a script);
+    returns the names of those it restored.
+
+    The atlases are lookup tables of the weave, not textures: texture painting lists them among a
+    material's paint slots (Blender lists every Image Texture node, in nested groups too), so they
+    are checked here, whenever a fabric material is made or updated, before a file is saved and
+    on a timer while the add-on runs (ui/material_operators.py).
+    """
+    restored = []
+    for name, (w, h, pixels) in _atlas_pixels().items():
+        image = bpy.data.images.get(ATLAS_PREFIX + name)
+        if image is None or tuple(image.size) != (w, h):
+            continue  # missing or replaced: ensure_node_group rebuilds the group
+        current = np.empty(len(pixels), dtype=np.float32)
+        image.pixels.foreach_get(current)
+        if not np.array_equal(current, pixels):
+            _write_atlas(image, pixels)
+            restored.append(image.name)
+    return restored
+
+
+def _atlases_present() -> bool:
+    return all(tuple(getattr(bpy.data.images.get(ATLAS_PREFIX + name), "size", ())) == (w, h)
+               for name, (w, h, _) in _atlas_pixels().items())
 
 
 class _NodeBuilder:
@@ -168,6 +243,7 @@ class _NodeBuilder:
         self.depth: dict = {}
         self.column_rows: dict = {}
         self.separated: dict = {}
+        self.steps: dict = {}
 
     def _place(self, node, args):
         depth = 1 + max([self.depth.get(a.as_pointer(), 0) for a in args if hasattr(a, "as_pointer")] + [0])
@@ -229,6 +305,22 @@ class _NodeBuilder:
             self.separated[key] = node
         return node.outputs[i]
 
+    def pick(self, index, values):
+        """values[round(index)]: a sum of steps, index > k - 1/2 adding values[k] - values[k - 1]."""
+        if isinstance(index, float):
+            return values[min(max(int(round(index)), 0), len(values) - 1)]
+        result = values[0]
+        for k in range(1, len(values)):
+            if values[k] != values[k - 1]:
+                result = self.math("MULTIPLY_ADD", self._step(index, k), values[k] - values[k - 1], result)
+        return result
+
+    def _step(self, index, k):
+        key = (index.as_pointer(), k)
+        if key not in self.steps:
+            self.steps[key] = self.math("GREATER_THAN", index, k - 0.5)
+        return self.steps[key]
+
     def lookup(self, name, u, v):
         coord = self.combine(u, v, 0.0)
         node = self.tree.nodes.new("ShaderNodeTexImage")
@@ -252,7 +344,7 @@ def _build_fallback_group():
     if tree is None:
         tree = bpy.data.node_groups.new(FALLBACK_GROUP_NAME, "ShaderNodeTree")
     tree[_MARK] = "fallback"
-    _sync_interface(tree, ("BSDF",))
+    _sync_interface(tree, ("BSDF",), readable=False)
     tree.nodes.clear()
     nodes, links = tree.nodes, tree.links
     group_in = nodes.new("NodeGroupInput")
@@ -314,7 +406,7 @@ def _build_fallback_group():
 
 
 def _build_main_group(tree, fallback):
-    _sync_interface(tree, ("BSDF", "Fallback"))
+    _sync_interface(tree, ("BSDF", "Fallback"), readable=True)
     tree.nodes.clear()
     nodes, links = tree.nodes, tree.links
     group_in = nodes.new("NodeGroupInput")
@@ -357,9 +449,13 @@ def _build_main_group(tree, fallback):
     fb.node_tree = fallback
     fb.name = fb.label = "Fallback (EEVEE, GPU Cycles)"
     fb.location = (0, -300)
+    items = _input_items(tree)
     for s in shader_params.socket_specs():
-        links.new(group_in.outputs[s.name], _socket_by_identifier(script.inputs, s.osl))
-        links.new(group_in.outputs[s.name], fb.inputs[s.name])
+        source = _socket_by_identifier(group_in.outputs, items[s.name].identifier)
+        if s.name == shader_params.UV_SCALE:
+            source = _object_uv_scale(tree, source)
+        links.new(source, _socket_by_identifier(script.inputs, s.osl))
+        links.new(source, fb.inputs[s.name])
 
     mix = nodes.new("ShaderNodeMixShader")
     mix.name = mix.label = "OSL or fallback"
@@ -372,12 +468,39 @@ def _build_main_group(tree, fallback):
     links.new(fb.outputs["BSDF"], group_out.inputs["Fallback"])
 
 
+def _object_uv_scale(tree, uv_scale):
+    """The object's own uv scale (its OBJECT_UV_SCALE property, set by Set Real-World Scale) where it
+    has one, else the material's: an Attribute node reads 0 on an object without the property."""
+    nodes, links = tree.nodes, tree.links
+    attribute = nodes.new("ShaderNodeAttribute")
+    attribute.name = attribute.label = "Object's real-world scale"
+    attribute.attribute_type = "OBJECT"
+    attribute.attribute_name = shader_params.OBJECT_UV_SCALE
+    attribute.location = (-400, -700)
+    has_own = nodes.new("ShaderNodeMath")
+    has_own.operation = "GREATER_THAN"
+    has_own.inputs[1].default_value = 0.0
+    has_own.location = (-200, -700)
+    links.new(attribute.outputs["Fac"], has_own.inputs[0])
+    choose = nodes.new("ShaderNodeMix")
+    choose.name = choose.label = "UV scale (object or material)"
+    choose.data_type = "FLOAT"
+    choose.clamp_factor = True
+    choose.location = (-100, -600)
+    links.new(has_own.outputs[0], choose.inputs["Factor"])
+    links.new(uv_scale, choose.inputs["A"])
+    links.new(attribute.outputs["Fac"], choose.inputs["B"])
+    return choose.outputs["Result"]
+
+
 def ensure_node_group() -> "bpy.types.ShaderNodeTree":
     """The "Woven Fabric" node group, created (or rebuilt when the shader or sockets changed)."""
     tree = bpy.data.node_groups.get(NODE_GROUP_NAME)
     digest = _source_hash()
     if tree is not None and tree.bl_idname == "ShaderNodeTree" and tree.get(_HASH) == digest \
-            and not tree.get(_ERROR) and bpy.data.node_groups.get(FALLBACK_GROUP_NAME) is not None:
+            and not tree.get(_ERROR) and bpy.data.node_groups.get(FALLBACK_GROUP_NAME) is not None \
+            and _atlases_present():
+        repair_atlases()
         return tree
     if tree is None or tree.bl_idname != "ShaderNodeTree":
         tree = bpy.data.node_groups.new(NODE_GROUP_NAME, "ShaderNodeTree")
@@ -388,7 +511,7 @@ def ensure_node_group() -> "bpy.types.ShaderNodeTree":
     return tree
 
 
-def _group_node(material):
+def group_node(material):
     tree = getattr(material, "node_tree", None)
     if tree is None:
         raise ValueError(f"material {material.name!r} has no node tree")
@@ -446,15 +569,15 @@ def apply_params(material, params: dict, width_cm: float | None = None,
     on a cloth whose UV unit square is ``cloth_size_cm`` wide; otherwise it is left as it is
     (1 on a new material: tiles per UV unit as in the rig).
     """
-    node = _group_node(material)
+    inputs = input_sockets(group_node(material))
+    repair_atlases()
     for name, value in shader_params.socket_values(params).items():
-        sock = node.inputs[name]
-        sock.default_value = _rgba(value) if isinstance(value, tuple) else value
+        inputs[name].default_value = _rgba(value) if isinstance(value, tuple) else value
     rig = params.get("rig") if isinstance(params.get("rig"), dict) else None
     if width_cm is None and rig is not None:
         width_cm = rig.get("width_cm")
     if width_cm is not None and cloth_size_cm is not None:
-        node.inputs[shader_params.UV_SCALE].default_value = shader_params.uv_scale(width_cm, cloth_size_cm, rig)
+        inputs[shader_params.UV_SCALE].default_value = shader_params.uv_scale(width_cm, cloth_size_cm, rig)
         material[WIDTH_KEY] = float(width_cm)
         material[CLOTH_SIZE_KEY] = float(cloth_size_cm)
 
@@ -463,9 +586,9 @@ def read_params(material) -> dict:
     """The parameters currently on the material's group node, as a params.json dict
     (``FabricParams.to_dict()`` names; tiles as on the sockets, i.e. per UV unit of the rig plane,
     without the ``uv scale`` factor)."""
-    node = _group_node(material)
+    inputs = input_sockets(group_node(material))
     values = {}
     for s in shader_params.socket_specs():
-        v = node.inputs[s.name].default_value
+        v = inputs[s.name].default_value
         values[s.name] = tuple(v)[:3] if s.kind == "COLOR" else (int(v) if s.kind == "INT" else float(v))
     return shader_params.params_from_sockets(values)

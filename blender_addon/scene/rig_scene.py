@@ -135,6 +135,30 @@ def build_scene(material=None, rig: dict | None = None, size: int = 256, samples
     return scene
 
 
+ENGINES = ("osl", "fallback", "eevee")
+
+
+def set_engine(scene, engine: str, samples: int | None = None) -> None:
+    """Renders with ``osl`` (Cycles CPU with OSL: the fitted OSL shader), ``fallback`` (Cycles without
+    OSL, as on a GPU: the standard-node fallback) or ``eevee`` (EEVEE: the fallback)."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine: expected one of {', '.join(ENGINES)}, got {engine!r}")
+    if engine == "eevee":
+        scene.render.engine = "BLENDER_EEVEE"
+        eevee = scene.eevee
+        if samples:
+            eevee.taa_render_samples = int(samples)
+        eevee.use_shadows = True
+        # The rig's lights are points of radius 0 with exact inverse-square falloff (see build_scene).
+        if hasattr(eevee, "light_threshold"):
+            eevee.light_threshold = 1e-6
+    else:
+        scene.render.engine = "CYCLES"
+        scene.cycles.shading_system = engine == "osl"
+        if samples:
+            scene.cycles.samples = int(samples)
+
+
 def rig_object(scene, role: str):
     """The scene's 'fabric', 'front' or 'back' light object."""
     for obj in scene.objects:
@@ -153,8 +177,20 @@ def render_linear(scene, which: str | None = None) -> np.ndarray:
     """Renders with one light and returns the linear film, (size, size, 4) float32, row 0 = top."""
     if which is not None:
         set_light(scene, which)
-    with tempfile.TemporaryDirectory(prefix="wf_rig_") as tmp:
-        path = os.path.join(tmp, "render.exr")
+    return render_film(scene)
+
+
+def render_film(scene, file_format: str = "OPEN_EXR") -> np.ndarray:
+    """Renders ``scene`` (its own render settings) and returns the film, (h, w, 4) float32, row 0 =
+    top: linear for OPEN_EXR, display values (the scene's view transform) for PNG."""
+    with tempfile.TemporaryDirectory(prefix="wf_render_") as tmp:
+        path = os.path.join(tmp, "render.exr" if file_format == "OPEN_EXR" else "render.png")
+        settings = scene.render.image_settings
+        saved = (settings.file_format, settings.color_depth, settings.color_mode)
+        if file_format != settings.file_format:
+            settings.file_format = file_format
+            settings.color_mode = "RGBA"
+            settings.color_depth = "16"
         scene.render.filepath = path
         window_scene = bpy.context.window.scene if bpy.context.window else None
         if bpy.context.window is not None:
@@ -164,6 +200,7 @@ def render_linear(scene, which: str | None = None) -> np.ndarray:
         finally:
             if window_scene is not None:
                 bpy.context.window.scene = window_scene
+            settings.file_format, settings.color_depth, settings.color_mode = saved
         image = bpy.data.images.load(path)
         try:
             w, h = image.size
