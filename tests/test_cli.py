@@ -52,6 +52,9 @@ def test_render_reads_a_json_file_with_flags_and_rig(tmp_path):
     (["render", EXAMPLE, "--out", "OUT", "--flags", '{"layers": 3}'], "layers: expected 1 or 2"),
     (["render", EXAMPLE, "--out", "OUT", "--rig", "RIG"], "cannot read"),
     (["render-cases", "CASES", "--out", "OUT"], "cannot read"),
+    (["fit", "--example", "--out", "OUT", "--size", "0"], "--size 0: must be between 16 and the photos' working size"),
+    (["fit", "--example", "--out", "OUT", "--size", "1024"], "--size 1024: must be between 16 and the photos' "
+                                                             "working size 512"),
 ])
 def test_bad_input_gives_exit_code_2_and_a_clear_message(tmp_path, args, needle):
     args = [str(tmp_path / "x") if a == "OUT" else str(tmp_path / "nothing.json") if a in ("RIG", "CASES") else a

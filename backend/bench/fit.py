@@ -14,6 +14,7 @@ line per pair and a summary with the targets of the fit issue.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -27,21 +28,36 @@ TARGETS = {"flip": 0.12, "colour_l1": 0.02, "spectrum_corr": 0.6, "roughness_mae
            "thickness_mae": 0.25, "tiles_error_pct": 2.0, "wall_s": 120.0}
 
 
-def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) -> dict:
+def _children_cpu_s() -> float | None:
+    """User + system CPU time of the waited-for child processes so far (POSIX; None elsewhere)."""
+    try:
+        import resource  # POSIX only
+    except ImportError:
+        return None
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], env: dict | None = None) -> dict:
+    """The ``fit`` command on one pair in a subprocess (``env`` adds environment variables): its
+    parameters, metrics, wall time, CPU time (POSIX) and stage timings, or ``error``."""
     cmd = [sys.executable, "-m", "backend", "fit", str(reflection), str(transmission), "--out", str(out),
            "--json-progress", *extra]
+    cpu_before = _children_cpu_s()
     started = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[2])
+                            cwd=Path(__file__).resolve().parents[2], env={**os.environ, **(env or {})})
     stdout, stderr = proc.communicate()
     wall = time.perf_counter() - started
+    cpu = None if cpu_before is None else _children_cpu_s() - cpu_before
     lines = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
     final = lines[-1] if lines else {"event": "error", "message": stderr[-500:]}
     if final.get("event") != "result":
         return {"error": final.get("message", "no result"), "wall_s": wall}
     metrics = json.loads((out / "metrics.json").read_text())
     params = FabricParams.from_dict(json.loads((out / "params.json").read_text()))
-    return {"params": params, "metrics": metrics["metrics"], "wall_s": wall, "fit_s": metrics["wall_s"],
+    return {"params": params, "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "fit_s": metrics["wall_s"],
+            "timings": metrics.get("timings", {}), "stderr": stderr,
             "peak_mb": metrics.get("peak_mb"), "camera_blur_px": metrics.get("camera_blur_px")}
 
 
@@ -70,7 +86,7 @@ def bench_fit(golden: str | None, real: str | None, cases: list[str] | None, ext
                 if not cases or pair.name in cases:
                     jobs.append(("real", pair.name, pair.reflection, pair.transmission, None))
         for kind, name, r, t, truth in jobs:
-            result = _run_fit(r, t, Path(tmp) / f"{kind}_{name}", extra)
+            result = run_fit(r, t, Path(tmp) / f"{kind}_{name}", extra)
             row = {"kind": kind, "name": name, "wall_s": round(result["wall_s"], 1)}
             if "error" in result:
                 row["error"] = result["error"]

@@ -46,6 +46,7 @@ from ..model.render import render_pair
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
 OUTPUT_SPP = 64
+MIN_SIZE = 16  # the loss compares 16 x 16 colour grids
 
 
 class FitInputError(ValueError):
@@ -110,8 +111,11 @@ def fit_to_folder(args, reporter: Reporter, out: Path, should_stop) -> int:
     started = time.perf_counter()
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise FitInputError(f"--device {args.device}: CUDA is not available in this PyTorch build or on this machine")
-    _prepare_out(out, args.overwrite)
     rig = CaptureRig.load(args.rig) if args.rig else DEFAULT_RIG
+    if not MIN_SIZE <= args.size <= rig.film_size:  # the photos are loaded at the rig's film size
+        raise FitInputError(f"--size {args.size}: must be between {MIN_SIZE} and the photos' working size "
+                            f"{rig.film_size} (the rig's film_size)")
+    _prepare_out(out, args.overwrite)
     truth = None
     if args.example:
         reflection_path, transmission_path, truth = make_example(out / "example_photos", rig)
