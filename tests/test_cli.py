@@ -52,6 +52,8 @@ def test_render_reads_a_json_file_with_flags_and_rig(tmp_path):
     (["render", EXAMPLE, "--out", "OUT", "--flags", '{"layers": 3}'], "layers: expected 1 or 2"),
     (["render", EXAMPLE, "--out", "OUT", "--rig", "RIG"], "cannot read"),
     (["render-cases", "CASES", "--out", "OUT"], "cannot read"),
+    (["fit", "--example", "--out", "OUT", "--size", "0"], "must be at least 32 pixels, got 0"),
+    (["fit", "--example", "--out", "OUT", "--size", "1024"], "--size 1024: larger than the photos' working size"),
 ])
 def test_bad_input_gives_exit_code_2_and_a_clear_message(tmp_path, args, needle):
     args = [str(tmp_path / "x") if a == "OUT" else str(tmp_path / "nothing.json") if a in ("RIG", "CASES") else a

@@ -16,6 +16,7 @@ summary per kind of pair with the targets of the fit issue.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -41,14 +42,28 @@ TARGETS = {
 }
 
 
-def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) -> dict:
+def _children_cpu_s() -> float | None:
+    """User + system CPU time of the waited-for child processes so far (POSIX; None elsewhere)."""
+    try:
+        import resource  # POSIX only
+    except ImportError:
+        return None
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], env: dict | None = None) -> dict:
+    """The ``fit`` command on one pair in a subprocess (``env`` adds environment variables): its
+    parameters, metrics, wall time, CPU time (POSIX) and stage timings, or ``error``."""
     cmd = [sys.executable, "-m", "backend", "fit", str(reflection), str(transmission), "--out", str(out),
            "--json-progress", *extra]
+    cpu_before = _children_cpu_s()
     started = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[2])
+                            cwd=Path(__file__).resolve().parents[2], env={**os.environ, **(env or {})})
     stdout, stderr = proc.communicate()
     wall = time.perf_counter() - started
+    cpu = None if cpu_before is None else _children_cpu_s() - cpu_before
     lines = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
     final = lines[-1] if lines else {"event": "error", "message": stderr[-500:]}
     if final.get("event") != "result":
@@ -56,8 +71,9 @@ def _run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str]) 
     metrics = json.loads((out / "metrics.json").read_text())
     saved = json.loads((out / "params.json").read_text())
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
-            "metrics": metrics["metrics"], "wall_s": wall, "peak_mb": metrics.get("peak_mb"),
-            "at_bounds": metrics.get("at_bounds", [])}
+            "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "fit_s": metrics["wall_s"],
+            "timings": metrics.get("timings", {}), "stderr": stderr, "peak_mb": metrics.get("peak_mb"),
+            "camera_blur_px": metrics.get("camera_blur_px"), "at_bounds": metrics.get("at_bounds", [])}
 
 
 def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
@@ -99,7 +115,7 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
             out = work / f"{job['kind']}_{job['name']}"
             if keep and out.exists():
                 shutil.rmtree(out)
-            result = _run_fit(job["reflection"], job["transmission"], out, extra)
+            result = run_fit(job["reflection"], job["transmission"], out, extra)
             row = {"kind": job["kind"], "name": job["name"], "wall_s": round(result["wall_s"], 1)}
             if "error" in result:
                 row["error"] = result["error"]

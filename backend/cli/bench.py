@@ -1,8 +1,9 @@
-"""``python -m backend bench render|fit|batch``: performance figures (never timed tests).
+"""``python -m backend bench render|fit|fit-speed|batch``: performance figures (never timed tests).
 
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
         [--no-novel-light] [--fit-args "EXTRA FIT ARGUMENTS"]
+    bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
         [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
 """
@@ -13,22 +14,28 @@ import shlex
 from ..batch.scheduler import BatchError
 from ..bench.batch import bench_batch
 from ..bench.fit import bench_fit
+from ..bench.fit_speed import bench_fit_speed
 from ..bench.render import bench_render
 from .common import InputError, device, positive_int
 
 
 def run_bench(args) -> int:
+    extra = ["--iterations", str(args.iterations)] if args.iterations else []
     if args.what == "fit":
         synthetic = args.synthetic + args.golden
         if not synthetic and not args.real:
             raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
-        extra = (["--iterations", str(args.iterations)] if args.iterations else []) + shlex.split(args.fit_args)
-        return bench_fit(synthetic, args.real, args.cases, extra, args.json, keep=args.keep,
-                         novel_light=not args.no_novel_light)
+        return bench_fit(synthetic, args.real, args.cases, extra + shlex.split(args.fit_args), args.json,
+                         keep=args.keep, novel_light=not args.no_novel_light)
+    if args.what == "fit-speed":
+        if args.fit_size:
+            extra += ["--size", str(args.fit_size)]
+        reflection, transmission = args.pair or (None, None)
+        return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json)
     if args.what == "batch":
         try:
             return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
-                               args.workers, args.sequential_threads, args.subprocess, args.rounds, args.json)
+                               args.workers, args.sequential_threads, args.subprocess, args.rounds or 1, args.json)
         except BatchError as exc:  # no Ray
             raise InputError(f"bench batch: {exc}") from None
     return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json,
@@ -37,7 +44,7 @@ def run_bench(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render", "fit", "batch"])
+    p.add_argument("what", choices=["render", "fit", "fit-speed", "batch"])
     p.add_argument("--json", action="store_true", help="JSON lines")
     p.add_argument("--synthetic", nargs="*", default=[],
                    help="fit: folders with cases.json and <name>_R/_T images (golden renders, photo-like sets)")
@@ -47,7 +54,14 @@ def add_parser(sub) -> None:
     p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
     p.add_argument("--fit-args", default="", help='fit: extra arguments of every fit, one string ("--size 512")')
     p.add_argument("--cases", nargs="*", help="fit: only these names")
-    p.add_argument("--iterations", type=int, help="iterations per fit (fit: the fit's default; batch: 20)")
+    p.add_argument("--iterations", type=positive_int,
+                   help="iterations per fit (fit, fit-speed: the fit's default; batch: 20)")
+    p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
+                   help="fit-speed: the photo pair (default: the bundled example)")
+    p.add_argument("--fit-size", type=positive_int, help="fit-speed: the fit's --size (default: the fit's default)")
+    p.add_argument("--rounds", type=positive_int,
+                   help="fit-speed: compiled + eager rounds (default 2); batch: how often the ways take turns "
+                        "(default 1)")
     p.add_argument("--size", type=positive_int, help="render: image size (default 512); batch: the fits' working "
                                                      "size (default 64)")
     p.add_argument("--spp", type=positive_int, default=4)
@@ -60,5 +74,4 @@ def add_parser(sub) -> None:
     p.add_argument("--sequential-threads", type=positive_int, help="batch: threads of each sequential fit "
                                                                    "(default: every core)")
     p.add_argument("--subprocess", action="store_true", help="batch: also one python -m backend fit per pair")
-    p.add_argument("--rounds", type=positive_int, default=1, help="batch: how often the ways take turns (default 1)")
     p.set_defaults(run=run_bench)

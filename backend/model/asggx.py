@@ -24,9 +24,15 @@ from .frames import safe_sqrt
 from .sggx import ndf
 
 
-def half_sin2(cos_in: torch.Tensor, cos_out: torch.Tensor) -> torch.Tensor:
-    """sin^2 of the in-plane half angle th from ci = wi . o and co = wo . o."""
-    cross = safe_sqrt((1.0 - cos_in * cos_in) * (1.0 - cos_out * cos_out), eps=1e-14)
+def half_sin2(cos_in: torch.Tensor, cos_out: torch.Tensor,
+              sin2_in: torch.Tensor | None = None, sin2_out: torch.Tensor | None = None) -> torch.Tensor:
+    """sin^2 of the in-plane half angle th from ci = wi . o and co = wo . o (and 1 - ci^2, 1 - co^2
+    when the caller has them)."""
+    if sin2_in is None:
+        sin2_in = 1.0 - cos_in * cos_in
+    if sin2_out is None:
+        sin2_out = 1.0 - cos_out * cos_out
+    cross = safe_sqrt(sin2_in * sin2_out, eps=1e-14)
     return (0.5 * (1.0 + cos_in * cos_out - cross)).clamp(0.0, 1.0)
 
 

@@ -11,26 +11,30 @@ attenuation att_k, and::
     transmission: c = product over the yarn layers k of max(0, -wo . nk)
 
 A gap behaves as a layer of zero thickness: f = 0 and att = 1 fall out of the formulas, so gaps
-need no branches. Per-yarn parameters are picked per sample with the warp/weft masks of
-:mod:`backend.model.geometry` (a weighted sum, whose gradient is a cheap reduction). All values are
-cosine-weighted (they include the light-side cosine); multiply by intensity / distance^2 for
-radiance.
+need no branches. All values are cosine-weighted (they include the light-side cosine); multiply by
+intensity / distance^2 for radiance.
+
+Evaluation works on :class:`backend.model.projections.SampleProjections`, the part of the inputs
+that the optimised parameters do not change, so an iteration touches only per-sample scalars:
+per-yarn constants (1 - alpha^2, 1 / alpha^2 - 1, 1 / (pi alpha), T, beta) are formed on the two
+yarns' values and picked per sample by the weft mask (``lerp``, exact at 0 and 1). With the camera
+and the front light above the fabric and the back light below it, A_i and A_o have the same sign
+for the front light (G = T phi(T (A_i + A_o))) and opposite signs for the back light, where
+exp(-T min(A_i, |A_o|)) = max(att(wi), att(wo)) is already at hand for the single lobe.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
 from ..core.options import RenderOptions
-from . import sggx, spongecake
-from .camera import LightSamples, SampleChunk
-from .frames import dot
-from .geometry import LayerGeometry, SampleGeometry
+from . import asggx, sggx
+from .camera import SampleChunk
+from .geometry import SampleGeometry
 from .param_tensors import ParamTensors
-from .spongecake import safe_cos
-from .yarn import scale_height
+from .projections import LayerProjections, LightFactors, SampleProjections, Split, project
+from .spongecake import slab_g_from
 
 
 def multiple_albedo(specular_albedo: torch.Tensor, multiple_weight: torch.Tensor) -> torch.Tensor:
@@ -51,61 +55,10 @@ class LayerLobes:
 
 
 @dataclass
-class LayerState:
-    """Per-sample parameters of one layer (differentiable), shared by both lights."""
-
-    geometry: LayerGeometry
-    alpha: torch.Tensor
-    alpha_multiple: torch.Tensor
-    thickness: torch.Tensor
-    thickness_multiple: torch.Tensor
-    normal: torch.Tensor            # (3, S) after height scaling
-    fiber: torch.Tensor             # (3, S) after height scaling
-    cos_in: torch.Tensor            # wi . o
-    area_in: torch.Tensor           # sigma(wi) / wi_z with the single-scattering alpha
-    att_in: torch.Tensor            # att(wi)
-
-
-def layer_state(geo: LayerGeometry, fabric: ParamTensors, wi: torch.Tensor) -> LayerState:
-    warp, weft = geo.warp, geo.weft
-    gap = 1.0 - warp - weft
-
-    def pick(values: torch.Tensor, fill: float = 0.0) -> torch.Tensor:
-        return warp * values[0] + weft * values[1] + (gap * fill if fill else 0.0)
-
-    alpha = pick(fabric.roughness, 1.0)
-    beta = pick(fabric.height_scale, 1.0)
-    if geo.height_offset is not None:
-        beta = (beta + geo.height_offset).clamp_min(0.01)
-    thickness = pick(fabric.thickness) * geo.thickness_scale
-    normal, fiber = scale_height(geo.normal, geo.fiber, beta)
-    cos_in = dot(wi, fiber)
-    area_in = sggx.projected_area(cos_in, alpha) / safe_cos(wi[2])
-    return LayerState(
-        geometry=geo, alpha=alpha, alpha_multiple=pick(fabric.roughness_multiple, 1.0),
-        thickness=thickness, thickness_multiple=pick(fabric.thickness_multiple) * geo.thickness_scale,
-        normal=normal, fiber=fiber, cos_in=cos_in, area_in=area_in,
-        att_in=spongecake.attenuation(thickness, area_in))
-
-
-def layer_lobes(state: LayerState, wi: torch.Tensor, light: LightSamples, options: RenderOptions) -> LayerLobes:
-    """f_s + f_m and att(wo) of one layer for one light (spec 4.2-4.4)."""
-    wo, fiber = light.wo, state.fiber
-    cos_out = dot(wo, fiber)
-    cos_half = dot(light.half, fiber)
-    cos2_half = cos_half * cos_half
-    wo_z = safe_cos(wo[2])
-    inv_wi_z = 1.0 / safe_cos(wi[2])
-    area_out = sggx.projected_area(cos_out, state.alpha) / wo_z
-    single = spongecake.single_scattering(cos2_half, state.area_in, area_out, state.alpha, state.thickness, inv_wi_z)
-    if options.multiple_lobe == "asggx":
-        multiple = spongecake.multiple_scattering_asggx(state.cos_in, cos_out, state.area_in, area_out,
-                                                        state.alpha_multiple, state.thickness_multiple, inv_wi_z)
-    else:
-        multiple = spongecake.multiple_scattering_sggx(state.cos_in, cos_out, cos2_half, wo_z, state.alpha_multiple,
-                                                       state.thickness_multiple, inv_wi_z)
-    att_out = spongecake.attenuation(state.thickness, area_out)
-    return LayerLobes(single, multiple, att_out, dot(wo, state.normal))
+class LayerOptics:
+    att_in: torch.Tensor      # (S,) att(wi)
+    front: LayerLobes
+    back: LayerLobes
 
 
 @dataclass
@@ -113,7 +66,8 @@ class ColourTerms:
     """Radiance as a sum of colour x scalar terms: ``radiance (3, S) = colours (3, K) @ weights (K, S)``.
 
     Every albedo is a per-yarn constant, so the renderer averages the K scalar weights over each
-    pixel's samples first and mixes colours per pixel: far less work than (3, S) arithmetic.
+    pixel's samples before multiplying by the colours: less work than (3, S) arithmetic. The terms
+    are k_s warp, k_s weft, k_m warp, k_m weft, k_d (each gathering both layers).
     """
 
     colours: torch.Tensor   # (3, K)
@@ -123,62 +77,134 @@ class ColourTerms:
         return self.colours @ self.weights
 
 
-def _specular_terms(fabric_albedos, state: LayerState, lobes: LayerLobes, factor: torch.Tensor):
-    """(colour, weight) pairs of one layer's specular lobes, scaled by `factor` (S,)."""
-    geo = state.geometry
-    if geo.albedo_scale is not None:
-        factor = factor * geo.albedo_scale
-    single, multiple = lobes.single * factor, lobes.multiple * factor
-    specular, k_multiple = fabric_albedos
-    return [(specular[0], geo.warp * single), (specular[1], geo.weft * single),
-            (k_multiple[0], geo.warp * multiple), (k_multiple[1], geo.weft * multiple)]
+def _pick(per_yarn: torch.Tensor, weft: torch.Tensor) -> torch.Tensor:
+    """(2,) warp/weft values -> (S,): the weft's where ``weft`` is 1, the warp's elsewhere."""
+    return torch.lerp(per_yarn[0], per_yarn[1], weft)
 
 
-def eval_pair(chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors,
-              options: RenderOptions) -> tuple[ColourTerms, ColourTerms]:
+def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleProjections,
+                 options: RenderOptions) -> LayerOptics:
+    """att(wi), and f_s, f_m, att(wo), wo . n for both lights, of one layer (spec 3.3, 4.1-4.4)."""
+    weft = layer.weft
+    alpha, alpha_m = fabric.roughness, fabric.roughness_multiple
+    flattening = _pick(1.0 - alpha * alpha, weft)
+    ndf_shape, ndf_scale = _pick(1.0 / (alpha * alpha) - 1.0, weft), _pick(1.0 / (torch.pi * alpha), weft)
+    ndf_shape_m, ndf_scale_m = _pick(1.0 / (alpha_m * alpha_m) - 1.0, weft), _pick(1.0 / (torch.pi * alpha_m), weft)
+    thickness = _pick(fabric.thickness, weft) * layer.thickness_scale
+    thickness_m = _pick(fabric.thickness_multiple, weft) * layer.thickness_scale
+    beta = _pick(fabric.height_scale, weft)
+    if layer.height_offset is not None:
+        beta = (beta + layer.height_offset).clamp_min(0.01)
+    beta2 = beta * beta
+    inv_fiber = torch.rsqrt(torch.addcmul(layer.fiber_plane2, beta2, layer.fiber_z2))
+    inv_normal = torch.rsqrt(torch.addcmul(layer.normal_z2, beta2, layer.normal_plane2))
+
+    def on_fiber(split: Split) -> torch.Tensor:
+        return torch.addcmul(split.plane, beta, split.z) * inv_fiber
+
+    cos_in = on_fiber(layer.wi)
+    cos2_in = cos_in * cos_in
+    area_in = sggx.projected_area_from(cos2_in, flattening) * samples.inv_wi_z
+    att_in = torch.exp(-thickness * area_in)
+    quarter_inv_wi_z = 0.25 * samples.inv_wi_z
+    sin2_in = 1.0 - cos2_in
+
+    def lobes(splits, light: LightFactors, same_side: bool) -> LayerLobes:
+        cos_out = on_fiber(splits.out)
+        cos_half = on_fiber(splits.half)
+        cos2_out = cos_out * cos_out
+        area_out = sggx.projected_area_from(cos2_out, flattening) * light.inv_wo_z
+        att_out = torch.exp(-thickness * area_out.abs())
+        ndf = sggx.ndf_from(cos_half * cos_half, ndf_shape, ndf_scale)
+        if options.multiple_lobe == "asggx":
+            ndf_m = sggx.ndf_from(asggx.half_sin2(cos_in, cos_out, sin2_in, 1.0 - cos2_out), ndf_shape_m, ndf_scale_m)
+            area_in_m, area_out_m = area_in, area_out
+        else:  # the ablation: the single-scattering lobe with alpha_m, T_m
+            ndf_m = sggx.ndf_from(cos_half * cos_half, ndf_shape_m, ndf_scale_m)
+            flattening_m = _pick(1.0 - alpha_m * alpha_m, weft)
+            area_in_m = sggx.projected_area_from(cos2_in, flattening_m) * samples.inv_wi_z
+            area_out_m = sggx.projected_area_from(cos2_out, flattening_m) * light.inv_wo_z
+        if same_side:  # A_i, A_o > 0: min(p, q) = 0, |q - p| = A_i + A_o
+            g = slab_g_from(thickness, area_in + area_out)
+            g_m = slab_g_from(thickness_m, area_in_m + area_out_m)
+        else:  # A_o < 0 < A_i: min(p, q) = min(A_i, |A_o|), |q - p| = |A_i + A_o|
+            g = slab_g_from(thickness, (area_in + area_out).abs(), torch.maximum(att_in, att_out))
+            near_m = torch.minimum(area_in_m, -area_out_m)
+            g_m = slab_g_from(thickness_m, (area_in_m + area_out_m).abs(), torch.exp(-thickness_m * near_m))
+        lobe_factor = 2.0 if options.multiple_lobe == "asggx" else 1.0  # 1 / (2 |wi_z|) vs 1 / (4 |wi_z|)
+        cos_normal = torch.addcmul(splits.normal.z, beta, splits.normal.plane) * inv_normal
+        return LayerLobes(ndf * g * quarter_inv_wi_z, ndf_m * g_m * (lobe_factor * quarter_inv_wi_z),
+                          att_out, cos_normal)
+
+    return LayerOptics(att_in, lobes(layer.front, samples.front, True), lobes(layer.back, samples.back, False))
+
+
+class _Slots:
+    """Accumulates per-layer lobes into the k_s / k_m warp / weft weights of one light."""
+
+    def __init__(self):
+        self.weights: list[torch.Tensor | None] = [None] * 4  # k_s warp, k_s weft, k_m warp, k_m weft
+
+    def add(self, layer: LayerProjections, lobes: LayerLobes, factor: torch.Tensor) -> None:
+        if layer.albedo_scale is not None:
+            factor = factor * layer.albedo_scale
+        for slot, lobe in ((0, lobes.single), (2, lobes.multiple)):
+            value = lobe * factor
+            weft = layer.weft * value  # the weft mask is 0 or 1 and gaps give 0: the split is exact
+            for index, part in ((slot, value - weft), (slot + 1, weft)):
+                current = self.weights[index]
+                self.weights[index] = part if current is None else current + part
+
+
+def eval_projected(samples: SampleProjections, fabric: ParamTensors,
+                   options: RenderOptions) -> tuple[ColourTerms, ColourTerms]:
     """Radiance terms of the front-lit (reflection) and back-lit (transmission) captures.
 
     Radiance = cosine-weighted BSDF * intensity / distance^2 (glow excluded: it is per pixel).
     """
-    wi = chunk.wi
-    albedos = (fabric.specular_albedo, multiple_albedo(fabric.specular_albedo, fabric.multiple_weight))
-    states = [layer_state(geo, fabric, wi) for geo in geometry.layers]
-    lobes_front = [layer_lobes(s, wi, chunk.front, options) for s in states]
-    lobes_back = [layer_lobes(s, wi, chunk.back, options) for s in states]
-    irr_front, irr_back = chunk.front.irradiance, chunk.back.irradiance
-
-    terms_r = _specular_terms(albedos, states[0], lobes_front[0], irr_front)
-    terms_t = []
-    if len(states) == 2:
-        att0_in = states[0].att_in
-        terms_r += _specular_terms(albedos, states[1], lobes_front[1], irr_front * lobes_front[0].att_out * att0_in)
-        terms_t += _specular_terms(albedos, states[0], lobes_back[0], irr_back * lobes_back[1].att_out)
-        terms_t += _specular_terms(albedos, states[1], lobes_back[1], irr_back * att0_in)
+    layers = samples.layers
+    optics = [layer_optics(layer, fabric, samples, options) for layer in layers]
+    irr_front, irr_back = samples.front.irradiance, samples.back.irradiance
+    reflection, transmission = _Slots(), _Slots()
+    reflection.add(layers[0], optics[0].front, irr_front)
+    if len(layers) == 2:
+        att0_in = optics[0].att_in
+        reflection.add(layers[1], optics[1].front, irr_front * optics[0].front.att_out * att0_in)
+        transmission.add(layers[0], optics[0].back, irr_back * optics[1].back.att_out)
+        transmission.add(layers[1], optics[1].back, irr_back * att0_in)
     else:
-        terms_t += _specular_terms(albedos, states[0], lobes_back[0], irr_back)
+        transmission.add(layers[0], optics[0].back, irr_back)
 
+    ks = fabric.specular_albedo
+    km = multiple_albedo(ks, fabric.multiple_weight)
+    colours = [ks[0], ks[1], km[0], km[1]]
+    weights_r, weights_t = reflection.weights, transmission.weights
     if options.diffuse:
-        any_yarn = 1.0 - geometry.no_yarn
-        front_yarn = geometry.layers[0].is_yarn
-        c_front = front_yarn * lobes_front[0].cos_normal.clamp_min(0)
-        if len(states) == 2:
-            c_front = c_front + (1.0 - front_yarn) * lobes_front[1].cos_normal.clamp_min(0)
-        c_back = torch.ones_like(c_front)
-        for state, lobes in zip(states, lobes_back):
-            yarn = state.geometry.is_yarn
-            c_back = c_back * (yarn * (-lobes.cos_normal).clamp_min(0) + (1.0 - yarn))
+        c_front = optics[0].front.cos_normal.clamp_min(0)
+        if len(layers) == 2:  # the back layer's normal where the front is a gap
+            c_front = torch.lerp(optics[1].front.cos_normal.clamp_min(0), c_front, layers[0].yarn)
+        else:
+            c_front = c_front * layers[0].yarn
+        c_back = None
+        for layer, layer_optics_ in zip(layers, optics):
+            factor = torch.lerp(torch.ones((), dtype=c_front.dtype, device=c_front.device),
+                                (-layer_optics_.back.cos_normal).clamp_min(0), layer.yarn)
+            c_back = factor if c_back is None else c_back * factor
         w = fabric.diffuse_normal_weight
-        terms_r.append((fabric.diffuse_reflection,
-                        diffuse_weight(w, chunk.front.wo[2], c_front, any_yarn) * irr_front))
-        terms_t.append((fabric.diffuse_transmission,
-                        diffuse_weight(w, chunk.back.wo[2], c_back, any_yarn) * irr_back))
-    return _pack(terms_r), _pack(terms_t)
+        weights_r = weights_r + [diffuse_weight(w, samples.front, c_front)]
+        weights_t = weights_t + [diffuse_weight(w, samples.back, c_back)]
+        return (ColourTerms(torch.stack(colours + [fabric.diffuse_reflection], 1), torch.stack(weights_r)),
+                ColourTerms(torch.stack(colours + [fabric.diffuse_transmission], 1), torch.stack(weights_t)))
+    return ColourTerms(torch.stack(colours, 1), torch.stack(weights_r)), \
+        ColourTerms(torch.stack(colours, 1), torch.stack(weights_t))
 
 
-def diffuse_weight(weight: torch.Tensor, wo_z: torch.Tensor, c: torch.Tensor, any_yarn: torch.Tensor) -> torch.Tensor:
-    """((1 - w) |wo_z| + w c) / pi where some layer is a yarn; multiplies k_d."""
-    return ((1.0 - weight) * wo_z.abs() + weight * c) * any_yarn * (1.0 / math.pi)
+def diffuse_weight(weight: torch.Tensor, light: LightFactors, c: torch.Tensor) -> torch.Tensor:
+    """((1 - w) |wo_z| + w c) / pi times the irradiance where some layer is a yarn; multiplies k_d."""
+    return (1.0 - weight) * light.diffuse_flat + weight * (light.diffuse_normal * c)
 
 
-def _pack(terms) -> ColourTerms:
-    return ColourTerms(torch.stack([c for c, _ in terms], 1), torch.stack([w for _, w in terms]))
+def eval_pair(chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors,
+              options: RenderOptions) -> tuple[ColourTerms, ColourTerms]:
+    """:func:`eval_projected` from camera samples and geometry (projects them first)."""
+    return eval_projected(project(chunk, geometry), fabric, options)

@@ -26,17 +26,17 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import torch
-from torch.utils.checkpoint import checkpoint
 
 from ..core.options import RenderOptions
 from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from .bsdf import eval_pair
+from .bsdf import eval_projected
 from .camera import CameraSamples, SampleChunk
-from .geometry import GeometryKey, SampleGeometry, sample_geometry
+from .geometry import GeometryKey, sample_geometry
 from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
 from .param_tensors import ParamTensors
+from .projections import SampleProjections, project
 
 
 @dataclass
@@ -50,10 +50,15 @@ class RenderedPair:
 
 
 def compile_available() -> bool:
-    """Whether torch.compile can build CPU kernels here (it needs a C++ compiler)."""
+    """Whether the renderer compiles: ``WFC_COMPILE=0`` or ``1`` decides, else :func:`compiler_found`."""
     forced = os.environ.get("WFC_COMPILE")
     if forced in ("0", "1"):
         return forced == "1"
+    return compiler_found()
+
+
+def compiler_found() -> bool:
+    """Whether torch.compile can build CPU kernels here (it needs a C++ compiler)."""
     return any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "c++", "clang++"))
 
 
@@ -63,10 +68,10 @@ class Renderer:
     def __init__(self, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4, seed: int = 0,
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
-                 compile: bool | None = False):
+                 compile: bool | None = False, block_samples: int = 1 << 17):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
-        self.size, self.spp = size, spp
+        self.size, self.spp, self.block_samples = size, spp, block_samples
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
@@ -101,13 +106,13 @@ class Renderer:
                            twist_deg=fabric.scalar("twist_deg"), noise=fabric.scalar("noise"),
                            tension=self.options.tension, layers=self.options.layers)
 
-    def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> SampleGeometry:
+    def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> SampleProjections:
         cache_key = (key, rows)
         if cache_key in self._geometry:
             self._geometry.move_to_end(cache_key)
             return self._geometry[cache_key]
         with torch.no_grad():
-            geometry = sample_geometry(chunk, lookup, self.rig, key, self.dtype)
+            geometry = project(chunk, sample_geometry(chunk, lookup, self.rig, key, self.dtype))
         if self._geometry_slots:
             self._geometry[cache_key] = geometry
             while len(self._geometry) > self._geometry_slots * len(self.ranges):
@@ -125,13 +130,16 @@ class Renderer:
         needs_grad = torch.is_grad_enabled() and any(t.requires_grad for t in fabric.values.values())
         pieces_r, pieces_t = [], []
         for rows in self.ranges:
-            chunk = self._chunk(rows)
-            geometry = self._geometry_for(key, lookup, rows, chunk)
+            samples = self._geometry_for(key, lookup, rows, self._chunk(rows))
+            glow = None if self.glow is None else self.glow[rows[0]:rows[1]]
             if needs_grad and len(self.ranges) > 1:
-                tensors = tuple(fabric.values.values())
-                r, t = checkpoint(self._pixels_from_tensors, chunk, geometry, fabric, *tensors, use_reentrant=False)
+                def evaluate(*tensors, samples=samples, glow=glow):
+                    values = dict(zip(fabric.values, tensors))
+                    return self._evaluate(samples, ParamTensors(fabric.pattern, fabric.weave, values), glow)
+
+                r, t = _Recomputed.apply(evaluate, *fabric.values.values())
             else:
-                r, t = self._evaluate(chunk, geometry, fabric)
+                r, t = self._evaluate(samples, fabric, glow)
             pieces_r.append(r)
             pieces_t.append(t)
             if progress is not None:
@@ -142,35 +150,43 @@ class Renderer:
     def compiled(self) -> bool:
         return self._compiled is not None
 
-    def _evaluate(self, chunk, geometry, fabric):
+    def _evaluate(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None):
         if self._compiled is None:
-            return self._pixels(chunk, geometry, fabric)
+            return self._eager(samples, fabric, glow)
         try:
-            return self._compiled(chunk, geometry, fabric)
+            return self._compiled(samples, fabric, glow)
         except Exception as exc:  # a missing or broken compiler must not stop a render
             warnings.warn(f"torch.compile failed ({type(exc).__name__}: {str(exc)[:200]}); "
                           "continuing with the slower eager renderer", RuntimeWarning, stacklevel=2)
             self._compiled = None
-            return self._pixels(chunk, geometry, fabric)
+            return self._eager(samples, fabric, glow)
 
-    def _pixels_from_tensors(self, chunk, geometry, fabric: ParamTensors, *tensors):
-        return self._evaluate(chunk, geometry, ParamTensors(fabric.pattern, fabric.weave,
-                                                            dict(zip(fabric.values, tensors))))
+    def _eager(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None):
+        """:meth:`_pixels` in blocks of rows small enough for the CPU's caches: every eager operation
+        reads and writes whole tensors, and a block's tensors stay in cache from one to the next."""
+        rows = samples.no_yarn.shape[0] // (self.size * self.spp)
+        step = max(1, self.block_samples // (self.size * self.spp))
+        if step >= rows:
+            return self._pixels(samples, fabric, glow)
+        pieces = [self._pixels(samples.between(r0 * self.size * self.spp, min(r0 + step, rows) * self.size * self.spp),
+                               fabric, None if glow is None else glow[r0:r0 + step])
+                  for r0 in range(0, rows, step)]
+        return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 
-    def _pixels(self, chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors):
-        """Per-pixel mean radiance (rows, size, 3) of one chunk, glow included."""
-        reflection, transmission = eval_pair(chunk, geometry, fabric, self.options)
-        rows = chunk.row1 - chunk.row0
-        pixels = rows * self.size
+    def _pixels(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None):
+        """Per-pixel mean radiance (rows, size, 3) of whole film rows, glow included."""
+        reflection, transmission = eval_projected(samples, fabric, self.options)
+        pixels = samples.no_yarn.shape[0] // self.spp
+        rows = pixels // self.size
 
         def mean_radiance(terms):
             weights = terms.weights.reshape(terms.weights.shape[0], pixels, self.spp).mean(-1)
             return (terms.colours @ weights).reshape(3, rows, self.size)
 
         r, t = mean_radiance(reflection), mean_radiance(transmission)
-        if self.glow is not None:
-            open_fraction = geometry.no_yarn.reshape(rows, self.size, self.spp).mean(-1)
-            t = t + (self.glow[chunk.row0:chunk.row1] * open_fraction)[None]
+        if glow is not None:
+            open_fraction = samples.no_yarn.reshape(rows, self.size, self.spp).mean(-1)
+            t = t + (glow * open_fraction)[None]
         return r.permute(1, 2, 0), t.permute(1, 2, 0)
 
     def render(self, fabric: ParamTensors | FabricParams, progress=None,
@@ -184,6 +200,28 @@ class Renderer:
         r, t = gaussian_blur(r, sigma), gaussian_blur(t, sigma)
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(r, g, c, self.vignette), display_transform(t, g, c, self.vignette), r, t)
+
+
+class _Recomputed(torch.autograd.Function):
+    """Activation checkpointing of one chunk: ``fn(*tensors)`` runs without keeping its
+    intermediates, and again in the backward pass to get the gradients. (The non-reentrant
+    ``torch.utils.checkpoint`` cannot wrap a ``torch.compile``d function: its saved-tensor hooks
+    assert on the compiled graph's.)"""
+
+    @staticmethod
+    def forward(ctx, fn, *tensors):
+        ctx.fn = fn
+        ctx.save_for_backward(*tensors)
+        return fn(*tensors)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        inputs = [t.detach().requires_grad_(t.requires_grad) for t in ctx.saved_tensors]
+        with torch.enable_grad():
+            outputs = ctx.fn(*inputs)
+        wanted = [t for t in inputs if t.requires_grad]
+        found = iter(torch.autograd.grad(outputs, wanted, grads, allow_unused=True))
+        return (None, *(next(found) if t.requires_grad else None for t in inputs))
 
 
 def render_pair(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4,
