@@ -189,8 +189,10 @@ def test_compiled_renderer_matches_eager():
         assert renderer.compiled == compiled
         results.append((pair.reflection.detach(), pair.transmission.detach(),
                         torch.cat([fabric.values[n].grad.flatten() for n in OPTIMISED])))
+    # Inductor's vectorised exp/sqrt differ from ATen's by a few ulp; the transmission's attenuation
+    # exp(-T S) of thick layers amplifies that to ~1.5e-4 relative on a few pixels (reflection: 2e-7).
     for eager, fused in zip(*results):
-        torch.testing.assert_close(fused, eager, rtol=1e-4, atol=1e-6)
+        torch.testing.assert_close(fused, eager, rtol=3e-4, atol=1e-6)
 
 
 def test_glow_shows_only_through_gaps_at_the_centre():
