@@ -19,7 +19,7 @@ import pytest
 
 from backend.batch import scheduler
 from backend.batch.ray_executor import FitResources, connect
-from backend.bench.batch import small_rig
+from backend.bench.batch import small_fabric, small_rig
 from backend.cli.main import main
 from backend.core.params import FabricParams
 from backend.core.protocol import Reporter, decode
@@ -44,7 +44,7 @@ def photos(tmp_path_factory) -> tuple[Path, Path]:
     """good_R/T.png (the example fabric, rendered) and broken_R/T.png (a truncated PNG), and their rig."""
     folder = tmp_path_factory.mktemp("photos")
     rig = small_rig(FILM)
-    pair = render_pair(FabricParams.from_interchange(EXAMPLE_PARAMS), rig, size=FILM, spp=2, seed=5)
+    pair = render_pair(small_fabric(FabricParams.from_interchange(EXAMPLE_PARAMS), FILM), rig, size=FILM, spp=2, seed=5)
     write_png(folder / "good_R.png", pair.reflection, bits=8)
     write_png(folder / "good_T.png", pair.transmission, bits=8)
     shutil.copy(folder / "good_R.png", folder / "broken_R.png")

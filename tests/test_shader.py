@@ -411,6 +411,6 @@ def test_cheap_validation_against_the_backend(tmp_path):
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     figures = json.loads(out.read_text())
-    case = figures["cases"][0]
+    case = figures["engines"]["osl"]["cases"][0]  # the default engine: Cycles with the OSL shader
     assert case["R_l1"] < 0.06 and case["T_l1"] < 0.06, case
     assert case["R_corr"] > 0.2 and case["T_corr"] > 0.2, case

@@ -37,6 +37,7 @@ from pathlib import Path
 from ..batch import scheduler
 from ..batch.job import FitJob, FitOutcome, run_fit_job
 from ..batch.ray_executor import FitResources, connect
+from ..core.params import FabricParams
 from ..core.priors import PATTERNS, sample
 from ..core.protocol import Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig
@@ -72,7 +73,7 @@ def make_pairs(folder: Path, count: int, film: int, seed: int = 0) -> Path:
     rig = small_rig(film)
     folder.mkdir(parents=True, exist_ok=True)
     for index in range(count):
-        params = sample(PATTERNS[index % len(PATTERNS)], random.Random(seed + index))
+        params = small_fabric(sample(PATTERNS[index % len(PATTERNS)], random.Random(seed + index)), film)
         pair = render_pair(params, rig, size=film, spp=4, seed=seed + index)
         write_png(folder / f"bench{index:03d}_R.png", pair.reflection, bits=8)
         write_png(folder / f"bench{index:03d}_T.png", pair.transmission, bits=8)
@@ -86,6 +87,13 @@ def small_rig(film: int) -> CaptureRig:
     scale = film / DEFAULT_RIG.film_size
     return dataclasses.replace(DEFAULT_RIG, film_size=film, vignette_sigma_px=DEFAULT_RIG.vignette_sigma_px * scale,
                                glow_sigma_px=DEFAULT_RIG.glow_sigma_px * scale)
+
+
+def small_fabric(params: FabricParams, film: int) -> FabricParams:
+    """``params`` with its tiles scaled to a ``film``-pixel film: the yarns keep their size in pixels
+    (at 128 px the priors' 100-200 tiles would be finer than the pixels, and no photo shows a weave)."""
+    scale = film / DEFAULT_RIG.film_size
+    return dataclasses.replace(params, tiles=tuple(t * scale for t in params.tiles))
 
 
 def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit: int, workers: int | None,
