@@ -20,6 +20,7 @@ import tempfile
 from pathlib import Path
 
 from ..core.params import PARAMETERS
+from ..fit.folder import make_example
 from ..model.render import compiler_found
 from .fit import run_fit
 
@@ -27,8 +28,7 @@ MODES = {"compiled": {"WFC_COMPILE": "1"}, "eager": {"WFC_COMPILE": "0"}}
 
 
 def _example_pair(folder: Path) -> tuple[Path, Path]:
-    from ..fit.folder import make_example  # the fit command's own example pair
-
+    """The fit command's own example pair, rendered into ``folder``."""
     reflection, transmission, _ = make_example(folder)
     return reflection, transmission
 
