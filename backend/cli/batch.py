@@ -2,7 +2,8 @@
 
     batch PHOTOS/ --out DIR [--workers N] [--cpus-per-fit K] [--gpus-per-fit G] [--memory-per-fit GB]
         [--ray-address ADDR] [--resume] [--timeout S] [--json-progress] [--pattern ...] [--iterations N] [--size N]
-        [--rig RIG.json] [--strict] [--seed S] [--camera-blur auto|PX] [--init network|prior] [--output-spp N]
+        [--rig RIG.json] [--strict] [--seed S] [--camera-blur auto|PX] [--sample-rotation auto|DEG]
+        [--init network|prior] [--output-spp N]
 
 Every ``<name>_R.* / <name>_T.*`` pair of PHOTOS (the Blender batch's rule, backend/core/pairs.py)
 is fitted as ``fit`` fits it, with the same options, into ``DIR/<name>/``; ``DIR/catalogue.json``
