@@ -28,10 +28,8 @@ from pathlib import Path
 from ..core.priors import PATTERNS
 from ..core.protocol import STOP_REQUEST, Reporter
 from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
-from ..fit.folder import EXAMPLE_PARAMS, FolderFitOptions, fit_reporting
+from ..fit.folder import FolderFitOptions, fit_reporting
 from ..init.network import INIT_CHOICES
-
-__all__ = ["EXAMPLE_PARAMS", "add_fit_options", "add_parser", "run_fit", "watch_stop_requests"]
 
 
 def watch_stop_requests(stream, stop: threading.Event) -> threading.Thread:

@@ -18,7 +18,10 @@ import numpy as np
 
 from .spectrum import power_spectrum, windowed_highpass
 
-SPECTRUM_HIGHPASS_PX = 16
+SPECTRUM_HIGHPASS_PX = 16     # sigma of the Gaussian subtracted before the FFT
+SPECTRUM_POWER_BLUR = 1.5     # sigma of the blur of the power spectrum, in bins
+SPECTRUM_KEEP = 0.5           # the central part of the band that is compared
+SPECTRUM_DC_HALF = 2          # the (2 h + 1)^2 bins around DC that are dropped
 
 
 def colour_l1(photo: np.ndarray, render: np.ndarray, size: int = 16) -> float:
@@ -32,11 +35,13 @@ def _log_spectrum(image: np.ndarray, keep: float, blur: float) -> np.ndarray:
     h, w = power.shape
     ch, cw = int(h * keep / 2), int(w * keep / 2)
     band = power[h // 2 - ch: h // 2 + ch, w // 2 - cw: w // 2 + cw].copy()
-    band[ch - 2: ch + 3, cw - 2: cw + 3] = np.nan  # the DC neighbourhood (lighting residue), as the checker drops it
+    d = SPECTRUM_DC_HALF  # the DC neighbourhood (lighting residue) is dropped, as the checker drops it
+    band[ch - d: ch + d + 1, cw - d: cw + d + 1] = np.nan
     return np.log(band + 1e-12)
 
 
-def spectrum_corr(photo: np.ndarray, render: np.ndarray, keep: float = 0.5, blur: float = 1.5) -> float:
+def spectrum_corr(photo: np.ndarray, render: np.ndarray, keep: float = SPECTRUM_KEEP,
+                  blur: float = SPECTRUM_POWER_BLUR) -> float:
     a, b = _log_spectrum(photo, keep, blur), _log_spectrum(render, keep, blur)
     valid = np.isfinite(a) & np.isfinite(b)
     return float(np.corrcoef(a[valid], b[valid])[0, 1])

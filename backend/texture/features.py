@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from ..image.metrics import SPECTRUM_DC_HALF, SPECTRUM_HIGHPASS_PX, SPECTRUM_KEEP, SPECTRUM_POWER_BLUR
 from ..image.tone import LUMA
 from ..model.imaging import gaussian_blur
 from .lattice import turned_frequencies
@@ -146,26 +147,25 @@ class Descriptor:
         return self.coefficients.abs()
 
 
-METRIC_SIZE = 512          # the spectrum metric's image size: its high-pass scales with the working size
-METRIC_HIGHPASS_PX = 16.0
-METRIC_POWER_BLUR = 1.5    # bins
+METRIC_SIZE = 512  # the size the spectrum metric reads (the film's): its high-pass scales with the working size
 
 
-def log_spectrum(image: torch.Tensor, keep: float = 0.5) -> torch.Tensor:
+def log_spectrum(image: torch.Tensor, keep: float = SPECTRUM_KEEP) -> torch.Tensor:
     """The standardised log power spectrum of an (N, N, 3) display-space image, as the spectrum metric
     reads it: luminance minus its Gaussian blur (16 px at 512 px), Hann window, |FFT|^2 blurred by 1.5
     bins, the central ``keep`` of the band without the 5 x 5 bins around DC, log, zero mean and unit
     spread. Differentiable."""
     n = image.shape[0]
     y = luminance(image)[..., None]
-    y = (y - gaussian_blur(y, METRIC_HIGHPASS_PX * n / METRIC_SIZE))[..., 0]
+    y = (y - gaussian_blur(y, SPECTRUM_HIGHPASS_PX * n / METRIC_SIZE))[..., 0]
     window = torch.hann_window(n, periodic=False, dtype=y.dtype, device=y.device)
     power = torch.fft.fftshift(torch.fft.fft2(y * window[:, None] * window[None, :])).abs().square()
-    power = gaussian_blur(power[..., None], METRIC_POWER_BLUR)[..., 0]
+    power = gaussian_blur(power[..., None], SPECTRUM_POWER_BLUR)[..., 0]
     half = int(n * keep / 2)
     band = power[n // 2 - half: n // 2 + half, n // 2 - half: n // 2 + half]
     mask = torch.ones_like(band, dtype=torch.bool)
-    mask[half - 2: half + 3, half - 2: half + 3] = False
+    d = SPECTRUM_DC_HALF
+    mask[half - d: half + d + 1, half - d: half + d + 1] = False
     values = torch.log(band[mask] + 1e-12)
     return (values - values.mean()) / (values.std() + 1e-8)
 
