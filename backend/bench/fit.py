@@ -71,9 +71,8 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
     metrics = json.loads((out / "metrics.json").read_text())
     saved = json.loads((out / "params.json").read_text())
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
-            "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "fit_s": metrics["wall_s"],
-            "timings": metrics.get("timings", {}), "stderr": stderr, "peak_mb": metrics.get("peak_mb"),
-            "camera_blur_px": metrics.get("camera_blur_px"), "at_bounds": metrics.get("at_bounds", [])}
+            "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
+            "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", [])}
 
 
 def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
