@@ -264,3 +264,7 @@ def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
     image = torch.rand(24, 24, 3, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 1.3), (image,))
     assert np.allclose(gaussian_blur(image, 1.3).detach().numpy(), numpy_blur(image.detach().numpy(), 1.3))
+    # the matrix product is the mirrored-border convolution at any radius, on any shape
+    wide = torch.rand(20, 36, 2, dtype=torch.float64)
+    for sigma in (0.4, 2.5, 9.0):  # 9 px: the radius is clipped to the image (19 px)
+        assert np.allclose(gaussian_blur(wide, sigma).numpy(), numpy_blur(wide.numpy(), sigma))
