@@ -121,6 +121,42 @@ def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):
     assert result.params.pattern == "satin0"  # the network's word decides: no trial to overrule it
 
 
+def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
+    """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
+    image), the winner's optimisation at the working size (64 px); the best parameters are from it."""
+    import backend.fit.pipeline as pipeline
+    monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
+    seen = []
+    terms = Objective.terms
+
+    def recording(self, fabric, camera_blur_px=None):
+        seen.append((self.target.size, self.renderer.spp, torch.is_grad_enabled()))
+        return terms(self, fabric, camera_blur_px)
+
+    monkeypatch.setattr(Objective, "terms", recording)
+    settings = FitSettings(iterations=3, trial_iterations=2, trials=2, size=64, spp=2, search_every=0,
+                           compile=False, camera_blur=1.0, sample_rotation=0.0)
+    given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5, "satin0": 0.0, "satin1": 0.0}
+    result = fit(*twill_pair, settings=settings, pattern_probabilities=lambda cs: [given[c.pattern] for c in cs])
+    assert (result.size, result.spp, result.iterations) == (64, 2, 3)
+    search_calls, optimise_calls = seen[:-3], seen[-3:]
+    assert {(size, spp) for size, spp, _ in search_calls} == {(32, 8)}
+    assert sum(grad for *_, grad in search_calls) == 4  # two trials of two steps
+    assert optimise_calls == [(64, 2, True)] * 3
+    assert [i for i, _ in result.history] == [0, 1, 2, 3, 4]  # the winner's trial steps come first
+    assert result.loss == min(loss for i, loss in result.history if i >= 2)  # losses at 64 px only
+    # nothing to refine at the base size or below: one size throughout
+    seen.clear()
+    fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
+        pattern_probabilities=lambda cs: [given[c.pattern] for c in cs])
+    assert {(size, spp) for size, spp, _ in seen} == {(32, 2)}
+
+
+def test_default_iterations_follow_the_working_size():
+    from backend.fit.search import iterations_for
+    assert (iterations_for(256), iterations_for(128), iterations_for(512)) == (150, 150, 100)
+
+
 def test_gram_loss_path_with_user_weights(tmp_path, twill_pair):
     torch.manual_seed(0)
     weights = tmp_path / "vgg19_random.pt"
@@ -250,3 +286,12 @@ def test_the_loss_spectrum_is_the_metric(twill_pair):
 def test_any_working_size_gives_a_clear_error_or_a_fit(tmp_path, size, needle):
     result = run_fit("--example", "--out", str(tmp_path / "o"), "--size", size)
     assert result.returncode == 2 and needle in result.stderr and "Traceback" not in result.stderr
+
+
+def test_report_header_lines_fit_the_page():
+    from backend.fit.report import PANEL, text_width, wrapped
+    long = "   ".join(f"roughness {k} 0.12 / 0.34" for k in range(12))
+    lines = wrapped(long, 3 * PANEL - 20)
+    assert len(lines) > 1 and "   ".join(lines) == long
+    assert all(text_width(line) <= 3 * PANEL - 20 for line in lines)
+    assert wrapped("short", 100) == ["short"]

@@ -25,9 +25,9 @@ def test_a_photo_like_set_is_a_function_of_its_seed(tmp_path):
     again = [photolike.make_item(tmp_path / "b", seed=4, index=k, rig=SMALL) for k in (0, 3)]
     other = photolike.make_item(tmp_path / "c", seed=5, index=0, rig=SMALL)
     assert first == again
-    for name in ("plain_000_R.jpg", "plain_000_T.jpg", "satin0_003_T.jpg"):
+    for name in ("plain_000_R.png", "plain_000_T.png", "satin0_003_T.png"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
-    assert (tmp_path / "c" / "plain_000_R.jpg").read_bytes() != (tmp_path / "a" / "plain_000_R.jpg").read_bytes()
+    assert (tmp_path / "c" / "plain_000_R.png").read_bytes() != (tmp_path / "a" / "plain_000_R.png").read_bytes()
     assert other["params"] != first[0]["params"]
     truth = first[1]
     assert FabricParams.from_interchange(truth["params"]).pattern == "satin0"
@@ -72,3 +72,13 @@ def test_novel_light_error_tells_a_wrong_parameter_and_applies_the_cameras_gains
     assert wrong["colour_l1"] > 0.01
     gains = (torch.tensor([1.3, 1.3, 1.3]), torch.tensor([1.3, 1.3, 1.3]))
     assert novel_light_error(truth, truth, gains=gains, size=64)["colour_l1"] > 0.01  # the photo was brighter
+
+
+def test_jpeg_at_the_phones_scale_is_a_deterministic_lossy_copy():
+    from backend.image.png import jpeg_at_phone_scale
+    rng = np.random.default_rng(3)
+    image = np.clip(0.5 + 0.1 * rng.standard_normal((64, 64, 3)), 0, 1)
+    phone = jpeg_at_phone_scale(image, 75)
+    assert phone.shape == image.shape and np.array_equal(phone, jpeg_at_phone_scale(image, 75))
+    assert 0.001 < np.abs(phone - image).mean() < 0.05          # compressed, not replaced
+    assert np.abs(jpeg_at_phone_scale(image, 95) - image).mean() < np.abs(phone - image).mean()

@@ -5,10 +5,10 @@ the spec's dataset prior (:func:`backend.core.priors.sample`), the sample turned
 in the holder (the rig's ``sample_rotation_deg``), rendered at the rig's film size with 16 samples per
 pixel, and passed through a phone (:class:`backend.model.phone.PhoneEffects`: camera blur
 0.5-2 px, shot and read noise, exposure and white-balance offsets, low-frequency light falloff,
-mild non-uniform yarn spacing, JPEG). Everything is drawn from a generator seeded by (s, k), so a
-set is the same files whatever else runs.
+mild non-uniform yarn spacing, JPEG at the phone's resolution). Everything is drawn from a
+generator seeded by (s, k), so a set is the same files whatever else runs.
 
-Files: ``DIR/<name>_R.jpg``, ``DIR/<name>_T.jpg`` and ``DIR/cases.json``, a list of
+Files: ``DIR/<name>_R.png``, ``DIR/<name>_T.png`` (8-bit) and ``DIR/cases.json``, a list of
 ``{"name", "params" (interchange string), "flags": {}, "rig" (with the true rotation and camera
 blur), "phone" (every drawn effect)}``: the golden folders' format plus the truth the fit benchmark
 needs (:mod:`backend.bench.fit`).
@@ -26,7 +26,7 @@ import torch
 
 from ..core import priors
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from ..image.png import write_jpeg
+from ..image.png import jpeg_at_phone_scale, write_png
 from ..model.phone import PhoneEffects
 from ..model.render import Renderer
 
@@ -50,7 +50,8 @@ def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG) -
         pair = Renderer(placed, size=rig.film_size, spp=SPP, seed=rng.randrange(1 << 20)).render(params)
     name = f"{pattern}_{index:03d}"
     for photo, (tag, radiance) in enumerate((("R", pair.reflection_radiance), ("T", pair.transmission_radiance))):
-        write_jpeg(out / f"{name}_{tag}.jpg", phone.apply(radiance, photo, placed), phone.jpeg_quality)
+        photo_image = jpeg_at_phone_scale(phone.apply(radiance, photo, placed), phone.jpeg_quality)
+        write_png(out / f"{name}_{tag}.png", photo_image, bits=8)
     truth_rig = dataclasses.replace(placed, camera_blur_px=round(phone.blur_px, 4))
     return {"name": name, "params": params.to_interchange(), "flags": {}, "rig": truth_rig.to_dict(),
             "phone": phone.to_dict()}

@@ -106,10 +106,13 @@ BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "
 def add_fit_options(p) -> None:
     """Adds the options of :data:`BATCH_FIT_OPTIONS` (the fit and the batch command share them)."""
     p.add_argument("--pattern", default=FolderFitOptions.pattern, choices=("auto",) + PATTERNS)
-    p.add_argument("--iterations", type=int, default=FolderFitOptions.iterations)
+    p.add_argument("--iterations", type=int, default=FolderFitOptions.iterations,
+                   help="Adam steps of the winner's optimisation (default: 150 at 256 px, 100 at a larger working "
+                        "size)")
     p.add_argument("--size", type=_working_size, default=FolderFitOptions.size, metavar="N",
                    help="working size of the loss in pixels, 32 up to the photos' working size (the rig's film "
-                        "size, 512); default: 256, or 512 where the yarns are too dense for 256")
+                        "size, 512); default: 256, or 512 where the yarns are too dense for 256 (the search still runs "
+                        "at 256)")
     p.add_argument("--rig", help="capture rig JSON (default: the paper's rig)")
     p.add_argument("--strict", action="store_true", help="refuse (not just warn) photos that look swapped")
     p.add_argument("--seed", type=int, default=FolderFitOptions.seed)

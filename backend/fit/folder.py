@@ -65,7 +65,7 @@ class FolderFitOptions:
     """The fit command's options (its ``--flags``, same names and defaults)."""
 
     pattern: str = "auto"
-    iterations: int = FitSettings.iterations
+    iterations: int | None = None                # None: the fit's default for the working size
     size: int | None = None                      # None: chosen from the yarn lattice (fit.search.working_size)
     device: str = "cpu"
     rig: str | None = None                       # a RIG.json (default: the paper's rig)
@@ -176,7 +176,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds,
-                     "settings": {"pattern": settings.pattern, "iterations": settings.iterations,
+                     "settings": {"pattern": settings.pattern, "iterations": result.iterations,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
     (out / "params.json").write_text(result.params.to_json(**extra) + "\n")

@@ -49,6 +49,22 @@ def _text(canvas, text: str, x: int, y: int, scale: float = 0.5, colour=(235, 23
     cv2.putText(canvas, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
+def text_width(text: str, scale: float = 0.5) -> int:
+    return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+
+
+def wrapped(text: str, width: int, scale: float = 0.5, separator: str = "   ") -> list[str]:
+    """``text`` broken at ``separator`` into lines no wider than ``width`` pixels (a single item
+    wider than that stays whole on its own line)."""
+    lines: list[str] = []
+    for item in text.split(separator):
+        if lines and text_width(lines[-1] + separator + item, scale) <= width:
+            lines[-1] += separator + item
+        else:
+            lines.append(item)
+    return lines
+
+
 def _pairs(values, digits: int) -> str:
     return " / ".join(f"{x:.{digits}f}" for x in values)
 
@@ -65,6 +81,7 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
                f"twist {_pairs(params.twist_deg, 1)}   (warp / weft)", None)]
     header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
+    header = [(line, colour) for text, colour in header for line in wrapped(text, width - 20)]
     top = LINE * (len(header) + 1)
     crop_top = top + 2 * (PANEL + LINE)
     canvas = np.full((crop_top + LINE + CROP_PANEL, width, 3), 32, np.uint8)

@@ -36,6 +36,7 @@ from .settings import FitSettings
 
 GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
 BASE_SIZE, BASE_SPP = 256, 16
+BASE_ITERATIONS, FINE_ITERATIONS = 150, 100
 MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 
@@ -71,6 +72,13 @@ def working_size(candidates: list[Candidate], photo_size: int, rig: CaptureRig) 
 def samples_per_pixel(size: int) -> int:
     """BASE_SPP at BASE_SIZE, and as many samples per image at other sizes (at least 4: a 2 x 2 jitter)."""
     return max(4, round(BASE_SPP * (BASE_SIZE / size) ** 2))
+
+
+def iterations_for(size: int) -> int:
+    """The optimisation's default length: BASE_ITERATIONS at BASE_SIZE or below, FINE_ITERATIONS
+    above, where a step costs about twice as much (same samples per image, four times the pixels to
+    blur, transform and compare)."""
+    return BASE_ITERATIONS if size <= BASE_SIZE else FINE_ITERATIONS
 
 
 def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float

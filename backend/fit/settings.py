@@ -22,16 +22,17 @@ class FitCancelled(Exception):
 @dataclass(frozen=True)
 class FitSettings:
     pattern: str = "auto"            # a preset name, or "auto" to choose by comparing fits
-    iterations: int = 150
+    iterations: int | None = None    # None: 150 at 256 px, 100 above (backend.fit.search.iterations_for)
     size: int | None = None          # working size of the loss (photos are area-downsampled to it);
-                                     # None: chosen from the yarn lattice (backend.fit.search.working_size)
+                                     # None: chosen from the yarn lattice (backend.fit.search.working_size);
+                                     # above 256 px the search still runs at 256 px (coarse to fine)
     spp: int | None = None           # samples per pixel; None: 16 at 256 px, the same samples per image above
     seed: int = 0
     trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
-    search_every: int = 25
+    search_every: int = 50           # iterations between discrete searches (each about 20 renders of new geometry)
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
@@ -53,5 +54,6 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     camera_blur_px: float = 0.0
     sample_rotation_deg: float = 0.0
-    size: int = 0                    # the working size and samples per pixel the loss used
+    size: int = 0                    # the working size, samples per pixel and iterations the fit used
     spp: int = 0
+    iterations: int = 0

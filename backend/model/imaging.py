@@ -63,8 +63,8 @@ def blur_matrix(n: int, sigma: float, limit: int, dtype=torch.float32, device="c
     source = np.arange(n)[:, None] + offsets[None, :]
     source = np.abs(source)
     source = np.where(source > n - 1, 2 * (n - 1) - source, source)
-    matrix = np.zeros((n, n))
-    np.add.at(matrix, (np.repeat(np.arange(n), offsets.size), source.ravel()), np.tile(kernel, n))
+    flat = (np.arange(n)[:, None] * n + source).ravel()  # mirrored samples may repeat: weights add up
+    matrix = np.bincount(flat, weights=np.tile(kernel, n), minlength=n * n).reshape(n, n)
     return torch.tensor(matrix, dtype=dtype, device=device)
 
 

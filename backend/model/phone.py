@@ -15,7 +15,8 @@ linear radiance of a render of the (possibly turned) sample without camera blur,
     noisy    = exposed + N(0, gain * exposed + read^2)   shot and read noise, linear
     photo    = display_transform(noisy)               the rig's clamp, 1/gamma and vignetting
 
-and the file is an 8-bit JPEG of ``photo`` at ``jpeg_quality`` (the caller writes it). Everything is
+and the file is ``photo`` JPEG-compressed at ``jpeg_quality`` at the phone's own resolution and
+resized to the film (:func:`backend.image.png.jpeg_at_phone_scale`; the caller writes it). Everything is
 drawn from a seeded generator (:meth:`PhoneEffects.draw`), so a photo-like set is a function of its
 seed. The camera's gains (exposure x white balance) scale what the photo shows; a fit cannot tell them
 from the albedos, so a comparison with the truth under other lights applies them to the truth
