@@ -11,7 +11,8 @@
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
                trial fits) runs at 256 px with the same samples per image, where a step costs about
-               half as much, and only the winner's optimisation at the working size (100 iterations
+               half as much, and only the winner's optimisation at the working size (after a
+               fresh camera-blur scan there) (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
                reflection need the optimisation at 512 px; the choice of pattern does not)
     result     the best parameters seen, their loss and terms, the camera blur, the candidates
@@ -101,7 +102,10 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
 
     loop_started = time.perf_counter()
     if coarse is not settings:
-        run.switch_objective(_objective(reflection, transmission, rig, settings))
+        fine = _objective(reflection, transmission, rig, settings)
+        run.switch_objective(fine)
+        if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
+            run.camera_blur_px = search.best_blur(run.best, fine, blur_floor, also=run.camera_blur_px)
     _optimise(run, settings, check_stop, progress)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["total_s"] = time.perf_counter() - started

@@ -151,9 +151,9 @@ def starting_points(candidates: list[Candidate], objective: Objective, camera_bl
     return sorted(starts, key=lambda s: (s.loss, s.order))
 
 
-def best_blur(params: FabricParams, objective: Objective, floor: float) -> float:
-    """The camera blur among ``floor`` and the BLUR_SCAN values above it with the lowest loss."""
-    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
+def best_blur(params: FabricParams, objective: Objective, floor: float, also: float | None = None) -> float:
+    """The camera blur among ``floor``, the BLUR_SCAN values above it (and ``also``) with the lowest loss."""
+    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor) + ((also,) if also is not None else ())
     losses = [objective.value(params, blur) for blur in scan]
     return scan[int(np.argmin(losses))]
 
