@@ -1,7 +1,9 @@
 """Fitting fabric parameters to a reflection/transmission photo pair.
 
-    placement  the sample's rotation in the holder, read from the photos' spectra (unless given):
-               the lattice, the loss's probes and the renders all use it
+    placement  the sample's rotation in the holder, read from the photos' spectra (unless given)
+               and kept only when its lattice candidates score higher than the unturned sample's
+               (:func:`backend.texture.candidates.placed`): the lattice, the loss's probes and the
+               renders all use it
     search     candidates from the spectra, starting points, camera blur, short trial fits,
                the pattern chosen by comparing them (:mod:`backend.fit.search`)
     optimise   the winner's run goes on: Adam on the continuous parameters, every
@@ -34,7 +36,7 @@ from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
-from ..texture.candidates import Candidate, propose, sample_rotation
+from ..texture.candidates import Candidate, placed
 from ..texture.lattice import Spectra
 from . import search
 from .gram import GramDescriptor
@@ -64,18 +66,14 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
     spectra = Spectra.of([reflection, transmission])
-    rotation = settings.sample_rotation
-    if rotation is None:
-        rotation = sample_rotation(spectra, rig, patterns)
+    rotation, found = placed(spectra, rig, patterns, settings.sample_rotation)
     rig = dataclasses.replace(rig, sample_rotation_deg=rotation)
-    timings["rotation_s"] = time.perf_counter() - started
+    found = found or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
 
     def check_stop(run: Run | None = None):
         if should_stop is not None and should_stop():
             raise FitCancelled(run.best if run is not None else None)
 
-    found = (propose(spectra, rig, patterns, per_pattern=1)
-             or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns])
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
                                                       settings.min_pattern_probability)
     timings["lattice_s"] = time.perf_counter() - started

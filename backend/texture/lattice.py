@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from ..image.spectrum import windowed_highpass
+from ..image.tone import GAMMA
 
 
 @dataclass(frozen=True)
@@ -41,24 +42,40 @@ class Signature:
     weight: np.ndarray   # sums to 1
 
 
+COARSE_SIZE = 256
+
+
 @dataclass
 class Spectra:
     """What the lattice search reads from a photo pair, computed once: each image's strongest spectral
-    peaks (sub-bin positions) and its sharp peakness map."""
+    peaks (sub-bin positions) and its sharp peakness map; for photos above COARSE_SIZE also the
+    peaks of the pair shrunk to COARSE_SIZE (``coarse``): the sieve works on the strongest peaks,
+    and at full size those can be the aliased high harmonics of a dense weave, which line up with a
+    wrong comb; shrunk (a box filter in linear light), those harmonics lose their weight and the
+    fundamentals lead."""
 
     size: int
     peaks: list[list["Peak"]]
     maps: list[np.ndarray]
+    coarse: list[list["Peak"]] | None = None
 
     @classmethod
     def of(cls, images: list[np.ndarray]) -> "Spectra":
         images = [np.asarray(img, dtype=np.float64) for img in images]
-        return cls(images[0].shape[0], [spectral_peaks(img) for img in images],
-                   [peakness(img, blur=0.0) for img in images])
+        size = images[0].shape[0]
+        coarse = [spectral_peaks(_shrunk(img, COARSE_SIZE)) for img in images] if size > COARSE_SIZE else None
+        return cls(size, [spectral_peaks(img) for img in images], [peakness(img, blur=0.0) for img in images],
+                   coarse)
 
     @property
     def all_peaks(self) -> list["Peak"]:
         return [p for peaks in self.peaks for p in peaks]
+
+
+def _shrunk(image: np.ndarray, size: int) -> np.ndarray:
+    """A display-space image shrunk to ``size`` x ``size`` in linear light (area average)."""
+    linear = np.clip(image, 0.0, None) ** GAMMA
+    return cv2.resize(linear, (size, size), interpolation=cv2.INTER_AREA) ** (1 / GAMMA)
 
 
 @dataclass(frozen=True)
@@ -268,6 +285,19 @@ def estimate(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[floa
     return Lattice(a, b, score)
 
 
+def estimates(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
+              rotation_deg: float = 0.0) -> list[Lattice]:
+    """:func:`estimate` on the photos' peaks, and on the shrunk photos' peaks when there are any
+    (two hypotheses: which one explains the peakness maps is for :func:`candidates` to say)."""
+    found = [estimate(spectra, a_range, b_range, rotation_deg=rotation_deg)]
+    if spectra.coarse is not None:
+        peaks = [p for image_peaks in spectra.coarse for p in image_peaks]
+        (a, b), score = _combs(peaks, len(spectra.coarse), COARSE_SIZE, (a_range, b_range), rotation_deg,
+                               0.0002, 1.0, 2.5)
+        found.append(Lattice(a, b, score))
+    return found
+
+
 ROTATION_SCAN_DEG = 6.0
 ROTATION_HYPOTHESES = 6
 
@@ -326,15 +356,15 @@ def _refine_rotation(maps, signatures, start: Lattice, angle: float, size: int) 
 RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
 
 
-def candidates(spectra: Spectra, comb: Lattice, signatures: list[Signature],
+def candidates(spectra: Spectra, combs: list[Lattice], signatures: list[Signature],
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
                top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
-    """Lattices for one pattern: the comb estimate times small ratios per axis (the comb pins the
+    """Lattices for one pattern: each comb estimate times small ratios per axis (a comb pins the
     lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
     and scored by the pattern's signature on the sharp peakness maps. Best first."""
     size, sharp = spectra.size, spectra.maps
     seen, out = set(), []
-    for ra in RATIOS:
+    for comb, ra in ((comb, ra) for comb in combs for ra in RATIOS):
         for rb in ((ra,) if square else RATIOS):
             a, b = comb.a * ra, (comb.a * ra if square else comb.b * rb)
             if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
