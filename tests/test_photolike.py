@@ -82,3 +82,26 @@ def test_jpeg_at_the_phones_scale_is_a_deterministic_lossy_copy():
     assert phone.shape == image.shape and np.array_equal(phone, jpeg_at_phone_scale(image, 75))
     assert 0.001 < np.abs(phone - image).mean() < 0.05          # compressed, not replaced
     assert np.abs(jpeg_at_phone_scale(image, 95) - image).mean() < np.abs(phone - image).mean()
+
+
+def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_apart():
+    from backend.bench.fit import RESOLVED_PX_PER_YARN, pixels_per_yarn, summarise
+    from backend.core.rig import DEFAULT_RIG
+
+    seen = DEFAULT_RIG.view_size / DEFAULT_RIG.plane_size      # of the plane's tiles, this share is in view
+    plain = typical("plain").replace(tiles=(100.0, 100.0))       # 79.8 tiles of 2 yarns across 512 px
+    assert pixels_per_yarn(plain, DEFAULT_RIG) == pytest.approx(512 / (2 * 100 * seen))
+    satin = typical("satin1").replace(tiles=(175.0, 79.0))      # 5 yarns a tile: the finer axis counts
+    assert pixels_per_yarn(satin, DEFAULT_RIG) == pytest.approx(512 / (5 * 175 * seen))
+
+    def row(name, ppy, ok, tiles_error):
+        return {"kind": "photolike", "name": name, "wall_s": 1.0, "pattern_ok": ok, "family_ok": ok,
+                "roughness_mae": 0.1, "thickness_mae": 0.2, "tiles_error_pct": tiles_error,
+                "rotation_error_deg": 0.0, "pixels_per_yarn": ppy,
+                **{f"{m}_{t}": 0.0 for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}}
+
+    section = summarise([row("sharp", RESOLVED_PX_PER_YARN + 0.7, True, 0.5),
+                         row("aliased", RESOLVED_PX_PER_YARN - 1.3, False, 120.0)])["photolike"]
+    assert section["pattern_accuracy"] == 0.5 and section["tiles_error_pct_max"] == 120.0
+    assert section["resolved"] == {"pairs": 1, "pattern_accuracy": 1.0, "family_accuracy": 1.0, "roughness_mae": 0.1,
+                                   "thickness_mae": 0.2, "tiles_error_pct_max": 0.5, "tiles_error_pct_mean": 0.5}

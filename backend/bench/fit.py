@@ -7,6 +7,8 @@ product's; wall time includes starting Python and importing torch) on
   (``python -m backend photolike``: their cases also carry the true rig and phone effects). Against
   the truth: pattern and weave family, roughness and thickness MAE (warp and weft), tiles error
   (worst axis, %), the rotation error, and the novel-light error (:mod:`backend.bench.novel_light`);
+  the true weave's pixels per yarn, and the truth figures again over the pairs at or above the
+  sampling limit (``resolved``: what an image can show at all);
 - real pairs (``<name>_R.*``/``_T.*``; no truth);
 and, for every pair, FLIP, 16 x 16 colour L1 and spectrum correlation of the re-renders against the
 photos (the definitions of the team's ``photo_metrics.py``), the camera blur and rotation the fit
@@ -29,7 +31,9 @@ from ..core.pairs import find_pairs
 from ..core.params import FabricParams
 from ..core.priors import family
 from ..core.rig import DEFAULT_RIG, CaptureRig
+from ..core.weave import PRESETS
 from ..model.phone import PhoneEffects
+from ..texture.lattice import lattice_of
 from .novel_light import novel_light_error
 
 TARGETS = {
@@ -73,6 +77,19 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
             "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
             "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", [])}
+
+
+RESOLVED_PX_PER_YARN = 2.0  # the sampling limit: finer yarns alias, and a phone's optics blur them away
+
+
+def pixels_per_yarn(truth: FabricParams, rig: CaptureRig) -> float:
+    """Film pixels per yarn of the true weave on its finer axis. Below RESOLVED_PX_PER_YARN the yarns
+    are past the sampling limit: a clean render aliases them into a lattice that only a model with the
+    same sampling reads back (the dev goldens), and a photo's optics, noise and spacing warp leave
+    little of that to read (the photo-like sets apply them after the render has aliased)."""
+    a, b = lattice_of(truth.tiles, rig)
+    weave = PRESETS[truth.pattern]
+    return rig.film_size / max(weave.cols * a, weave.rows * b)
 
 
 def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
@@ -132,6 +149,7 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                                 for k, v in parameter_errors(fitted, truth).items()})
                     row["rotation_error_deg"] = round(abs(rig.sample_rotation_deg - job["rig"].sample_rotation_deg), 3)
                     row["family_true"] = family(truth.pattern)
+                    row["pixels_per_yarn"] = round(pixels_per_yarn(truth, job["rig"]), 2)
                     if novel_light:
                         phone = job["phone"]
                         gains = (phone.gains(0), phone.gains(1)) if phone else None
@@ -183,13 +201,10 @@ def summarise(rows: list[dict]) -> dict:
         section["at_bounds_pairs"] = sum(bool(r.get("at_bounds")) for r in group)
         truthful = [r for r in group if "pattern_ok" in r]
         if truthful:
-            section.update(pattern_accuracy=mean(r["pattern_ok"] for r in truthful),
-                           family_accuracy=mean(r["family_ok"] for r in truthful),
-                           roughness_mae=mean(r["roughness_mae"] for r in truthful),
-                           thickness_mae=mean(r["thickness_mae"] for r in truthful),
-                           tiles_error_pct_max=round(max(r["tiles_error_pct"] for r in truthful), 3),
-                           tiles_error_pct_mean=mean(r["tiles_error_pct"] for r in truthful),
-                           rotation_error_deg_mean=mean(r["rotation_error_deg"] for r in truthful))
+            section.update(_truth_figures(truthful))
+            section["rotation_error_deg_mean"] = mean(r["rotation_error_deg"] for r in truthful)
+            resolved = [r for r in truthful if r.get("pixels_per_yarn", 0.0) >= RESOLVED_PX_PER_YARN]
+            section["resolved"] = {"pairs": len(resolved), **(_truth_figures(resolved) if resolved else {})}
             novel = [r for r in truthful if "novel_colour_l1" in r]
             if novel:
                 section.update(novel_colour_l1=mean(r["novel_colour_l1"] for r in novel),
@@ -197,6 +212,20 @@ def summarise(rows: list[dict]) -> dict:
         out[kind] = section
     out["targets"] = TARGETS
     return out
+
+
+def _truth_figures(rows: list[dict]) -> dict:
+    """Pattern and family accuracy, roughness and thickness MAE, tiles error (max and mean) of rows
+    with a truth."""
+    def mean(values):
+        return round(statistics.fmean(values), 4)
+
+    return {"pattern_accuracy": mean([r["pattern_ok"] for r in rows]),
+            "family_accuracy": mean([r["family_ok"] for r in rows]),
+            "roughness_mae": mean([r["roughness_mae"] for r in rows]),
+            "thickness_mae": mean([r["thickness_mae"] for r in rows]),
+            "tiles_error_pct_max": round(max(r["tiles_error_pct"] for r in rows), 3),
+            "tiles_error_pct_mean": mean([r["tiles_error_pct"] for r in rows])}
 
 
 def _format_summary(s: dict) -> str:
@@ -215,6 +244,10 @@ def _format_summary(s: dict) -> str:
                      f"roughness MAE {k['roughness_mae']}, thickness MAE {k['thickness_mae']}, tiles error "
                      f"max {k['tiles_error_pct_max']}% mean {k['tiles_error_pct_mean']}%, "
                      f"rotation error {k['rotation_error_deg_mean']} deg")
+            r = k["resolved"]
+            line += (f"; of them {r['pairs']} with >= {RESOLVED_PX_PER_YARN:g} px per yarn"
+                     + (f": pattern {r['pattern_accuracy']:.0%}, tiles error max {r['tiles_error_pct_max']}%"
+                        if r["pairs"] else ""))
         if "novel_colour_l1" in k:
             line += f"; novel light colour L1 {k['novel_colour_l1']}, spectrum {k['novel_spectrum_corr']}"
         lines.append(line)
