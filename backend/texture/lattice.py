@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from ..image.spectrum import windowed_highpass
-from ..image.tone import GAMMA
+from ..image.tone import GAMMA, encode, resize_linear
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,7 @@ class Spectra:
 
 def _shrunk(image: np.ndarray, size: int) -> np.ndarray:
     """A display-space image shrunk to ``size`` x ``size`` in linear light (area average)."""
-    linear = np.clip(image, 0.0, None) ** GAMMA
-    return cv2.resize(linear, (size, size), interpolation=cv2.INTER_AREA) ** (1 / GAMMA)
+    return encode(resize_linear(np.clip(image, 0.0, None) ** GAMMA, size))
 
 
 @dataclass(frozen=True)
@@ -271,8 +270,10 @@ def _combs(peaks: list[Peak], images: int, size: int, ranges, rotation_deg: floa
 
 
 def estimate(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
-             step: float = 0.0002, tooth_cost: float = 1.0, reach: float = 2.5, rotation_deg: float = 0.0) -> Lattice:
-    """The tile lattice (a, b) explaining the spectral peaks of the images, independent of the pattern.
+             step: float = 0.0002, tooth_cost: float = 1.0, reach: float = 2.5, rotation_deg: float = 0.0,
+             coarse: bool = False) -> Lattice:
+    """The tile lattice (a, b) explaining the spectral peaks of the images (of the shrunk images with
+    ``coarse``), independent of the pattern.
 
     Each fabric axis is a 1D comb search over a fine log grid (a harmonic sieve) on the peaks'
     frequencies turned back by ``rotation_deg``: the strength of the peaks a spacing explains, minus
@@ -280,8 +281,9 @@ def estimate(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[floa
     sub-multiple of the true spacing (and, with enough teeth, any small spacing) would explain the
     peaks equally well; with it, the coarsest comb that explains them wins.
     """
-    (a, b), score = _combs(spectra.all_peaks, len(spectra.peaks), spectra.size, (a_range, b_range), rotation_deg,
-                           step, tooth_cost, reach)
+    by_image, size = (spectra.coarse, COARSE_SIZE) if coarse else (spectra.peaks, spectra.size)
+    peaks = [p for image_peaks in by_image for p in image_peaks]
+    (a, b), score = _combs(peaks, len(by_image), size, (a_range, b_range), rotation_deg, step, tooth_cost, reach)
     return Lattice(a, b, score)
 
 
@@ -289,13 +291,8 @@ def estimates(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[flo
               rotation_deg: float = 0.0) -> list[Lattice]:
     """:func:`estimate` on the photos' peaks, and on the shrunk photos' peaks when there are any
     (two hypotheses: which one explains the peakness maps is for :func:`candidates` to say)."""
-    found = [estimate(spectra, a_range, b_range, rotation_deg=rotation_deg)]
-    if spectra.coarse is not None:
-        peaks = [p for image_peaks in spectra.coarse for p in image_peaks]
-        (a, b), score = _combs(peaks, len(spectra.coarse), COARSE_SIZE, (a_range, b_range), rotation_deg,
-                               0.0002, 1.0, 2.5)
-        found.append(Lattice(a, b, score))
-    return found
+    return [estimate(spectra, a_range, b_range, rotation_deg=rotation_deg, coarse=coarse)
+            for coarse in ((False, True) if spectra.coarse is not None else (False,))]
 
 
 ROTATION_SCAN_DEG = 6.0
