@@ -153,7 +153,8 @@ def starting_points(candidates: list[Candidate], objective: Objective, camera_bl
 
 def best_blur(params: FabricParams, objective: Objective, floor: float, also: float | None = None) -> float:
     """The camera blur among ``floor``, the BLUR_SCAN values above it (and ``also``) with the lowest loss."""
-    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor) + ((also,) if also is not None else ())
+    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
+    scan += (also,) if also is not None and also not in scan else ()
     losses = [objective.value(params, blur) for blur in scan]
     return scan[int(np.argmin(losses))]
 
