@@ -31,9 +31,8 @@ from ..core.pairs import find_pairs
 from ..core.params import FabricParams
 from ..core.priors import family
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from ..core.weave import PRESETS
 from ..model.phone import PhoneEffects
-from ..texture.lattice import lattice_of
+from ..texture.lattice import yarns_in_view
 from .novel_light import novel_light_error
 
 TARGETS = {
@@ -87,9 +86,7 @@ def pixels_per_yarn(truth: FabricParams, rig: CaptureRig) -> float:
     are past the sampling limit: a clean render aliases them into a lattice that only a model with the
     same sampling reads back (the dev goldens), and a photo's optics, noise and spacing warp leave
     little of that to read (the photo-like sets apply them after the render has aliased)."""
-    a, b = lattice_of(truth.tiles, rig)
-    weave = PRESETS[truth.pattern]
-    return rig.film_size / max(weave.cols * a, weave.rows * b)
+    return rig.film_size / yarns_in_view(truth.pattern, truth.tiles, rig)
 
 
 def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
@@ -183,32 +180,33 @@ def _format(row: dict) -> str:
     return text
 
 
-def summarise(rows: list[dict]) -> dict:
-    def mean(values):
-        values = list(values)
-        return round(statistics.fmean(values), 4) if values else None
+def _mean(values) -> float | None:
+    values = list(values)
+    return round(statistics.fmean(values), 4) if values else None
 
+
+def summarise(rows: list[dict]) -> dict:
     done = [r for r in rows if "error" not in r]
-    out = {"pairs": len(rows), "failed": len(rows) - len(done), "wall_s_mean": mean(r["wall_s"] for r in rows),
+    out = {"pairs": len(rows), "failed": len(rows) - len(done), "wall_s_mean": _mean(r["wall_s"] for r in rows),
            "wall_s_max": max((r["wall_s"] for r in rows), default=None)}
     for kind in ("real", "golden", "photolike"):
         group = [r for r in done if r["kind"] == kind]
         if not group:
             continue
-        section = {f"{m}_{t}": mean(r[f"{m}_{t}"] for r in group)
+        section = {f"{m}_{t}": _mean(r[f"{m}_{t}"] for r in group)
                    for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}
         section["pairs"] = len(group)
         section["at_bounds_pairs"] = sum(bool(r.get("at_bounds")) for r in group)
         truthful = [r for r in group if "pattern_ok" in r]
         if truthful:
             section.update(_truth_figures(truthful))
-            section["rotation_error_deg_mean"] = mean(r["rotation_error_deg"] for r in truthful)
+            section["rotation_error_deg_mean"] = _mean(r["rotation_error_deg"] for r in truthful)
             resolved = [r for r in truthful if r.get("pixels_per_yarn", 0.0) >= RESOLVED_PX_PER_YARN]
             section["resolved"] = {"pairs": len(resolved), **(_truth_figures(resolved) if resolved else {})}
             novel = [r for r in truthful if "novel_colour_l1" in r]
             if novel:
-                section.update(novel_colour_l1=mean(r["novel_colour_l1"] for r in novel),
-                               novel_spectrum_corr=mean(r["novel_spectrum_corr"] for r in novel))
+                section.update(novel_colour_l1=_mean(r["novel_colour_l1"] for r in novel),
+                               novel_spectrum_corr=_mean(r["novel_spectrum_corr"] for r in novel))
         out[kind] = section
     out["targets"] = TARGETS
     return out
@@ -217,15 +215,12 @@ def summarise(rows: list[dict]) -> dict:
 def _truth_figures(rows: list[dict]) -> dict:
     """Pattern and family accuracy, roughness and thickness MAE, tiles error (max and mean) of rows
     with a truth."""
-    def mean(values):
-        return round(statistics.fmean(values), 4)
-
-    return {"pattern_accuracy": mean([r["pattern_ok"] for r in rows]),
-            "family_accuracy": mean([r["family_ok"] for r in rows]),
-            "roughness_mae": mean([r["roughness_mae"] for r in rows]),
-            "thickness_mae": mean([r["thickness_mae"] for r in rows]),
+    return {"pattern_accuracy": _mean(r["pattern_ok"] for r in rows),
+            "family_accuracy": _mean(r["family_ok"] for r in rows),
+            "roughness_mae": _mean(r["roughness_mae"] for r in rows),
+            "thickness_mae": _mean(r["thickness_mae"] for r in rows),
             "tiles_error_pct_max": round(max(r["tiles_error_pct"] for r in rows), 3),
-            "tiles_error_pct_mean": mean([r["tiles_error_pct"] for r in rows])}
+            "tiles_error_pct_mean": _mean(r["tiles_error_pct"] for r in rows)}
 
 
 def _format_summary(s: dict) -> str:

@@ -25,11 +25,10 @@ import torch
 from ..core import priors
 from ..core.params import PARAMETERS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
-from ..core.weave import PRESETS
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from ..image.metrics import spectrum_corr
 from ..texture.candidates import Candidate
-from ..texture.lattice import lattice_of
+from ..texture.lattice import yarns_in_view
 from .objective import Objective
 from .optimise import Run
 from .settings import FitSettings
@@ -60,12 +59,7 @@ def working_size(candidates: list[Candidate], photo_size: int, rig: CaptureRig) 
     """The loss's working size: BASE_SIZE, or the photos' own size when a candidate's yarns would get
     fewer than MIN_PIXELS_PER_YARN pixels at BASE_SIZE (dense weaves: 2-3 px per yarn at 512 px, past
     the sampling limit at 256)."""
-    yarns = 0.0
-    for cand in candidates:
-        a, b = lattice_of(cand.tiles, rig)
-        weave = PRESETS.get(cand.pattern)
-        if weave is not None:
-            yarns = max(yarns, weave.cols * a, weave.rows * b)
+    yarns = max((y for c in candidates if (y := yarns_in_view(c.pattern, c.tiles, rig)) is not None), default=0.0)
     return photo_size if photo_size > BASE_SIZE and BASE_SIZE / max(yarns, 1e-9) < MIN_PIXELS_PER_YARN else BASE_SIZE
 
 

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..core.weave import PRESETS
 from ..image.spectrum import windowed_highpass
 from ..image.tone import GAMMA, encode, resize_linear
 
@@ -91,6 +92,16 @@ def lattice_of(tiles, rig) -> tuple[float, float]:
     """(a, b): tiles across and down the image of ``rig`` (a CaptureRig) for a ``tiles`` pair."""
     scale = rig.view_size / rig.plane_size
     return tiles[0] * scale, tiles[1] * scale
+
+
+def yarns_in_view(pattern: str, tiles, rig) -> float | None:
+    """Yarns across the image on the weave's denser axis (warps across, wefts down), or None when
+    ``pattern`` is not a preset."""
+    weave = PRESETS.get(pattern)
+    if weave is None:
+        return None
+    a, b = lattice_of(tiles, rig)
+    return max(weave.cols * a, weave.rows * b)
 
 
 def turned_frequencies(f1, f2, rotation_deg: float):
