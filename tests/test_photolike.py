@@ -17,7 +17,7 @@ from backend.model.imaging import display_transform
 from backend.model.phone import PhoneEffects
 from backend.model.render import Renderer
 
-SMALL = CaptureRig(film_size=96)  # every effect is in film pixels: a small film keeps the test fast
+SMALL = CaptureRig(film_size=64)  # every effect is in film pixels: a small film keeps the test fast
 
 
 def test_a_photo_like_set_is_a_function_of_its_seed(tmp_path):
@@ -74,14 +74,60 @@ def test_novel_light_error_tells_a_wrong_parameter_and_applies_the_cameras_gains
     assert novel_light_error(truth, truth, gains=gains, size=64)["colour_l1"] > 0.01  # the photo was brighter
 
 
-def test_jpeg_at_the_phones_scale_is_a_deterministic_lossy_copy():
-    from backend.image.png import jpeg_at_phone_scale
+def test_the_phones_jpeg_is_a_deterministic_lossy_copy_at_the_film_size():
+    from backend.image.png import phone_jpeg
     rng = np.random.default_rng(3)
-    image = np.clip(0.5 + 0.1 * rng.standard_normal((64, 64, 3)), 0, 1)
-    phone = jpeg_at_phone_scale(image, 75)
-    assert phone.shape == image.shape and np.array_equal(phone, jpeg_at_phone_scale(image, 75))
-    assert 0.001 < np.abs(phone - image).mean() < 0.05          # compressed, not replaced
-    assert np.abs(jpeg_at_phone_scale(image, 95) - image).mean() < np.abs(phone - image).mean()
+    image = np.clip(0.5 + 0.1 * rng.standard_normal((128, 128, 3)), 0, 1)
+    phone = phone_jpeg(image, 75, 32)
+    assert phone.shape == (32, 32, 3) and np.array_equal(phone, phone_jpeg(image, 75, 32))
+    area = image.reshape(32, 4, 32, 4, 3).mean(axis=(1, 3))
+    assert 0.0005 < np.abs(phone - area).mean() < 0.05          # compressed, then resized by area
+    assert np.abs(phone_jpeg(image, 95, 32) - area).mean() < np.abs(phone - area).mean()
+
+
+def test_framing_resolves_the_weave_and_leaves_a_coarse_one_alone():
+    from backend.texture.lattice import yarns_in_view
+    rig = CaptureRig()
+    dense = typical("twill0")                                   # about 1 px per yarn at 512 px
+    assert rig.film_size / yarns_in_view("twill0", dense.tiles, rig) < 2
+    framed = photolike.framed(dense, 3.0, rig)
+    assert rig.film_size / yarns_in_view("twill0", framed.tiles, rig) == pytest.approx(3.0)
+    assert framed.tiles[0] / framed.tiles[1] == pytest.approx(dense.tiles[0] / dense.tiles[1])  # same weave, closer
+    coarse = dense.replace(tiles=(20.0, 20.0))
+    assert photolike.framed(coarse, 3.0, rig) == coarse
+
+
+def _high_frequency_std(image: torch.Tensor) -> float:
+    luma = image.mean(-1)
+    return float((luma - torch.nn.functional.avg_pool2d(luma[None, None], 5, 1, 2, count_include_pad=False)[0, 0])
+                 .std())
+
+
+def test_the_optics_act_before_the_sensor_samples():
+    """A weave finer than the camera's blur reaches the photo soft, not as an aliased lattice: the phone
+    blurs the light at its own resolution before the film's pixels average it."""
+    rig = CaptureRig(film_size=64)
+    dense = typical("plain").replace(tiles=(48.0, 48.0))        # about 0.8 film px per yarn
+    blur_only = PhoneEffects(blur_px=1.5, exposure=1.0, photo_exposure=(1.0, 1.0), white_balance=(1.0, 1.0, 1.0),
+                             falloff=(0.0, 0.0, 0.0, 0.0), warp_px=0.0, warp_period_px=(200.0, 200.0),
+                             warp_phase=(0.0, 0.0), noise_gain=0.0, read_noise=0.0, jpeg_quality=95, seed=1)
+    sampled_first = blur_only.apply(Renderer(rig, size=64, spp=1).render(dense).reflection_radiance, 0, rig)
+    fine = blur_only.apply(Renderer(rig, size=256, spp=1).render(dense).reflection_radiance, 0, rig)
+    optics_first = torch.nn.functional.avg_pool2d(fine.permute(2, 0, 1)[None], 4)[0].permute(1, 2, 0)
+    assert _high_frequency_std(optics_first) < 0.3 * _high_frequency_std(sampled_first)
+
+
+def test_sensor_noise_is_per_phone_pixel_and_averages_to_the_drawn_level():
+    rig = CaptureRig(film_size=32)
+    flat = torch.full((128, 128, 3), 0.2)
+    noisy = PhoneEffects(blur_px=0.0, exposure=1.0, photo_exposure=(1.0, 1.0), white_balance=(1.0, 1.0, 1.0),
+                         falloff=(0.0, 0.0, 0.0, 0.0), warp_px=0.0, warp_period_px=(200.0, 200.0),
+                         warp_phase=(0.0, 0.0), noise_gain=0.0, read_noise=0.01, jpeg_quality=95, seed=2)
+    rig_linear = dataclasses.replace(rig, gamma=1.0, vignette_sigma_px=1e9)
+    photo = noisy.apply(flat, 0, rig_linear)
+    film = photo.reshape(32, 4, 32, 4, 3).mean(dim=(1, 3))
+    assert float(film.std()) == pytest.approx(0.01, rel=0.15)
+    assert float(photo.std()) == pytest.approx(0.04, rel=0.15)
 
 
 def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_apart():

@@ -36,17 +36,15 @@ def write_jpeg(path: str | Path, image, quality: int) -> Path:
     return _write(path, image, 8, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
 
 
-def jpeg_at_phone_scale(image, quality: int, scale: int = 4) -> np.ndarray:
-    """``image`` (RGB in [0, 1]) as a phone's JPEG of quality ``quality`` looks after the resize to
-    the working size: upsampled ``scale`` times (bicubic), compressed and decoded, area-downsampled
-    back: a phone compresses at its own resolution and the photo is resized afterwards, so its
-    8-pixel blocks are a fraction of a working pixel, not a grid at size / 8 cycles."""
+def phone_jpeg(image, quality: int, size: int) -> np.ndarray:
+    """``image`` (RGB in [0, 1] at the phone's resolution) as its JPEG of quality ``quality`` looks
+    after the resize to ``size`` x ``size``: compressed and decoded at the phone's resolution, then
+    area-downsampled. A phone compresses at its own resolution and the photo is resized afterwards,
+    so its 8-pixel blocks are a fraction of a working pixel, not a grid at size / 8 cycles."""
     rgb = np.clip(to_numpy(image), 0.0, 1.0)
-    height, width = rgb.shape[:2]
-    large = cv2.resize(rgb.astype(np.float32), (width * scale, height * scale), interpolation=cv2.INTER_CUBIC)
-    data = np.round(np.clip(large, 0.0, 1.0) * 255).astype(np.uint8)[..., ::-1]
+    data = np.round(rgb * 255).astype(np.uint8)[..., ::-1]
     ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(data), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise OSError("JPEG encoding failed")
     decoded = cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32) / 255
-    return cv2.resize(decoded, (width, height), interpolation=cv2.INTER_AREA).astype(np.float64)
+    return cv2.resize(decoded, (size, size), interpolation=cv2.INTER_AREA).astype(np.float64)

@@ -2,7 +2,8 @@
 
 A render of the model is a perfect photo: sharp, noiseless, exactly exposed, lit exactly as the rig
 says, with perfectly regular yarns. A phone photo of a real sample is none of these. Given the
-linear radiance of a render of the (possibly turned) sample without camera blur, one photo is
+linear radiance of a render of the (possibly turned) sample without camera blur, at the phone's own
+resolution (``k`` phone pixels per film pixel; every length below is in film pixels), one photo is
 
     warped   = radiance(p + d(p))                     mild non-uniform yarn spacing: a smooth
                d(p) = A (sin(2 pi p_y / L_x + phi_x), sin(2 pi p_x / L_y + phi_y)), local scale
@@ -12,15 +13,18 @@ linear radiance of a render of the (possibly turned) sample without camera blur,
     blurred  = G_sigma * lit                          the camera's point spread (sigma film pixels)
     exposed  = blurred * exposure * exposure_i * wb   exposure (both photos, and a little per photo:
                phones meter each shot) and white balance (per channel)
-    noisy    = exposed + N(0, gain * exposed + read^2)   shot and read noise, linear
+    noisy    = exposed + k N(0, gain * exposed + read^2)   shot and read noise per phone pixel, so
+               that a film pixel (the mean of k x k phone pixels) has variance gain * exposed + read^2
     photo    = display_transform(noisy)               the rig's clamp, 1/gamma and vignetting
 
-and the file is ``photo`` JPEG-compressed at ``jpeg_quality`` at the phone's own resolution and
-resized to the film (:func:`backend.image.png.jpeg_at_phone_scale`; the caller writes it). Everything is
-drawn from a seeded generator (:meth:`PhoneEffects.draw`), so a photo-like set is a function of its
-seed. The camera's gains (exposure x white balance) scale what the photo shows; a fit cannot tell them
-from the albedos, so a comparison with the truth under other lights applies them to the truth
-(:meth:`PhoneEffects.gains`).
+and the file is ``photo`` JPEG-compressed at ``jpeg_quality`` at the phone's resolution and
+area-resized to the film (:func:`backend.image.png.phone_jpeg`; the caller writes it). The order is
+the physical one: the optics act on the light before the sensor samples it, so a weave finer than
+the blur reaches the photo as the soft texture a phone shows, not as the false lattice that point
+samples of a sharp image would alias it into. Everything is drawn from a seeded generator
+(:meth:`PhoneEffects.draw`), so a photo-like set is a function of its seed. The camera's gains
+(exposure x white balance) scale what the photo shows; a fit cannot tell them from the albedos, so a
+comparison with the truth under other lights applies them to the truth (:meth:`PhoneEffects.gains`).
 """
 from __future__ import annotations
 
@@ -74,7 +78,8 @@ class PhoneEffects:
         return torch.tensor(self.white_balance) * self.exposure * self.photo_exposure[photo]
 
     def apply(self, radiance: torch.Tensor, photo: int, rig: CaptureRig) -> torch.Tensor:
-        """The display-space photo (N, N, 3) in [0, 1] of a render's sharp linear ``radiance``."""
+        """The display-space photo (N, N, 3) in [0, 1] of a render's sharp linear ``radiance`` (N x N
+        phone pixels, N a multiple of the film's size, or the film's size itself)."""
         n = radiance.shape[0]
         film = rig.film_size / n  # film pixels per image pixel
         image = self._warped(radiance, film)
@@ -82,7 +87,7 @@ class PhoneEffects:
         image = gaussian_blur(image, self.blur_px / film)
         image = image * self.gains(photo).to(image)
         generator = torch.Generator().manual_seed(self.seed * 2 + photo)
-        std = torch.sqrt(self.noise_gain * image.clamp_min(0) + self.read_noise ** 2)
+        std = torch.sqrt(self.noise_gain * image.clamp_min(0) + self.read_noise ** 2) / film
         image = image + std * torch.randn(image.shape, generator=generator, dtype=image.dtype)
         vignette = CameraSamples(rig, n, 1, dtype=image.dtype).pixel_falloff(rig.vignette_sigma_px)
         return display_transform(image.clamp_min(0), rig.gamma, rig.clamp, vignette).clamp(0, 1)
