@@ -20,10 +20,12 @@ import torch
 
 from ..core import priors
 from ..core.rig import CaptureRig
+from ..core.weave import PRESETS
 from ..model.render import Renderer
 from . import lattice
 
 SIGNATURE_DENSITY = 20.0  # tiles across the image for the signature renders: every harmonic below Nyquist
+COARSEST_PIXELS_PER_YARN = 10.0  # film pixels per yarn of the coarsest weave the search proposes
 
 
 @dataclass(frozen=True)
@@ -48,10 +50,26 @@ def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
     return out
 
 
+def tile_range(pattern: str, rig: CaptureRig) -> tuple[tuple[float, float], tuple[float, float]]:
+    """(tu range, tv range) of the tiles the search proposes for ``pattern``: what its dataset prior
+    can produce (:func:`backend.core.priors.tile_range`), and down to the density at which the yarns
+    get COARSEST_PIXELS_PER_YARN film pixels. The prior's densities are those of the paper's 512-px
+    training renders (0.7-2.7 px per yarn, mostly aliased); a phone photo that shows the weave has
+    2-4 px per yarn on its denser axis (the dev real pairs), and twice that on the other axis of a
+    weave whose pitches differ, which is below the twill and satin priors."""
+    (u_lo, u_hi), (v_lo, v_hi) = priors.tile_range(pattern)
+    weave = PRESETS.get(pattern)
+    if weave is None:
+        return (u_lo, u_hi), (v_lo, v_hi)
+    in_view = rig.view_size / rig.plane_size
+    coarsest = rig.film_size / COARSEST_PIXELS_PER_YARN / in_view  # yarns across the whole plane
+    return (min(u_lo, coarsest / weave.cols), u_hi), (min(v_lo, coarsest / weave.rows), v_hi)
+
+
 def _search_range(rig: CaptureRig, patterns: tuple[str, ...]) -> tuple[float, float]:
-    """Tiles across the image that any of ``patterns``' priors can produce."""
+    """Tiles across the image that the search proposes for any of ``patterns``."""
     scale = rig.view_size / rig.plane_size
-    ranges = [priors.tile_range(p) for p in patterns]
+    ranges = [tile_range(p, rig) for p in patterns]
     return (min(min(r[0][0], r[1][0]) for r in ranges) * scale, max(max(r[0][1], r[1][1]) for r in ranges) * scale)
 
 
@@ -66,7 +84,7 @@ def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...]
     """(pattern, tiles) candidates for a sample turned by the rig's ``sample_rotation_deg``, best
     lattice score first (scores compare within a pattern only)."""
     scale = rig.view_size / rig.plane_size
-    ranges = {p: priors.tile_range(p) for p in patterns}
+    ranges = {p: tile_range(p, rig) for p in patterns}
     lo, hi = _search_range(rig, patterns)
     rotation = rig.sample_rotation_deg
     combs = lattice.estimates(spectra, (lo, hi), (lo, hi), rotation_deg=rotation)
