@@ -28,8 +28,8 @@ from pathlib import Path
 import torch
 
 from ..core import priors
-from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..core.params import FabricParams
+from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..image.png import phone_jpeg, write_png
 from ..model.phone import PhoneEffects
 from ..model.render import Renderer
