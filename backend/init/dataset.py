@@ -54,7 +54,7 @@ from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..model import rng
 from ..model.render import Renderer
-from ..texture import lattice
+from ..texture import candidates, lattice
 from ..texture.candidates import signatures as pattern_signatures
 from . import network as init_net
 
@@ -94,7 +94,7 @@ def confusable_tiles(maps: list[np.ndarray], signature, true_tiles, pattern: str
     """The tiles the lattice estimator would propose for ``pattern`` when the true lattice is
     ``true_tiles``: the admissible ratio pair scoring best against the pattern's signature."""
     scale = rig.view_size / rig.plane_size
-    (ulo, uhi), (vlo, vhi) = priors.tile_range(pattern)
+    (ulo, uhi), (vlo, vhi) = candidates.tile_range(pattern, rig)
     best = None
     for ra in lattice.RATIOS:
         for rb in lattice.RATIOS:
