@@ -94,7 +94,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     assert result["uv_default"] == 1.0
     V = 2 * 8 * math.tan(math.radians(26.5))
     assert result["uv_scale"] == pytest.approx(120.0 * V / (10 * 5.0), rel=1e-5)
-    assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in ("matrix", "warp", "weft")}
+    assert set(result["atlases"]) == {f"Woven Fabric {n}" for n in shader_weave.fallback_atlases()}
     assert all(packed for packed, _ in result["atlases"].values())
     w, h, px = shader_weave.fallback_atlases()["warp"]
     assert result["warp_px"][:3] == pytest.approx(px[:3]) and result["warp_px"][4:7] == pytest.approx(px[3:6])

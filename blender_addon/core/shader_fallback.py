@@ -1,19 +1,47 @@
 """The standard-node fallback of the Woven Fabric node group, as a small expression program.
 
 EEVEE and GPU Cycles (without OptiX OSL) cannot run ``shaders/woven_fabric.osl``; the node group
-then uses a fallback built from Math / Vector Math / Image Texture nodes that computes the same
-weave geometry (spec section 3, like ``backend/model/layers.py``) from UV: band tests, the interlacing
-matrix and the backend's interval tables (read from the float atlases of
+then uses a fallback built from Math / Vector Math / Image Texture nodes. Its program has two parts.
+
+Geometry (spec section 3, like ``backend/model/layers.py`` and ``yarn.py``), from UV: band tests,
+the interlacing matrix and the backend's interval tables (read from the float atlases of
 :func:`shader_weave.fallback_atlases`; the per-preset constants are picked by the pattern with Math
-nodes, ``pick``), gap scaling, the visible yarn (front layer, or the back
-layer through a gap in front), its bent-cylinder normal and twisted fiber direction with height
-scaling. It skips the tension and noise and shades with standard BSDFs (see scene/node_group.py).
+nodes, ``pick``), gap scaling, the tension mu of each yarn (linear between segment centres), and
+the bent-cylinder normal and twisted fiber direction of the warp and of the weft at the point,
+height-scaled. Layer 0 (front) and layer 1 (back) take the yarn the weave puts there (seen from
+behind the two swap and z is mirrored, as in the OSL shader). It skips the noise (spec 4.6) and the
+flat segments (none in the presets).
+
+Shading (spec section 4, the OSL shader's approximation in standard closures). Everything that
+depends on the view direction wi (the Geometry node's Incoming) is computed exactly per layer k;
+the dependence on the light direction wo is left to the closures:
+
+- reflection, single (SGGX) and multiple (ASGGX) scattering: an anisotropic GGX Glossy BSDF with
+  roughness alpha along the fiber and 1 across, on the normal Nc (the most upward normal
+  perpendicular to the fiber leaned towards z by alpha^2), weighted by (exact lobe / closure) at the
+  mirror direction of wi about Nc;
+- transmission, single and multiple: Cycles, a Hair BSDF (transmission, roughness
+  r = asin(0.5 alpha / sqrt(1 - alpha^2)), azimuthal roughness 1, tangent = the fiber) weighted so
+  that its peak is the exact lobe at the straight-through direction wo = -wi (with the OSL shader's
+  fitted factors 0.3 + 0.7 alpha^2 and 1.1 + 0.5 alpha_m); EEVEE lights no hair closure on a surface,
+  so there a Translucent BSDF takes the lesser of the hair closure's energy (its weight: the closure is a
+  normalised density) and the weight whose value at wo = -wi is the lobe's peak (pi f / |wi_z|): a
+  sharp lobe keeps its energy, a wide one its straight-through value;
+- two layers (4.5): the back layer's reflection lobes carry att0(wi) att0(wo*), the transmission
+  lobes att1(wi) (front layer) and att0(wi) (back layer), att = exp(-T sigma(w) / |w_z|);
+- diffuse: (1 - w) k_d^r diffuse(N) + w k_d^r diffuse(n), n the front yarn's normal (the back one's
+  through a gap in front); in transmission (1 - w) k_d^t translucent(N) + w k_d^t c translucent(N) with
+  the product c = max(0, -wo . n0) max(0, -wo . n1) / |wo_z| of spec 4.5 taken at wo = -wi. (A Translucent
+  BSDF on n itself would do the light-side cosine exactly, as the OSL shader does, but Cycles' SVM bends
+  the normal of a translucent closure like a glossy one's, ``maybe_ensure_valid_specular_reflection``:
+  measured 37 % too bright on a plain weave with w = 0.9);
+- gaps (both layers open): the node group mixes in a Transparent BSDF by ``coverage``.
 
 The program is plain text, one assignment per line, in a tiny expression language (Python
 syntax): ``+ - * / **``, unary ``-``, numbers, names, and the functions listed in
 :data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``scene/node_group.py`` passes one
 that creates shader nodes; ``tests/test_shader.py`` passes one that evaluates it on numpy arrays,
-to check the fallback geometry against the backend without Blender.
+to check the fallback against the backend without Blender.
 """
 from __future__ import annotations
 
@@ -26,6 +54,7 @@ from . import shader_weave
 FUNCTIONS = {
     "floor": (1, "math", "FLOOR"), "fract": (1, "math", "FRACT"), "abs": (1, "math", "ABSOLUTE"),
     "sqrt": (1, "math", "SQRT"), "sin": (1, "math", "SINE"), "cos": (1, "math", "COSINE"),
+    "asin": (1, "math", "ARCSINE"), "atan": (1, "math", "ARCTANGENT"),
     "exp": (1, "math", "EXPONENT"), "min": (2, "math", "MINIMUM"), "max": (2, "math", "MAXIMUM"),
     "mod": (2, "math", "FLOORED_MODULO"), "lt": (2, "math", "LESS_THAN"), "gt": (2, "math", "GREATER_THAN"),
     "pow": (2, "math", "POWER"),
@@ -38,11 +67,34 @@ FUNCTIONS = {
 }
 BINARY = {ast.Add: "ADD", ast.Sub: "SUBTRACT", ast.Mult: "MULTIPLY", ast.Div: "DIVIDE", ast.Pow: "POWER"}
 
-INPUTS = ("pattern", "tiles_warp", "tiles_weft", "uv_scale", "gap_scale_warp", "gap_scale_weft",
-          "twist_deg_warp", "twist_deg_weft", "height_scale_warp", "height_scale_weft", "UV", "Tangent", "Normal")
-OUTPUTS = ("coverage", "vis_warp", "vis_weft", "normal", "fiber", "across", "fiber_normal")
+# Group inputs besides the sockets (shader_params.socket_specs, by their OSL names): the UV map and
+# its tangent, and the Geometry node's Normal, Incoming (to the viewer) and Backfacing.
+GEOMETRY_INPUTS = ("UV", "Tangent", "Normal", "Incoming", "Backfacing")
+LAYERS = (0, 1)
+# What the node group wires into closures (per layer k: the names with k appended).
+OUTPUTS = ("coverage", "diffuse_flat", "diffuse_yarn", "translucent", "n_main",
+           "eevee_diffuse", "eevee_diffuse_normal", "eevee_translucent", "eevee_gloss", "eevee_gloss_rough",
+           "eevee_gloss_normal")
+LAYER_OUTPUTS = ("gloss_s_color", "gloss_m_color", "gloss_s_rough", "gloss_m_rough", "gloss_s_aniso",
+                 "gloss_m_aniso", "gloss_normal", "gloss_tangent", "hair_s_color", "hair_m_color", "hair_s_rough",
+                 "hair_m_rough", "fiber")
 
-_PROGRAM = """
+# Blender's Glossy BSDF (GGX, Blender 5.0, node_glossy_bsdf.osl and its SVM twin) has alpha = r^2 (1 - an)
+# along its tangent and r^2 / (1 - an) across, anisotropy an > 0 (clamped to 0.99; measured: highlights
+# of a tangent along y are narrow in y). r = alpha^(1/4) and an = 1 - sqrt(alpha) give alpha along the
+# fiber and 1 across, the SGGX fiber distribution, for every alpha >= 1e-4. EEVEE ignores the anisotropy:
+# an isotropic GGX of alpha r^2 = sqrt(alpha) with the same D at the mirror direction.
+# The OSL shader's transmission factors (fitted to the backend in the capture rig, shaders/woven_fabric.osl):
+# single-scattering wedge vs cone 0.3 + 0.7 alpha^2, multiple 1.1 + 0.5 alpha_m.
+TT_SINGLE = (0.3, 0.7)
+TT_MULTIPLE = (1.1, 0.5)
+# EEVEE (measured with Blender 5.0, material thickness mode "Slab", thickness 0): a Translucent BSDF of
+# colour k lit from behind renders k^2 |cos| / pi (the light crosses the sheet's two faces), and the
+# translucent closures of a material are summed before that square; with more than three closures EEVEE
+# merges them and the transmission grows further. So the EEVEE output has three closures: one Diffuse, one
+# Glossy and one Translucent of colour sqrt(sum of the transmission weights).
+
+_GEOMETRY = """
 {header}
 su = x(UV) * tiles_warp * uv_scale
 sv = y(UV) * tiles_weft * uv_scale
@@ -57,52 +109,223 @@ y_in = yr - row * weft_p
 in_warp = lt(x_in, warp_w)
 in_weft = lt(y_in, weft_w)
 over = x(lookup("matrix", (col + 0.5) / {A_matrix_w}, (mrow0 + row + 0.5) / {A_matrix_h}))
-we = lookup("warp", (col + 0.5) / {A_warp_w}, (wrow0 + 2 * row + 1.5 - in_weft) / {A_warp_h})
-w_off = mod(yr - x(we) + tile_h / 2, tile_h) - tile_h / 2
-w_u = (0 - w_off) / (y(we) / 2) * umax_warp * (1 - 2 * z(we))
-w_a = x_in - warp_w / 2
-w_v = w_a * {pi} / (warp_w * gap_scale_warp)
-w_ok = lt(abs(w_a), warp_w * gap_scale_warp / 2)
-fe = lookup("weft", (row + 0.5) / {A_weft_w}, (frow0 + 2 * col + 1.5 - in_warp) / {A_weft_h})
-f_off = mod(xr - x(fe) + tile_w / 2, tile_w) - tile_w / 2
-f_u = f_off / (y(fe) / 2) * umax_weft * (1 - 2 * z(fe))
-f_a = y_in - weft_w / 2
-f_v = f_a * {pi} / (weft_w * gap_scale_weft)
-f_ok = lt(abs(f_a), weft_w * gap_scale_weft / 2)
+{warp}
+{weft}
 front_warp = in_warp * max(1 - in_weft, over) * w_ok
 front_weft = in_weft * max(1 - in_warp, 1 - over) * f_ok
 back_warp = in_warp * in_weft * (1 - over) * w_ok
 back_weft = in_warp * in_weft * over * f_ok
-open0 = 1 - front_warp - front_weft
-vis_warp = front_warp + open0 * back_warp
-vis_weft = front_weft + open0 * back_weft
-coverage = vis_warp + vis_weft
-uu = vis_warp * w_u + vis_weft * f_u
-vv = vis_warp * w_v + vis_weft * f_v
-psi = (vis_warp * twist_deg_warp + vis_weft * twist_deg_weft) * {deg}
-beta = vis_warp * height_scale_warp + vis_weft * height_scale_weft + 1 - coverage
-s_u = sin(uu)
-c_u = cos(uu)
-s_v = sin(vv)
-c_v = cos(vv)
-s_p = sin(psi)
-c_p = cos(psi)
-n1 = s_v
-n2 = s_u * c_v
-o1 = 0 - c_v * s_p
-o2 = c_u * c_p + s_u * s_v * s_p
-nx = vis_weft * n2 + (1 - vis_weft) * n1
-ny = (1 - vis_weft) * n2 - vis_weft * n1
-ox = vis_weft * o2 + (1 - vis_weft) * o1
-oy = (1 - vis_weft) * o2 - vis_weft * o1
-n_local = normalize(vec(beta * nx, beta * ny, c_u * c_v))
-o_local = normalize(vec(ox, oy, beta * (c_u * s_v * s_p - s_u * c_p)))
-tangent = normalize(vsub(Tangent, scale(Normal, dot(Tangent, Normal))))
-bitangent = cross(Normal, tangent)
-normal = normalize(vadd(vadd(scale(tangent, x(n_local)), scale(bitangent, y(n_local))), scale(Normal, z(n_local))))
-fiber = normalize(vadd(vadd(scale(tangent, x(o_local)), scale(bitangent, y(o_local))), scale(Normal, z(o_local))))
-fiber_normal = normalize(vsub(Normal, scale(fiber, dot(Normal, fiber))))
-across = normalize(cross(fiber, fiber_normal))
+bf = Backfacing
+y0w = front_warp + bf * (back_warp - front_warp)
+y0f = front_weft + bf * (back_weft - front_weft)
+y1w = back_warp + bf * (front_warp - back_warp)
+y1f = back_weft + bf * (front_weft - back_weft)
+coverage = max(y0w + y0f, y1w + y1f)
+mirror = 1 - 2 * bf
+n_face = scale(Normal, mirror)
+tangent = normalize(vsub(Tangent, scale(n_face, dot(Tangent, n_face))))
+bitangent = cross(n_face, tangent)
+"""
+
+# One yarn direction at the point (backend/model/layers.py WeaveLookup._yarn; yarn.py local_frame and
+# scale_height): the interval entry (centre, length, layer) and its tension entry (mu, mu before, mu
+# after; distances to the neighbours' centres), u, v, the gap test, n and o (a weft's rotated by
+# (x, y, z) -> (y, -x, z)), height-scaled by beta.
+_YARN = """
+{p}at = ({index} + 0.5) / {A_w}
+{p}row = ({row0} + 2 * {cross} + 1.5 - {in_cross}) / {A_h}
+{p}e = lookup("{name}", {p}at, {p}row)
+{p}et = lookup("{name}_tension", {p}at, {p}row)
+{p}ed = lookup("{name}_distance", {p}at, {p}row)
+{p}off = mod({along} - x({p}e) + {period} / 2, {period}) - {period} / 2
+{p}before = lt({p}off, 0)
+{p}mu_there = {p}before * y({p}et) + (1 - {p}before) * z({p}et)
+{p}dist = {p}before * x({p}ed) + (1 - {p}before) * y({p}ed)
+{p}mu = x({p}et) + ({p}mu_there - x({p}et)) * abs({p}off) / {p}dist
+{p}tension = s_min + (1 - {p}mu) * (1 - s_min)
+{p}u = {p}off / (y({p}e) / 2) * {umax} * ({sign} - 2 * {sign} * z({p}e))
+{p}a = {across} - {width} / 2
+{p}v = {p}a * {pi} / ({width} * gap_scale_{name})
+{p}ok = lt(abs({p}a), {width} * gap_scale_{name} / 2)
+{p}su = sin({p}u)
+{p}cu = cos({p}u)
+{p}sv = sin({p}v)
+{p}cv = cos({p}v)
+{p}sp = sin(twist_deg_{name} * {deg})
+{p}cp = cos(twist_deg_{name} * {deg})
+{p}n2 = {p}su * {p}cv
+{p}o1 = 0 - {p}cv * {p}sp
+{p}o2 = {p}cu * {p}cp + {p}su * {p}sv * {p}sp
+{p}n = normalize(vec(height_scale_{name} * ({nx}), height_scale_{name} * ({ny}), {p}cu * {p}cv))
+{p}o = normalize(vec({ox}, ({oy}), height_scale_{name} * ({p}cu * {p}sv * {p}sp - {p}su * {p}cp)))
+"""
+_YARNS = {
+    "warp": dict(p="w_", index="col", cross="row", in_cross="in_weft", row0="wrow0", along="yr", period="tile_h",
+                 across="x_in", width="warp_w", umax="umax_warp", sign="-1", nx="w_sv", ny="w_n2", ox="w_o1",
+                 oy="w_o2"),
+    "weft": dict(p="f_", index="row", cross="col", in_cross="in_warp", row0="frow0", along="xr", period="tile_w",
+                 across="y_in", width="weft_w", umax="umax_weft", sign="1", nx="f_n2", ny="0 - f_sv", ox="f_o2",
+                 oy="0 - f_o1"),
+}
+
+
+def _sigma(c: str, a: str) -> str:
+    """SGGX projected area of a direction at cosine c to the fiber (spec 4.1)."""
+    return f"sqrt(max(1 - (1 - {a} * {a}) * {c} * {c}, 0.000000000001))"
+
+
+def _ndf(c2: str, a: str) -> str:
+    """SGGX fiber D at squared cosine c2 to the fiber: 1 / (pi a (1 + (1 / a^2 - 1) c2)^2)."""
+    return f"1 / ({math.pi!r} * {a} * (1 + (1 / ({a} * {a}) - 1) * {c2}) ** 2)"
+
+
+def _world(v: str) -> str:
+    return f"vadd(vadd(scale(tangent, x({v})), scale(bitangent, y({v}))), scale(Normal, z({v})))"
+
+
+def _ggx(k: str, lobe: str, ax: str) -> str:
+    """Lines giving ``{lobe}{k}_ggx``, what Blender's GGX closure (normal Nc, tangent oc, alpha ax along
+    it and 1 across, no Fresnel) evaluates to at (wi, wo): D(h) G2 / (4 wi . Nc), height-correlated Smith
+    G2, 0 where either direction is below Nc."""
+    p = f"{lobe}{k}_"
+    return f"""
+{p}hx = dot(h{k}, oc{k}) / {ax}
+{p}q = {p}hx * {p}hx + hb{k} * hb{k} + hn{k} * hn{k}
+{p}ti = ({ax} * {ax} * wio{k} * wio{k} + wib{k} * wib{k}) / (cin{k} * cin{k})
+{p}to = ({ax} * {ax} * woo{k} * woo{k} + wob{k} * wob{k}) / (con{k} * con{k})
+{p}g2 = 1 / (1 + 0.5 * (sqrt(1 + {p}ti) - 1) + 0.5 * (sqrt(1 + {p}to) - 1))
+{p}ggx = lit{k} * {p}g2 / ({math.pi!r} * {ax} * {p}q * {p}q * 4 * cin{k})
+"""
+
+
+def _layer(k: int) -> str:
+    """Layer k's closure weights (k = 0 front, 1 back; ``j`` the other layer)."""
+    j = 1 - k
+    sm = _sigma(f"co{k}", f"a{k}")
+    behind = "1" if k == 0 else f"att{j} * exp(0 - T{j} * {_sigma(f'dot(wo{k}, o{j})', f'a{j}')} / woz{k})"
+    return f"""
+n{k} = vec(x(n{k}t), y(n{k}t), z(n{k}t) * mirror)
+o{k} = vec(x(o{k}t), y(o{k}t), z(o{k}t) * mirror)
+np{k} = vadd(vec(0 - x(o{k}) * z(o{k}), 0 - y(o{k}) * z(o{k}), 1 - z(o{k}) * z(o{k})), scale(n{k}, 0.0001))
+Np{k} = normalize(np{k})
+Nc{k} = normalize(vadd(Np{k}, scale(vsub(vec(0, 0, 1), Np{k}), a{k} * a{k})))
+oc{k} = normalize(vsub(o{k}, scale(Nc{k}, dot(o{k}, Nc{k}))))
+bc{k} = cross(Nc{k}, oc{k})
+cin{k} = dot(wi, Nc{k})
+wr{k} = vsub(scale(Nc{k}, 2 * cin{k}), wi)
+wo{k} = normalize(vec(x(wr{k}), y(wr{k}), max(z(wr{k}), 0.05)))
+woz{k} = z(wo{k})
+con{k} = dot(wo{k}, Nc{k})
+lit{k} = gt(cin{k}, 0.0001) * gt(con{k}, 0)
+co{k} = dot(wo{k}, o{k})
+Ao{k} = {sm} / woz{k}
+h{k} = normalize(vadd(wi, wo{k}))
+ch{k} = dot(h{k}, o{k})
+hb{k} = dot(h{k}, bc{k})
+hn{k} = dot(h{k}, Nc{k})
+wio{k} = dot(wi, oc{k})
+wib{k} = dot(wi, bc{k})
+woo{k} = dot(wo{k}, oc{k})
+wob{k} = dot(wo{k}, bc{k})
+sr{k} = Ai{k} + Ao{k}
+fs{k} = {_ndf(f"ch{k} * ch{k}", f"a{k}")} * (1 - exp(0 - T{k} * sr{k})) / sr{k} / (4 * wiz)
+s2{k} = min(max(0.5 * (1 + ci{k} * co{k} - sqrt(max((1 - ci{k} * ci{k}) * (1 - co{k} * co{k}), 0))), 0), 1)
+fm{k} = {_ndf(f"s2{k}", f"am{k}")} * (1 - exp(0 - Tm{k} * sr{k})) / sr{k} / (2 * wiz)
+{_ggx(k, "gs", f"a{k}")}
+{_ggx(k, "gm", f"am{k}")}
+behind{k} = {behind}
+gloss_s_color{k} = scale(ks{k}, fs{k} / gs{k}_ggx * behind{k})
+gloss_m_color{k} = scale(km{k}, fm{k} / gm{k}_ggx * behind{k})
+gloss_s_rough{k} = sqrt(sqrt(a{k}))
+gloss_m_rough{k} = sqrt(sqrt(am{k}))
+gloss_s_aniso{k} = 1 - sqrt(a{k})
+gloss_m_aniso{k} = 1 - sqrt(am{k})
+gloss_normal{k} = normalize({_world(f"Nc{k}")})
+gloss_tangent{k} = normalize({_world(f"oc{k}")})
+th{k} = asin(min(max(ci{k}, -1), 1))
+cth{k} = max(cos(th{k}), 0.0001)
+hair_s_rough{k} = {_hair_roughness(f"a{k}")}
+hair_m_rough{k} = {_hair_roughness(f"am{k}")}
+ts{k} = ({TT_SINGLE[0]!r} + {TT_SINGLE[1]!r} * a{k} * a{k}) * T{k} * exp(0 - T{k} * Ai{k}) / (4 * piz * a{k})
+tm{k} = ({TT_MULTIPLE[0]!r} + {TT_MULTIPLE[1]!r} * am{k}) * Tm{k} * exp(0 - Tm{k} * Ai{k}) / (2 * piz * am{k})
+hair_s_weight{k} = ts{k} / {_hair_peak(f"hair_s_rough{k}", f"th{k}", f"cth{k}")} * att{j}
+hair_m_weight{k} = tm{k} / {_hair_peak(f"hair_m_rough{k}", f"th{k}", f"cth{k}")} * att{j}
+hair_s_color{k} = scale(ks{k}, hair_s_weight{k})
+hair_m_color{k} = scale(km{k}, hair_m_weight{k})
+eevee_s{k} = min(hair_s_weight{k}, {math.pi!r} * ts{k} * att{j} / wiz)
+eevee_m{k} = min(hair_m_weight{k}, {math.pi!r} * tm{k} * att{j} / wiz)
+fiber{k} = normalize({_world(f"o{k}")})
+"""
+
+
+def _hair_roughness(a: str) -> str:
+    """Cauchy width of the hair lobe for D_alpha: asin(0.5 a / sqrt(1 - a^2)) in [0.001, 1] (the Cauchy
+    then has the integral of D_alpha at equal peak for a sharp lobe)."""
+    return f"min(max(asin(min(0.5 * {a} / sqrt(max(1 - {a} * {a}, 0.000001)), 1)), 0.001), 1)"
+
+
+def _hair_peak(r: str, th: str, cth: str) -> str:
+    """Peak of Cycles' hair transmission (roughness r, azimuthal roughness 1) at theta_h = 0:
+    1 / (2 atan(pi / 2)) / (2 r (atan((pi/2 + th) / 2r) - atan((th - pi/2) / 2r)) cos th)."""
+    half = math.pi / 2
+    return (f"({1.0 / (2.0 * math.atan(half))!r} / (2 * {r} * (atan(({half!r} + {th}) / (2 * {r}))"
+            f" - atan(({th} - {half!r}) / (2 * {r}))) * {cth}))")
+
+
+# Per-layer parameters (gaps: alpha 1, T 0) and the view-side quantities both lobes share.
+_PARAMS = """
+ks_warp = specular_albedo_warp
+ks_weft = specular_albedo_weft
+inv_wm = 1 / max(multiple_weight, 0.01)
+km_warp = vpow(specular_albedo_warp, vec(inv_wm, inv_wm, inv_wm))
+km_weft = vpow(specular_albedo_weft, vec(inv_wm, inv_wm, inv_wm))
+wi = vec(dot(Incoming, tangent), dot(Incoming, bitangent), dot(Incoming, Normal))
+wiz = max(z(wi), 0.0001)
+piz = {pi} * wiz
+"""
+_LAYER_PARAMS = """
+y{k} = y{k}w + y{k}f
+n{k}t = vadd(vadd(scale(w_n, y{k}w), scale(f_n, y{k}f)), vec(0, 0, 1 - y{k}))
+o{k}t = vadd(vadd(scale(w_o, y{k}w), scale(f_o, y{k}f)), vec(0, 1 - y{k}, 0))
+a{k} = y{k}w * roughness_warp + y{k}f * roughness_weft + 1 - y{k}
+am{k} = y{k}w * roughness_multiple_warp + y{k}f * roughness_multiple_weft + 1 - y{k}
+T{k} = y{k}w * thickness_warp * w_tension + y{k}f * thickness_weft * f_tension
+Tm{k} = y{k}w * thickness_multiple_warp * w_tension + y{k}f * thickness_multiple_weft * f_tension
+ks{k} = vadd(scale(ks_warp, y{k}w), scale(ks_weft, y{k}f))
+km{k} = vadd(scale(km_warp, y{k}w), scale(km_weft, y{k}f))
+ci{k} = dot(wi, vec(x(o{k}t), y(o{k}t), z(o{k}t) * mirror))
+Ai{k} = {sigma} / wiz
+att{k} = exp(0 - T{k} * Ai{k})
+"""
+
+_DIFFUSE = """
+keep = 1 - diffuse_map_replace
+kd_r_mul = scale(vmul(diffuse_reflection, diffuse_reflection_map), keep)
+kd_r = vadd(kd_r_mul, scale(diffuse_reflection_map, diffuse_map_replace))
+kd_t_mul = scale(vmul(diffuse_transmission, diffuse_transmission_map), keep)
+kd_t = vadd(kd_t_mul, scale(diffuse_transmission_map, diffuse_map_replace))
+nm = vadd(scale(n0, y0), scale(n1, 1 - y0))
+n_main = normalize({n_main})
+other = y0 * y1 * max(dot(wi, n1), 0) + 1 - y0 * y1
+diffuse_flat = scale(kd_r, 1 - diffuse_normal_weight)
+diffuse_yarn = scale(kd_r, diffuse_normal_weight)
+yarn_t = diffuse_normal_weight * other * max(dot(wi, nm), 0) / wiz
+translucent = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t))
+eevee_m = vadd(scale(Normal, 1 - diffuse_normal_weight), scale(n_main, diffuse_normal_weight))
+eevee_diffuse_normal = normalize(eevee_m)
+eevee_diffuse = scale(kd_r, sqrt(dot(eevee_m, eevee_m)))
+eevee_0 = vadd(scale(ks0, eevee_s0), scale(km0, eevee_m0))
+eevee_1 = vadd(scale(ks1, eevee_s1), scale(km1, eevee_m1))
+eevee_t = vadd(translucent, vadd(eevee_0, eevee_1))
+eevee_translucent = vpow(eevee_t, vec(0.5, 0.5, 0.5))
+eevee_gloss = vadd(vadd(gloss_s_color0, gloss_m_color0), vadd(gloss_s_color1, gloss_m_color1))
+gw_s0 = dot(gloss_s_color0, vec(1, 1, 1))
+gw_m0 = dot(gloss_m_color0, vec(1, 1, 1))
+gw_s1 = dot(gloss_s_color1, vec(1, 1, 1))
+gw_m1 = dot(gloss_m_color1, vec(1, 1, 1))
+gw_rough = gw_s0 * gloss_s_rough0 + gw_m0 * gloss_m_rough0 + gw_s1 * gloss_s_rough1 + gw_m1 * gloss_m_rough1
+eevee_gloss_rough = gw_rough / (gw_s0 + gw_m0 + gw_s1 + gw_m1)
+eevee_gloss_normal = normalize(vadd(scale(gloss_normal0, y0), scale(gloss_normal1, 1 - y0)))
 """
 
 
@@ -113,21 +336,29 @@ _HEADER_NAMES = {"warp_width": "warp_w", "warp_pitch": "warp_p", "warp_offset": 
 
 
 def program() -> list[tuple[str, str]]:
-    """The fallback geometry program: (name, expression) assignments, tables filled in."""
+    """The fallback program: (name, expression) assignments, tables filled in."""
     atlases = shader_weave.fallback_atlases()
     sizes = {f"A_{name}_w": w for name, (w, h, _) in atlases.items()}
     sizes.update({f"A_{name}_h": h for name, (w, h, _) in atlases.items()})
     header = "\n".join(f"{_HEADER_NAMES.get(name, name)} = pick(pattern, {', '.join(repr(v) for v in values)})"
-                        for name, values in shader_weave.fallback_header().items() if name != "s_min")
-    return parse(_PROGRAM.format(header=header, pi=repr(math.pi), deg=repr(math.pi / 180.0), **sizes))
+                        for name, values in shader_weave.fallback_header().items())
+    yarns = {name: _YARN.format(name=name, pi=repr(math.pi), deg=repr(math.pi / 180.0), A_w=sizes[f"A_{name}_w"],
+                                A_h=sizes[f"A_{name}_h"], **fields) for name, fields in _YARNS.items()}
+    text = _GEOMETRY.format(header=header, **yarns, **sizes) + _PARAMS.format(pi=repr(math.pi))
+    text += "".join(_LAYER_PARAMS.format(k=k, sigma=_sigma(f"ci{k}", f"a{k}")) for k in LAYERS)
+    text += "".join(_layer(k) for k in LAYERS)
+    n_main = _world("nm")
+    text += _DIFFUSE.format(n_main=n_main)
+    return parse(text)
 
 
 def parse(text: str) -> list[tuple[str, str]]:
-    """(name, expression) of each ``name = expression`` line of a program."""
+    """(name, expression) of each ``name = expression`` line of a program (blank lines skipped)."""
     out = []
     for line in text.strip().splitlines():
-        name, expr = line.split("=", 1)
-        out.append((name.strip(), expr.strip()))
+        if line.strip():
+            name, expr = line.split("=", 1)
+            out.append((name.strip(), expr.strip()))
     return out
 
 

@@ -172,19 +172,26 @@ def fallback_atlases() -> dict[str, tuple[int, int, list[float]]]:
 
     - ``matrix``: pixel (column j, matrix_row0 + row i) = P[i][j];
     - ``warp``: pixel (yarn j, warp_row0 + interval k) = (centre, length, layer) of warp j;
-    - ``weft``: pixel (yarn i, weft_row0 + interval k) = (centre, length, layer) of weft i.
+    - ``warp_tension``: same pixel = (tension, tension_prev, tension_next) of that interval;
+    - ``warp_distance``: same pixel = (dist_prev, dist_next, 0);
+    - ``weft``, ``weft_tension``, ``weft_distance``: the same for weft i at (yarn i, weft_row0 + interval k).
     """
     weaves = list(declarations.weave_presets().values())
-    width = {"matrix": max(w.cols for w in weaves), "warp": max(w.cols for w in weaves),
-             "weft": max(w.rows for w in weaves)}
-    rows = {"matrix": [], "warp": [], "weft": []}
+    entry = {"": lambda e: (e.centre, e.length, float(e.layer)),
+             "_tension": lambda e: (e.tension, e.tension_prev, e.tension_next),
+             "_distance": lambda e: (e.dist_prev, e.dist_next, 0.0)}
+    width = {"matrix": max(w.cols for w in weaves)}
+    width.update({f"warp{suffix}": max(w.cols for w in weaves) for suffix in entry})
+    width.update({f"weft{suffix}": max(w.rows for w in weaves) for suffix in entry})
+    rows = {name: [] for name in width}
     for weave in weaves:
         for r in range(weave.rows):
             rows["matrix"].append([(float(c), 0.0, 0.0) for c in weave.matrix[r]])
         for name, yarn in (("warp", 0), ("weft", 1)):
             table = weave.interval_table(yarn)
             for k in range(len(table[0])):
-                rows[name].append([(e.centre, e.length, float(e.layer)) for e in (t[k] for t in table)])
+                for suffix, fields in entry.items():
+                    rows[name + suffix].append([fields(e) for e in (t[k] for t in table)])
     out = {}
     for name, table in rows.items():
         px = []

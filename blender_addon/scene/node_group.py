@@ -6,9 +6,13 @@ colour maps multiplying the diffuse albedos. Inside:
 
 - a Script node running ``shaders/woven_fabric.osl`` (stored as an internal text, compiled here
   so the .blend carries its bytecode), fed by the UV map and its tangent;
-- the standard-node fallback (nested group "Woven Fabric fallback"): the same weave geometry from
-  Math / Vector Math / Image Texture nodes (``core/shader_fallback.py``, float atlases packed into the
-  .blend) shaded with Diffuse, Translucent, anisotropic Glossy and Transparent BSDFs;
+- the standard-node fallback (nested group "Woven Fabric fallback"): the same weave geometry and the
+  OSL shader's per-layer closure weights from Math / Vector Math / Image Texture nodes
+  (``core/shader_fallback.py``, float atlases packed into the .blend). Its ``BSDF`` output (Cycles
+  without OSL) has the OSL shader's closures: Diffuse, Translucent, anisotropic Glossy and Hair
+  (transmission) BSDFs per layer; its ``EEVEE`` output three closures (one Diffuse, Glossy and
+  Translucent: EEVEE lights no hair closure and merges more than three); both mixed with a Transparent
+  BSDF by the yarn coverage;
 - a Mix Shader whose factor is the Script node's ``OSLActive`` output (1 when OSL runs). Where OSL
   is not available the Script node is dropped from the shader graph and the factor keeps its own
   value, 0: the fallback renders. So Cycles CPU with Open Shading Language enabled (and OptiX with
@@ -19,8 +23,8 @@ If the OSL cannot be compiled (a Blender without Cycles' OSL tools), the group i
 error is printed and kept in the group's ``woven_fabric_osl_error`` property, and every engine
 renders the fallback; :func:`ensure_node_group` retries the compilation next time.
 
-Group outputs: ``BSDF`` (the switch above) and ``Fallback`` (standard nodes only). A material made
-by :func:`create_material` has two Material Output nodes: target Cycles <- BSDF, target EEVEE <-
+Group outputs: ``BSDF`` (the switch above) and ``Fallback`` (the fallback's EEVEE output). A material
+made by :func:`create_material` has two Material Output nodes: target Cycles <- BSDF, target EEVEE <-
 Fallback (EEVEE never runs OSL).
 
 API (used by materials.py and the tests): :data:`NODE_GROUP_NAME`, :func:`ensure_node_group`,
@@ -48,45 +52,12 @@ _ERROR = "woven_fabric_osl_error"
 # On a material: the photographed width and the cloth size its uv scale was set for.
 WIDTH_KEY = "woven_fabric_width_cm"
 CLOTH_SIZE_KEY = "woven_fabric_cloth_size_cm"
-_BUILD = 2  # bump when the node layout changes
+_BUILD = 3  # bump when the node layout changes
 
 _SOCKET_TYPES = {"INT": "NodeSocketInt", "FLOAT": "NodeSocketFloat", "COLOR": "NodeSocketColor"}
-# The fallback's shading weights (same expression language; the geometry program comes first).
-# Glossy: Blender's anisotropic GGX (positive anisotropy) has alpha = roughness^2 * aspect along its
-# Tangent and roughness^2 / aspect across, aspect = sqrt(1 - 0.9 anisotropy) (checked: with the
-# tangent across the fiber the highlights collapse onto mirror lines). With the tangent along the
-# fiber, roughness = a^(1/4) and anisotropy = (1 - a) / 0.9 give alpha a along the fiber and 1
-# across, i.e. the SGGX fiber distribution, as far as the aspect limit allows (a >= 0.1). Weights are the
-# single-scattering slab albedo at normal incidence, (1 - exp(-2 T)) / 2 (twice that for the
-# multiple lobe, as in spec 4.3); the transmission lobes become a translucent term. Diffuse
-# transmission: (1 - w) k_d^t translucent(N) + w k_d^t / 2 translucent(n) (the product over two
-# layers of spec 4.5 taken as 1/2).
-_SHADING = """
-alpha = vis_warp * roughness_warp + vis_weft * roughness_weft + 1 - coverage
-alpha_m = vis_warp * roughness_multiple_warp + vis_weft * roughness_multiple_weft + 1 - coverage
-T = vis_warp * thickness_warp + vis_weft * thickness_weft
-Tm = vis_warp * thickness_multiple_warp + vis_weft * thickness_multiple_weft
-ks = vadd(scale(specular_albedo_warp, vis_warp), scale(specular_albedo_weft, vis_weft))
-inv_wm = 1 / max(multiple_weight, 0.01)
-km = vpow(ks, vec(inv_wm, inv_wm, inv_wm))
-gloss_s_color = scale(ks, (1 - exp(-2 * T)) / 2)
-gloss_m_color = scale(km, 1 - exp(-2 * Tm))
-alpha_c = max(alpha, 0.1)
-alpha_mc = max(alpha_m, 0.1)
-gloss_s_rough = sqrt(sqrt(alpha_c))
-gloss_m_rough = sqrt(sqrt(alpha_mc))
-gloss_s_aniso = min((1 - alpha_c) / 0.9, 1)
-gloss_m_aniso = min((1 - alpha_mc) / 0.9, 1)
-tt_color = vadd(scale(km, 0.5 * exp(-0.4 * Tm)), scale(ks, 0.08 * exp(-0.4 * T)))
-keep = 1 - diffuse_map_replace
-replace = diffuse_map_replace
-kd_r = vadd(scale(vmul(diffuse_reflection, diffuse_reflection_map), keep), scale(diffuse_reflection_map, replace))
-kd_t = vadd(scale(vmul(diffuse_transmission, diffuse_transmission_map), keep), scale(diffuse_transmission_map, replace))
-diffuse_flat = scale(kd_r, 1 - diffuse_normal_weight)
-diffuse_yarn = scale(kd_r, diffuse_normal_weight)
-translucent_flat = scale(kd_t, 1 - diffuse_normal_weight)
-translucent_yarn = scale(kd_t, 0.5 * diffuse_normal_weight)
-"""
+# The fallback group's outputs: Cycles without OSL (hair transmission closures) and EEVEE (which
+# lights no hair closure on a surface: translucent ones instead, see core/shader_fallback.py).
+FALLBACK_OUTPUTS = ("BSDF", "EEVEE")
 
 
 # -- small helpers ---------------------------------------------------------------------------
@@ -95,7 +66,6 @@ def _source_hash() -> str:
     md5.update(paths.shader_path().read_bytes())
     md5.update(repr(shader_params.socket_specs()).encode())
     md5.update(repr(shader_fallback.program()).encode())
-    md5.update(_SHADING.encode())
     md5.update(str(_BUILD).encode())
     return md5.hexdigest()
 
@@ -336,6 +306,7 @@ _FOLD = {
     "ADD": lambda a, b: a + b, "SUBTRACT": lambda a, b: a - b, "MULTIPLY": lambda a, b: a * b,
     "DIVIDE": lambda a, b: a / b if b else 0.0, "MINIMUM": min, "MAXIMUM": max,
     "SINE": math.sin, "COSINE": math.cos, "SQRT": lambda a: math.sqrt(max(a, 0.0)), "EXPONENT": math.exp,
+    "ARCTANGENT": math.atan, "POWER": lambda a, b: a ** b if a > 0 else 0.0,
 }
 
 
@@ -344,7 +315,7 @@ def _build_fallback_group():
     if tree is None:
         tree = bpy.data.node_groups.new(FALLBACK_GROUP_NAME, "ShaderNodeTree")
     tree[_MARK] = "fallback"
-    _sync_interface(tree, ("BSDF",), readable=False)
+    _sync_interface(tree, FALLBACK_OUTPUTS, readable=False)
     tree.nodes.clear()
     nodes, links = tree.nodes, tree.links
     group_in = nodes.new("NodeGroupInput")
@@ -360,48 +331,58 @@ def _build_fallback_group():
 
     builder = _NodeBuilder(tree, _atlas_images())
     env = {s.osl: group_in.outputs[s.name] for s in shader_params.socket_specs()}
-    env.update(UV=uvmap.outputs["UV"], Tangent=tangent.outputs["Tangent"], Normal=geometry.outputs["Normal"])
+    env.update(UV=uvmap.outputs["UV"], Tangent=tangent.outputs["Tangent"], Normal=geometry.outputs["Normal"],
+               Incoming=geometry.outputs["Incoming"], Backfacing=geometry.outputs["Backfacing"])
     env = shader_fallback.run(builder, env)
-    env = shader_fallback.run(builder, env, shader_fallback.parse(_SHADING))
     x0 = 180.0 * (max(builder.column_rows) + 2)
+    row = iter(range(0, -10000, -120))
 
-    def bsdf(kind, y, **inputs):
+    def bsdf(kind, **inputs):
         node = nodes.new(kind)
-        node.location = (x0, y)
+        node.location = (x0, next(row))
         for name, value in inputs.items():
             builder._feed(node.inputs[name], env[value] if isinstance(value, str) else value)
         return node
 
-    shaders = [
-        bsdf("ShaderNodeBsdfDiffuse", 0, Color="diffuse_flat"),
-        bsdf("ShaderNodeBsdfDiffuse", -150, Color="diffuse_yarn", Normal="normal"),
-        bsdf("ShaderNodeBsdfTranslucent", -300, Color="translucent_flat"),
-        bsdf("ShaderNodeBsdfTranslucent", -375, Color="translucent_yarn", Normal="normal"),
-        bsdf("ShaderNodeBsdfTranslucent", -450, Color="tt_color"),
-        bsdf("ShaderNodeBsdfAnisotropic", -600, Color="gloss_s_color", Roughness="gloss_s_rough",
-             Anisotropy="gloss_s_aniso", Normal="fiber_normal", Tangent="fiber"),
-        bsdf("ShaderNodeBsdfAnisotropic", -800, Color="gloss_m_color", Roughness="gloss_m_rough",
-             Anisotropy="gloss_m_aniso", Normal="fiber_normal", Tangent="fiber"),
-    ]
-    for node in shaders:
-        if node.bl_idname == "ShaderNodeBsdfAnisotropic":
-            node.distribution = "GGX"
-    total = shaders[0].outputs[0]
-    for i, node in enumerate(shaders[1:], 1):
-        add = nodes.new("ShaderNodeAddShader")
-        add.location = (x0 + 200 + 100 * i, -150 * i)
-        links.new(total, add.inputs[0])
-        links.new(node.outputs[0], add.inputs[1])
-        total = add.outputs[0]
+    def glossy(lobe, k):
+        node = bsdf("ShaderNodeBsdfAnisotropic", Color=f"gloss_{lobe}_color{k}", Roughness=f"gloss_{lobe}_rough{k}",
+                    Anisotropy=f"gloss_{lobe}_aniso{k}", Normal=f"gloss_normal{k}", Tangent=f"gloss_tangent{k}")
+        node.distribution = "GGX"
+        return node
+
+    def hair(lobe, k):
+        node = bsdf("ShaderNodeBsdfHair", Color=f"hair_{lobe}_color{k}", RoughnessU=f"hair_{lobe}_rough{k}",
+                    RoughnessV=1.0, Offset=0.0, Tangent=f"fiber{k}")
+        node.component = "Transmission"
+        return node
+
+    diffuse = [bsdf("ShaderNodeBsdfDiffuse", Color="diffuse_flat"),
+               bsdf("ShaderNodeBsdfDiffuse", Color="diffuse_yarn", Normal="n_main")]
+    gloss = [glossy(lobe, k) for k in shader_fallback.LAYERS for lobe in ("s", "m")]
+    cycles = diffuse + gloss + [bsdf("ShaderNodeBsdfTranslucent", Color="translucent")]
+    cycles += [hair(lobe, k) for k in shader_fallback.LAYERS for lobe in ("s", "m")]
+    eevee_gloss = bsdf("ShaderNodeBsdfAnisotropic", Color="eevee_gloss", Roughness="eevee_gloss_rough",
+                       Normal="eevee_gloss_normal")
+    eevee_gloss.distribution = "GGX"
+    eevee = [bsdf("ShaderNodeBsdfDiffuse", Color="eevee_diffuse", Normal="eevee_diffuse_normal"), eevee_gloss,
+             bsdf("ShaderNodeBsdfTranslucent", Color="eevee_translucent")]
     transparent = nodes.new("ShaderNodeBsdfTransparent")
     transparent.location = (x0 + 800, 200)
-    mix = nodes.new("ShaderNodeMixShader")
-    mix.location = (x0 + 1000, 0)
-    builder._feed(mix.inputs[0], env["coverage"])
-    links.new(transparent.outputs[0], mix.inputs[1])
-    links.new(total, mix.inputs[2])
+    for y, (name, closures) in enumerate(zip(FALLBACK_OUTPUTS, (cycles, eevee))):
+        total = closures[0].outputs[0]
+        for i, node in enumerate(closures[1:], 1):
+            add = nodes.new("ShaderNodeAddShader")
+            add.location = (x0 + 200 + 40 * i, -600 * y - 40 * i)
+            links.new(total, add.inputs[0])
+            links.new(node.outputs[0], add.inputs[1])
+            total = add.outputs[0]
+        mix = nodes.new("ShaderNodeMixShader")
+        mix.location = (x0 + 1000, -600 * y)
+        builder._feed(mix.inputs[0], env["coverage"])
+        links.new(transparent.outputs[0], mix.inputs[1])
+        links.new(total, mix.inputs[2])
+        links.new(mix.outputs[0], group_out.inputs[name])
     group_out.location = (x0 + 1200, 0)
-    links.new(mix.outputs[0], group_out.inputs["BSDF"])
     return tree
 
 
@@ -465,7 +446,7 @@ def _build_main_group(tree, fallback):
     links.new(fb.outputs["BSDF"], mix.inputs[1])
     links.new(_socket_by_identifier(script.outputs, "BSDF"), mix.inputs[2])
     links.new(mix.outputs[0], group_out.inputs["BSDF"])
-    links.new(fb.outputs["BSDF"], group_out.inputs["Fallback"])
+    links.new(fb.outputs["EEVEE"], group_out.inputs["Fallback"])
 
 
 def _object_uv_scale(tree, uv_scale):
@@ -550,7 +531,12 @@ def create_material(name: str, params: dict, width_cm: float | None = None,
     tree.links.new(node.outputs["Fallback"], out_eevee.inputs["Surface"])
     out_cycles.is_active_output = True
     out_eevee.is_active_output = True
-    for attr, value in (("surface_render_method", "DITHERED"), ("use_transparent_shadow", True)):
+    # EEVEE: a cloth is a thin sheet. With the default "Sphere" thickness mode EEVEE lights the
+    # Translucent closures of a plane from the front and mostly shadows the back light (measured:
+    # 17 % of k |cos| / pi from behind); "Slab" transmits the back light (half of it, which the
+    # fallback's EEVEE output makes up for) and none from the front.
+    for attr, value in (("surface_render_method", "DITHERED"), ("use_transparent_shadow", True),
+                        ("thickness_mode", "SLAB")):
         if hasattr(material, attr):
             try:
                 setattr(material, attr, value)
