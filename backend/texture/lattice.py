@@ -308,6 +308,10 @@ def estimates(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[flo
 
 ROTATION_SCAN_DEG = 6.0
 ROTATION_HYPOTHESES = 6
+VERIFIED_RATIOS = 2
+# p / q for p, q <= 5: a sieve may lock onto a yarn's frequency (2-5 times the tile's), an aliased
+# harmonic, or a multiple of either
+ROTATION_RATIOS = tuple(sorted({p / q for p in range(1, 6) for q in range(1, 6)}))
 
 
 def _generic_signature(order: int = 3) -> Signature:
@@ -350,12 +354,6 @@ def estimate_rotation(spectra: Spectra, a_range: tuple[float, float], b_range: t
                                 size)[:VERIFIED_RATIOS]:
             best = max(best, _refine_rotation(spectra.maps, generic, start, float(angles[k]), size))
     return float(round(best[1], 3))
-
-
-VERIFIED_RATIOS = 2
-# p / q for p, q <= 5: a sieve may lock onto a yarn's frequency (2-5 times the tile's), an aliased
-# harmonic, or a multiple of either
-ROTATION_RATIOS = tuple(sorted({p / q for p in range(1, 6) for q in range(1, 6)}))
 
 
 def _multiples(maps, signatures, lattice: Lattice, a_range, b_range, angle: float, size: int) -> list[Lattice]:
