@@ -199,7 +199,11 @@ def test_fit_example_end_to_end(tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     # The example photos are renders: white noise, no camera blur, and the output rig says so.
     assert metrics["camera_blur_px"] == 0.0
-    assert json.loads((out / "params.json").read_text())["rig"]["camera_blur_px"] == 0.0
+    saved = json.loads((out / "params.json").read_text())
+    assert saved["rig"]["camera_blur_px"] == 0.0
+    # ... and lit exactly as the rig says: the light falloff solved with the fit is about flat.
+    assert metrics["light_falloff"] == saved["fit"]["light_falloff"]
+    assert max(abs(c) for tag in ("reflection", "transmission") for c in metrics["light_falloff"][tag]) < 0.05
     for tag in ("reflection", "transmission"):
         assert set(metrics["metrics"][tag]) == {"flip", "colour_l1", "spectrum_corr"}
         assert metrics["metrics"][tag]["colour_l1"] < 0.03

@@ -100,7 +100,7 @@ def _auto_or_number(limit: float, unit: str, low: float | None = None):
 
 # The options of the fit itself, which a batch passes on to every pair's fit (FolderFitOptions' names).
 BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "camera_blur", "sample_rotation",
-                     "init", "output_spp")
+                     "light_falloff", "init", "output_spp")
 
 
 def add_fit_options(p) -> None:
@@ -124,6 +124,9 @@ def add_fit_options(p) -> None:
                    type=_auto_or_number(MAX_SAMPLE_ROTATION_DEG, "degrees"), metavar="auto|DEG",
                    help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the "
                         "photos (auto, default; a rig file's non-zero sample_rotation_deg is kept) or fixed")
+    p.add_argument("--light-falloff", choices=("fit", "none"), default=FolderFitOptions.light_falloff,
+                   help="the photos' smooth light falloff (a tilt and a bowl per photo, which the rig's point lamps "
+                        "do not make): solved with the fit and kept out of the material (fit, default), or none")
     p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,

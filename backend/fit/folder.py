@@ -2,10 +2,11 @@
 
 :func:`fit_to_folder` loads the photos, fits them and writes the folder: ``params.json`` (spec
 names, plus the interchange string, rig, fit details), ``reflection.png`` and ``transmission.png``
-(16-bit re-renders of the fit at the rig's film size and ``output_spp`` samples, the photos'
-framing), ``report.png`` and ``metrics.json`` (FLIP, 16 x 16 colour L1 and spectrum correlation for
-both images, wall time); :data:`backend.core.results.RESULT_FILES` names them. An existing fit in
-the folder is never overwritten without ``overwrite``.
+(16-bit re-renders of the fit at the rig's film size and ``output_spp`` samples, as the photos show
+the fabric: their framing, camera blur and fitted light falloff), ``report.png`` and
+``metrics.json`` (FLIP, 16 x 16 colour L1 and spectrum correlation for both images, wall time);
+:data:`backend.core.results.RESULT_FILES` names them. An existing fit in the folder is never
+overwritten without ``overwrite``.
 
 params.json is written as soon as the fit ends, before anything optional: a failure in the
 re-renders, metrics or report afterwards is a warning (with its traceback on stderr) and loses
@@ -39,6 +40,7 @@ from ..image.photos import PhotoError, load_pair
 from ..image.png import write_png
 from ..init.network import fit_initialiser
 from ..model.memory import peak_memory_mb
+from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
 from .gram import GramWeightsError
 from .pipeline import fit
@@ -77,6 +79,7 @@ class FolderFitOptions:
     vgg_weights: str | None = None
     camera_blur: str = "auto"                    # 'auto' or film pixels
     sample_rotation: str = "auto"                # 'auto' or degrees
+    light_falloff: str = "fit"                   # 'fit': solve the photos' light falloff; 'none'
     output_spp: int = OUTPUT_SPP
     overwrite: bool = False
 
@@ -161,7 +164,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     settings = FitSettings(pattern=options.pattern, iterations=options.iterations, size=options.size,
                            seed=options.seed, device=options.device, vgg_weights=options.vgg_weights,
                            camera_blur=_given(options.camera_blur, rig.camera_blur_px),
-                           sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg))
+                           sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg),
+                           light_falloff=options.light_falloff == "fit")
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
@@ -175,7 +179,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     at_bounds = result.params.at_bounds(FITTED)
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
-                     "at_bounds": at_bounds,
+                     "at_bounds": at_bounds, "light_falloff": result.light.to_dict(),
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
@@ -202,7 +206,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
             return None
 
     def write_renders():
-        images = _final_renders(result.params, rig, settings.device, options.output_spp, render_progress)
+        images = _final_renders(result.params, rig, result.light, settings.device, options.output_spp,
+                                render_progress)
         for name, image in zip(("reflection", "transmission"), images):
             written[name] = str(write_png(out / f"{name}.png", image))
         return images
@@ -218,7 +223,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         written["metrics"] = str(out / "metrics.json")
         report = optional("report.png", lambda: write_report(
             out / "report.png", (photos.reflection, photos.transmission), renders, metrics, result.params, rig,
-            time.perf_counter() - started, at_bounds))
+            time.perf_counter() - started, at_bounds, result.light))
         if report is not None:
             written["report"] = str(report)
     reporter.progress("report", 1, 1)
@@ -238,15 +243,18 @@ def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
                "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
-               "at_bounds": at_bounds}
+               "light_falloff": result.light.to_dict(), "at_bounds": at_bounds}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
     (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
     return metrics
 
 
-def _final_renders(params: FabricParams, rig: CaptureRig, device, spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
-    pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress)
+def _final_renders(params: FabricParams, rig: CaptureRig, light: PhotoLight, device, spp: int, progress
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The re-renders as the photos show the fabric: the fitted camera blur, rotation and light falloff."""
+    pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress,
+                       light=light)
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 

@@ -4,6 +4,9 @@
                               + w_a aligned complex harmonics + w_q L1(quantiles) ]
            + w_p * prior(height_scale, gap_scale)
 
+of a render made as the photos show the fabric: with the camera blur, and under each photo's light
+falloff, solved in closed form for that render (:mod:`backend.model.photo_light`; ``fit_light``)
+
 (see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL,
 :func:`backend.core.priors.prior_nll`), plus, when the user supplies VGG-19 weights, the paper's
 Gram loss (:mod:`backend.fit.gram`).
@@ -24,8 +27,9 @@ from ..core.priors import prior_nll
 from ..core.rig import CaptureRig
 from ..model.imaging import downsample_linear
 from ..model.param_tensors import ParamTensors
-from ..model.render import Renderer
-from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms
+from ..model.photo_light import PhotoLight, linear_photo, solve
+from ..model.render import RenderedPair, Renderer
+from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms, luminance
 from ..texture.lattice import lattice_of
 from .gram import gram_loss
 
@@ -53,9 +57,11 @@ class Objective:
     """Loss of parameter sets against a target, for one rig, renderer and lattice."""
 
     def __init__(self, target: Target, renderer: Renderer, rig: CaptureRig, weights: LossWeights = LossWeights(),
-                 prior_weight: float = 0.002, gram=None, gram_weight: float = 1.0):
+                 prior_weight: float = 0.002, gram=None, gram_weight: float = 1.0, fit_light: bool = True):
         self.target, self.renderer, self.rig = target, renderer, rig
         self.weights, self.prior_weight = weights, prior_weight
+        self.fit_light = fit_light
+        self._photo_light = None
         self._probe_key = None
         self.gram, self.gram_weight = gram, gram_weight
         if gram is not None:
@@ -73,11 +79,38 @@ class Objective:
             self._probe_key = key
         return self._probe, self._photo
 
+    def _photo_linear(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per photo, its linear luminance at the renderer's size and where it is not clipped."""
+        if self._photo_light is None:
+            size = self.renderer.size
+            self._photo_light = [linear_photo(downsample_linear(photo, size, self.rig.gamma), self.rig.gamma,
+                                              self.renderer.vignette)
+                                 for photo in (self.target.reflection, self.target.transmission)]
+        return self._photo_light
+
+    def light(self, reflection: torch.Tensor, transmission: torch.Tensor) -> PhotoLight:
+        """The photos' light falloff (:mod:`backend.model.photo_light`) for a render's blurred linear
+        radiance; none when the objective fits without one."""
+        if not self.fit_light:
+            return PhotoLight()
+        clamp = self.rig.clamp
+        solved = [solve(luminance(render.detach()), (render.detach() < clamp).all(dim=-1), photo, photo_ok)
+                  for render, (photo, photo_ok) in zip((reflection, transmission), self._photo_linear())]
+        return PhotoLight(*solved)
+
+    def rendered(self, fabric: ParamTensors | FabricParams, camera_blur_px: float | None = None
+                 ) -> tuple[RenderedPair, PhotoLight]:
+        """``fabric`` rendered as the photos show it: with the camera blur ``camera_blur_px`` (film
+        pixels; None: the rig's) and under the photos' light falloff solved for that render."""
+        radiance = self.renderer.blurred(fabric, camera_blur_px=camera_blur_px)
+        light = self.light(*radiance)
+        return self.renderer.display(*radiance, light), light
+
     def terms(self, fabric: ParamTensors, camera_blur_px: float | None = None) -> dict[str, torch.Tensor]:
-        """Weighted loss terms (and their sum under 'loss') of ``fabric`` rendered with the camera
-        blur ``camera_blur_px`` (film pixels; None: the rig's)."""
+        """Weighted loss terms (and their sum under 'loss') of ``fabric`` rendered as the photos
+        show it (:meth:`rendered`)."""
         probe, (photo_r, photo_t) = self._probes(fabric.scalar("tiles"))
-        pair = self.renderer.render(fabric, camera_blur_px=camera_blur_px)
+        pair, _ = self.rendered(fabric, camera_blur_px)
         size = self.target.size
         out: dict[str, torch.Tensor] = {}
         for tag, image, photo in (("R", pair.reflection, photo_r), ("T", pair.transmission, photo_t)):

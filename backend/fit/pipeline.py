@@ -17,8 +17,13 @@
                fresh camera-blur scan there) (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
                reflection need the optimisation at 512 px; the choice of pattern does not)
-    result     the best parameters seen, their loss and terms, the camera blur, the candidates
-               compared, the loss history and stage timings
+    result     the best parameters seen, their loss and terms, the camera blur, the photos' light
+               falloff at those parameters, the candidates compared, the loss history and stage
+               timings
+
+Every render compared with the photos is made as they show the fabric: with the camera blur, and
+under the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unless
+``settings.light_falloff`` is off).
 
 Each stage reports through ``progress(stage, iteration, total, loss, eta_s)``. Everything is
 deterministic for a given input, settings and seed (fixed jitter, no random steps).
@@ -106,9 +111,12 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
             run.camera_blur_px = search.best_blur(run.best, fine, blur_floor, also=run.camera_blur_px)
     _optimise(run, settings, check_stop, progress)
     timings["optimise_s"] = time.perf_counter() - loop_started
+    with torch.no_grad():
+        _, light = run.objective.rendered(run.best, run.best_blur)
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
-                     run.history, timings, run.best_blur, rotation, settings.size, settings.spp, settings.iterations)
+                     run.history, timings, run.best_blur, rotation, light, settings.size, settings.spp,
+                     settings.iterations)
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -116,7 +124,8 @@ def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings)
     target = Target.from_arrays(reflection, transmission, settings.size, device)
     renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile)
     gram = GramDescriptor.load(settings.vgg_weights, device) if settings.vgg_weights else None
-    return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight)
+    return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight,
+                     settings.light_falloff)
 
 
 def _coarse(settings: FitSettings) -> FitSettings:

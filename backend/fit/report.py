@@ -1,8 +1,9 @@
 """The fit report (report.png): what the fit found and how its re-renders compare with the photos.
 
-- a header: pattern, tiles, the main parameters (warp / weft), the camera blur and sample rotation
-  the fit read, and every parameter that ended at a bound of its declared range (in red: the fit
-  wanted a value beyond the range, or the images do not constrain it);
+- a header: pattern, tiles, the main parameters (warp / weft), the camera blur, sample rotation and
+  photo light falloff the fit read (the re-renders show them; the material carries none), and every
+  parameter that ended at a bound of its declared range (in red: the fit wanted a value beyond the
+  range, or the images do not constrain it);
 - per image (reflection, transmission): photo, re-render and |error| x 4 (inferno) at 320 px, with
   FLIP, 16 x 16 colour L1 and spectrum correlation;
 - a row of zoomed centre crops (``CROP`` x ``CROP`` photo pixels, enlarged without smoothing) of
@@ -18,6 +19,7 @@ import numpy as np
 
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
+from ..model.photo_light import PhotoLight
 
 PANEL = 320
 CROP = 96
@@ -65,13 +67,17 @@ def wrapped(text: str, width: int, scale: float = 0.5, separator: str = "   ") -
     return lines
 
 
+def _signed(values) -> str:
+    return " ".join(f"{x:+.2f}" for x in values)
+
+
 def _pairs(values, digits: int) -> str:
     return " / ".join(f"{x:.{digits}f}" for x in values)
 
 
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
                  metrics: dict[str, dict[str, float]], params: FabricParams, rig: CaptureRig, wall_s: float,
-                 at_bounds: list[str]) -> Path:
+                 at_bounds: list[str], light: PhotoLight = PhotoLight()) -> Path:
     """Writes report.png (see the module docstring)."""
     header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
                f"camera blur {rig.camera_blur_px:.2f} px   sample rotation {rig.sample_rotation_deg:+.2f} deg   "
@@ -79,6 +85,9 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
               (f"roughness {_pairs(params.roughness, 2)}   thickness {_pairs(params.thickness, 2)}   "
                f"height {_pairs(params.height_scale, 2)}   gap {_pairs(params.gap_scale, 2)}   "
                f"twist {_pairs(params.twist_deg, 1)}   (warp / weft)", None)]
+    if not light.flat:
+        header.append((f"photo light falloff (x, y, r): R {_signed(light.reflection)}   T {_signed(light.transmission)}"
+                       "   (in the re-renders, not in the material)", None))
     header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
     header = [(line, colour) for text, colour in header for line in wrapped(text, width - 20)]

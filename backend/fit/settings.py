@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from ..core.params import PARAMETERS, FabricParams
+from ..model.photo_light import PhotoLight
 from ..texture.features import LossWeights
 
 OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
@@ -42,6 +43,7 @@ class FitSettings:
     gram_weight: float = 1.0
     camera_blur: float | None = None  # film pixels; None: estimated from the photos
     sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
+    light_falloff: bool = True       # solve each photo's smooth light falloff (backend.model.photo_light)
 
 
 @dataclass
@@ -54,6 +56,7 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     camera_blur_px: float = 0.0
     sample_rotation_deg: float = 0.0
+    light: PhotoLight = PhotoLight()  # the photos' light falloff at the best parameters
     size: int = 0                    # the working size, samples per pixel and iterations the fit used
     spp: int = 0
     iterations: int = 0

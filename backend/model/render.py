@@ -2,8 +2,9 @@
 
     pixel radiance   = mean over the pixel's samples of  BSDF * intensity / distance^2
                        (+ glow * fraction of samples seeing no yarn, transmission only)
-    displayed value  = min(blur(radiance), clamp) ** (1 / gamma) * vignette
-                       (blur: the rig's camera point spread, a Gaussian; none by default)
+    displayed value  = min(gain * blur(radiance), clamp) ** (1 / gamma) * vignette
+                       (blur: the rig's camera point spread, a Gaussian; none by default; gain: the
+                       photos' light falloff, :mod:`.photo_light`, when a fit has found one)
 
 Work is split into chunks of film rows (``max_chunk_samples`` samples each) so that memory stays
 bounded at any resolution and sample count; when gradients are needed over several chunks each
@@ -36,6 +37,7 @@ from .geometry import GeometryKey, sample_geometry
 from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
 from .param_tensors import ParamTensors
+from .photo_light import PhotoLight
 from .projections import SampleProjections, project
 
 
@@ -189,17 +191,30 @@ class Renderer:
             t = t + (glow * open_fraction)[None]
         return r.permute(1, 2, 0), t.permute(1, 2, 0)
 
-    def render(self, fabric: ParamTensors | FabricParams, progress=None,
-               camera_blur_px: float | None = None) -> RenderedPair:
-        """Displayed images of ``fabric``; ``camera_blur_px`` (film pixels) overrides the rig's."""
+    def render(self, fabric: ParamTensors | FabricParams, progress=None, camera_blur_px: float | None = None,
+               light: PhotoLight | None = None) -> RenderedPair:
+        """Displayed images of ``fabric``; ``camera_blur_px`` (film pixels) overrides the rig's;
+        ``light`` is the photos' light falloff (none by default)."""
+        return self.display(*self.blurred(fabric, progress, camera_blur_px), light)
+
+    def blurred(self, fabric: ParamTensors | FabricParams, progress=None,
+                camera_blur_px: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The linear radiance images of ``fabric`` after the camera blur (film pixels; None: the rig's)."""
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         r, t = self.radiance(fabric, progress)
         blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
         sigma = blur * self.size / self.rig.film_size
-        r, t = gaussian_blur(r, sigma), gaussian_blur(t, sigma)
+        return gaussian_blur(r, sigma), gaussian_blur(t, sigma)
+
+    def display(self, reflection: torch.Tensor, transmission: torch.Tensor,
+                light: PhotoLight | None = None) -> RenderedPair:
+        """The displayed pair of blurred linear radiance images, under the photos' ``light``."""
+        if light is not None:
+            reflection, transmission = light.apply(reflection, transmission)
         g, c = self.rig.gamma, self.rig.clamp
-        return RenderedPair(display_transform(r, g, c, self.vignette), display_transform(t, g, c, self.vignette), r, t)
+        return RenderedPair(display_transform(reflection, g, c, self.vignette),
+                            display_transform(transmission, g, c, self.vignette), reflection, transmission)
 
 
 class _Recomputed(torch.autograd.Function):
@@ -225,8 +240,10 @@ class _Recomputed(torch.autograd.Function):
 
 
 def render_pair(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4,
-                seed: int = 0, options: RenderOptions = RenderOptions(), device="cpu", progress=None) -> RenderedPair:
-    """One-shot render (no caching beyond this call), without gradients; ``progress(done, total)``."""
+                seed: int = 0, options: RenderOptions = RenderOptions(), device="cpu", progress=None,
+                light: PhotoLight | None = None) -> RenderedPair:
+    """One-shot render (no caching beyond this call), without gradients; ``progress(done, total)``;
+    ``light``: the photos' light falloff (:mod:`.photo_light`)."""
     renderer = Renderer(rig, size, spp, seed, options, device, cache_samples=0)
     with torch.no_grad():
-        return renderer.render(params, progress)
+        return renderer.render(params, progress, light=light)

@@ -1,0 +1,114 @@
+"""The photos' light falloff: the smooth unevenness of a real capture's light that the rig's point
+lamps do not model.
+
+A phone photo of the rig is never lit exactly as the rig says: the lamps are not ideal points, the
+holder and the diffuser shade, the phone's own lens shading is not the rig's vignetting. What that
+leaves is a smooth gain across each photo (on the dev real pairs a render of the best fit and the
+photo differ by a log-brightness tilt of up to about 0.2 across the reflection photo). Each photo
+gets a gain on its linear radiance, after the camera blur and before the display transform:
+
+    L'(x, y) = L(x, y) exp(c_x x + c_y y + c_r (x^2 + y^2 - mean(x^2 + y^2)))
+
+with x to the right and y down the image, both in [-1, 1] across it. The basis has zero mean over
+the image, so the overall level stays with the albedos; only the shape is the light's.
+
+A fit does not optimise c: :func:`solve` computes it for every render it compares with a photo,
+as the least-squares fit (with a constant) of log(photo / render) over BLOCKS x BLOCKS block means
+of the luminance in linear light, leaving out blocks where either image is clipped or black, and
+clamped to |c| <= LIMIT. Solved in closed form, the nuisance costs nothing per step, and a tilt the
+rig cannot make no longer pushes roughness or the albedos to imitate it. The gain is at most second
+order across the whole image, so it cannot make or remove a highlight, which is where roughness is
+read. Gradients do not flow through the solve (the coefficients are the minimiser of the colour
+term, so its derivative with respect to them is near zero there).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from ..image.tone import LUMA
+
+BLOCKS = 16
+LIMIT = 0.5           # |c|: a gain of exp(0.5) = 1.65 at an edge, beyond any lamp falloff of the rig
+CLIPPED = 0.98        # display values at or above this fraction of the vignetted maximum count as clipped
+DARK = 1e-5           # linear block means below this are not compared (log of nothing)
+NO_LIGHT = (0.0, 0.0, 0.0)
+
+
+def basis(size: int, dtype=torch.float32, device="cpu") -> torch.Tensor:
+    """(3, size, size): x, y and the centred x^2 + y^2 at the pixel centres, x and y in [-1, 1]."""
+    coords = (torch.arange(size, dtype=torch.float64, device=device) + 0.5) / size * 2 - 1
+    y, x = torch.meshgrid(coords, coords, indexing="ij")
+    r2 = x * x + y * y
+    return torch.stack((x, y, r2 - r2.mean())).to(dtype)
+
+
+@dataclass(frozen=True)
+class PhotoLight:
+    """The falloff coefficients (c_x, c_y, c_r) of the reflection and the transmission photo."""
+
+    reflection: tuple[float, float, float] = NO_LIGHT
+    transmission: tuple[float, float, float] = NO_LIGHT
+
+    def gain(self, photo: int, size: int, dtype=torch.float32, device="cpu") -> torch.Tensor:
+        """(size, size) linear gain of photo 0 (reflection) or 1 (transmission)."""
+        c = torch.tensor(self.reflection if photo == 0 else self.transmission, dtype=dtype, device=device)
+        return torch.exp(torch.einsum("k,kij->ij", c, basis(size, dtype, device)))
+
+    def apply(self, reflection: torch.Tensor, transmission: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The two (size, size, 3) linear radiance images under the photos' light."""
+        if self.flat:
+            return reflection, transmission
+        return tuple(image * self.gain(k, image.shape[0], image.dtype, image.device)[..., None]
+                     for k, image in enumerate((reflection, transmission)))
+
+    @property
+    def flat(self) -> bool:
+        return self.reflection == NO_LIGHT and self.transmission == NO_LIGHT
+
+    def to_dict(self) -> dict:
+        return {"reflection": [round(c, 5) for c in self.reflection],
+                "transmission": [round(c, 5) for c in self.transmission]}
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> "PhotoLight":
+        if not data:
+            return cls()
+        return cls(*(tuple(float(c) for c in data[k]) for k in ("reflection", "transmission")))
+
+
+def linear_photo(display: torch.Tensor, gamma: float, vignette: torch.Tensor | None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(linear luminance, unclipped mask) of a display-space photo (size, size, 3) taken through the
+    rig's vignetting: the radiance it shows, where it shows it."""
+    v = torch.ones(display.shape[:2], dtype=display.dtype, device=display.device) if vignette is None else vignette
+    relative = display / v[..., None].clamp_min(1e-6)
+    unclipped = (relative < CLIPPED).all(dim=-1)
+    return _luminance(relative.clamp(0, 1) ** gamma), unclipped
+
+
+def solve(render: torch.Tensor, render_ok: torch.Tensor, photo: torch.Tensor, photo_ok: torch.Tensor
+          ) -> tuple[float, float, float]:
+    """(c_x, c_y, c_r) fitting log(photo / render) over the BLOCKS x BLOCKS blocks where neither is
+    clipped nor black. ``render`` and ``photo`` are (size, size) linear luminances, the masks are True
+    where a pixel is usable."""
+    with torch.no_grad():
+        def blocks(image):
+            return F.adaptive_avg_pool2d(image[None, None].double(), BLOCKS)[0, 0].ravel()
+
+        ok = blocks((render_ok & photo_ok).double()) > 0.99
+        r, p = blocks(render), blocks(photo)
+        ok &= (r > DARK) & (p > DARK)
+        if int(ok.sum()) < 16:  # too little of the image to see a falloff on
+            return NO_LIGHT
+        design = torch.cat((torch.ones(1, BLOCKS, BLOCKS, dtype=torch.float64),
+                            basis(BLOCKS, torch.float64)), 0).reshape(4, -1).T[ok]
+        ratio = (torch.log(p) - torch.log(r))[ok]
+        coefficients = torch.linalg.lstsq(design, ratio[:, None]).solution[1:, 0]
+        return tuple(float(c) for c in coefficients.clamp(-LIMIT, LIMIT))
+
+
+def _luminance(image: torch.Tensor) -> torch.Tensor:
+    return image @ torch.tensor(LUMA, dtype=image.dtype, device=image.device)
