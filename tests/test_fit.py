@@ -1,6 +1,5 @@
 """Fitting: the lattice, the descriptor, the optimiser, the fit command's contract, the metrics."""
 import json
-import math
 import os
 import signal
 import subprocess
@@ -18,7 +17,6 @@ from backend.core.protocol import decode
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
-from backend.fit.optimise import Run
 from backend.fit.pipeline import fit
 from backend.fit.search import samples_per_pixel, working_size
 from backend.fit.settings import FitSettings
@@ -153,26 +151,6 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
         pattern_probabilities=lambda cs: [given[c.pattern] for c in cs])
     assert {(size, spp) for size, spp, _ in seen} == {(32, 2)}
-
-
-def test_the_discrete_steps_move_tiles_a_few_percent_off_back_to_the_truth():
-    """A photo's lattice estimate can be a few percent off; the optimisation's tiles steps (a scan,
-    then parabolic steps) bring it back. The loss here is V-shaped in the tiles, as the fit's is
-    near the truth (measured on a photo-like twill), and flat in everything else."""
-    truth = (30.0, 40.0)
-
-    class VShaped:
-        renderer = Renderer(DEFAULT_RIG, 8, 1)
-
-        def value(self, fabric, camera_blur_px=None):
-            return sum(abs(math.log(t / u)) for t, u in zip(fabric.scalar("tiles"), truth))
-
-    off = TWILL.replace(tiles=(truth[0] * 1.045, truth[1] * 0.96))
-    for refine, worst in ((True, 0.002), (False, 0.0451)):
-        run = Run(off, VShaped(), FitSettings(refine_tiles=refine), total=10, camera_blur_px=0.0)
-        run.discrete_search(0)
-        run.discrete_search(1)
-        assert max(abs(t / u - 1) for t, u in zip(run.fabric.scalar("tiles"), truth)) < worst
 
 
 def test_default_iterations_follow_the_working_size():

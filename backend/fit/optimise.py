@@ -5,9 +5,8 @@
   ``lr * (hi - lo)`` of its declared range, halved at 50, 70 and 85 % of the run; every parameter is
   clamped into its range after each step.
 - :meth:`Run.discrete_search` (every ``search_every`` iterations): a joint coarse step on gap scale,
-  then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, per axis on the
-  tiles (relative steps, ``settings.refine_tiles``), and on the camera blur when it is estimated;
-  spans halve each round. Deterministic: a better use of evaluations
+  then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, and on the camera
+  blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
   than the paper's random +/- steps.
 - The best parameters seen (with their loss, loss terms and camera blur) are kept.
 """
@@ -25,13 +24,6 @@ from .objective import Objective
 from .settings import OPTIMISED, FitSettings
 
 LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
-# The tiles' steps, relative: the lattice read from a photo's spectrum can be a few percent off (the
-# phone's spacing warp, a turn read a little wrong), and the loss, which reads the harmonics at the
-# tiles' own lattice, is lowest at the true tiles within several percent of them (measured on a
-# photo-like twill: 7 % off costs as much as the start of a fit). The first round scans, then
-# parabolic steps of TILES_SPAN (halving each round) refine.
-TILES_SCAN = (0.95, 0.965, 0.98, 1.02, 1.035, 1.05)  # the first round's scan of each axis's tiles
-TILES_SPAN = 0.01
 
 
 def _number(value) -> float:
@@ -50,7 +42,6 @@ class Run:
     def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
                  camera_blur_px: float, blur_floor: float | None = None):
         self.objective, self.settings, self.total = objective, settings, total
-        self.refine_tiles = settings.refine_tiles
         self.camera_blur_px, self.blur_floor = camera_blur_px, blur_floor
         self.base_lr = [settings.lr * (SPECS[n].hi - SPECS[n].lo) for n in OPTIMISED]
         self.step_count = 0
@@ -128,55 +119,25 @@ class Run:
                 gap.copy_(best_gap)
         spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
         for name, span in spans.items():
+            spec = SPECS[name]
             for yarn in (0, 1):
-                current = self._yarn_step(name, yarn, current, span)
-        if self.refine_tiles:
-            for axis in (0, 1):
-                if round_index == 0:
-                    current = self._tiles_scan(axis, current)
-                span = TILES_SPAN / 2 ** round_index * self.fabric.scalar("tiles")[axis]
-                current = self._yarn_step("tiles", axis, current, span)
+                values = self.fabric.values[name]
+
+                def clamped(v, spec=spec):
+                    return min(spec.hi, max(spec.lo, v))
+
+                def loss_at(v, values=values, yarn=yarn, name=name):
+                    candidate = values.detach().clone()
+                    candidate[yarn] = v
+                    return self._loss(self.fabric.with_values(**{name: candidate}))
+
+                x, current = parabolic_step(loss_at, float(values[yarn]), current, span, clamped)
+                with torch.no_grad():
+                    values[yarn] = x
         if self.blur_floor is not None:
             current = self._blur_step(current, 0.4 / 2 ** round_index)
         if current < self.best_loss:
             self._keep_best(current)
-
-    def _yarn_loss(self, name: str, yarn: int) -> Callable[[float], float]:
-        """The loss as a function of parameter ``name`` of one yarn (or tiles axis), the rest as they are."""
-        values = self.fabric.values[name]
-
-        def loss_at(v):
-            candidate = values.detach().clone()
-            candidate[yarn] = v
-            return self._loss(self.fabric.with_values(**{name: candidate}))
-        return loss_at
-
-    def _yarn_step(self, name: str, yarn: int, current: float, span: float) -> float:
-        """The parabolic step of parameter ``name`` of one yarn (or tiles axis); returns the loss."""
-        spec, values = SPECS[name], self.fabric.values[name]
-
-        def clamped(v):
-            return min(spec.hi, max(spec.lo, v))
-
-        x, current = parabolic_step(self._yarn_loss(name, yarn), float(values[yarn]), current, span, clamped)
-        with torch.no_grad():
-            values[yarn] = x
-        return current
-
-    def _tiles_scan(self, axis: int, current: float) -> float:
-        """The best of the tiles on ``axis`` times TILES_SCAN (and as they are); returns the loss. The
-        loss is V-shaped in the tiles (sharp at the truth), so a parabola through three points on
-        one side of the minimum steps too short: a scan finds the V's basin first."""
-        spec, values = SPECS["tiles"], self.fabric.values["tiles"]
-        loss_at, start = self._yarn_loss("tiles", axis), float(values[axis])
-        for factor in TILES_SCAN:
-            x = min(spec.hi, max(spec.lo, start * factor))
-            value = loss_at(x)
-            if value < current:
-                current = value
-                with torch.no_grad():
-                    values[axis] = x
-        return current
 
     def _blur_step(self, current: float, span: float) -> float:
         """The parabolic step of the discrete parameters, on the camera blur."""

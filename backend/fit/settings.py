@@ -44,7 +44,6 @@ class FitSettings:
     camera_blur: float | None = None  # film pixels; None: estimated from the photos
     sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
     light_falloff: bool = True       # solve each photo's smooth light falloff (backend.model.photo_light)
-    refine_tiles: bool = True        # the optimisation's discrete steps also move the lattice's tiles
 
 
 @dataclass
