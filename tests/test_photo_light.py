@@ -31,8 +31,8 @@ def radiance(renderer):
 def _solved(renderer, radiance, photos):
     out = []
     for rad, photo in zip(radiance, photos):
-        lum, ok = linear_photo(photo, DEFAULT_RIG.gamma, renderer.vignette)
-        out.append(solve(luminance(rad), (rad < DEFAULT_RIG.clamp).all(dim=-1), lum, ok))
+        linear, ok = linear_photo(photo, DEFAULT_RIG.gamma, renderer.vignette)
+        out.append(solve(luminance(rad), (rad < DEFAULT_RIG.clamp).all(dim=-1), luminance(linear), ok))
     return out
 
 

@@ -83,9 +83,10 @@ class Objective:
         """Per photo, its linear luminance at the renderer's size and where it is not clipped."""
         if self._photo_light is None:
             size = self.renderer.size
-            self._photo_light = [linear_photo(downsample_linear(photo, size, self.rig.gamma), self.rig.gamma,
-                                              self.renderer.vignette)
-                                 for photo in (self.target.reflection, self.target.transmission)]
+            linear = [linear_photo(downsample_linear(photo, size, self.rig.gamma), self.rig.gamma,
+                                   self.renderer.vignette)
+                      for photo in (self.target.reflection, self.target.transmission)]
+            self._photo_light = [(luminance(radiance), unclipped) for radiance, unclipped in linear]
         return self._photo_light
 
     def light(self, reflection: torch.Tensor, transmission: torch.Tensor) -> PhotoLight:

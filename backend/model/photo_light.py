@@ -28,8 +28,6 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from ..image.tone import LUMA
-
 BLOCKS = 16
 LIMIT = 0.5           # |c|: a gain of exp(0.5) = 1.65 at an edge, beyond any lamp falloff of the rig
 CLIPPED = 0.98        # display values at or above this fraction of the vignetted maximum count as clipped
@@ -81,12 +79,12 @@ class PhotoLight:
 
 def linear_photo(display: torch.Tensor, gamma: float, vignette: torch.Tensor | None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(linear luminance, unclipped mask) of a display-space photo (size, size, 3) taken through the
+    """(linear radiance, unclipped mask) of a display-space photo (size, size, 3) taken through the
     rig's vignetting: the radiance it shows, where it shows it."""
     v = torch.ones(display.shape[:2], dtype=display.dtype, device=display.device) if vignette is None else vignette
     relative = display / v[..., None].clamp_min(1e-6)
     unclipped = (relative < CLIPPED).all(dim=-1)
-    return _luminance(relative.clamp(0, 1) ** gamma), unclipped
+    return relative.clamp(0, 1) ** gamma, unclipped
 
 
 def solve(render: torch.Tensor, render_ok: torch.Tensor, photo: torch.Tensor, photo_ok: torch.Tensor
@@ -108,7 +106,3 @@ def solve(render: torch.Tensor, render_ok: torch.Tensor, photo: torch.Tensor, ph
         ratio = (torch.log(p) - torch.log(r))[ok]
         coefficients = torch.linalg.lstsq(design, ratio[:, None]).solution[1:, 0]
         return tuple(float(c) for c in coefficients.clamp(-LIMIT, LIMIT))
-
-
-def _luminance(image: torch.Tensor) -> torch.Tensor:
-    return image @ torch.tensor(LUMA, dtype=image.dtype, device=image.device)
