@@ -61,7 +61,7 @@ class Objective:
         self.target, self.renderer, self.rig = target, renderer, rig
         self.weights, self.prior_weight = weights, prior_weight
         self.fit_light = fit_light
-        self._photo_light = None
+        self._photo_luminance = None
         self._probe_key = None
         self.gram, self.gram_weight = gram, gram_weight
         if gram is not None:
@@ -81,13 +81,13 @@ class Objective:
 
     def _photo_linear(self) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """Per photo, its linear luminance at the renderer's size and where it is not clipped."""
-        if self._photo_light is None:
+        if self._photo_luminance is None:
             size = self.renderer.size
             linear = [linear_photo(downsample_linear(photo, size, self.rig.gamma), self.rig.gamma,
                                    self.renderer.vignette)
                       for photo in (self.target.reflection, self.target.transmission)]
-            self._photo_light = [(luminance(radiance), unclipped) for radiance, unclipped in linear]
-        return self._photo_light
+            self._photo_luminance = [(luminance(radiance), unclipped) for radiance, unclipped in linear]
+        return self._photo_luminance
 
     def light(self, reflection: torch.Tensor, transmission: torch.Tensor) -> PhotoLight:
         """The photos' light falloff (:mod:`backend.model.photo_light`) for a render's blurred linear
