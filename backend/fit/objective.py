@@ -94,9 +94,9 @@ class Objective:
         radiance; none when the objective fits without one."""
         if not self.fit_light:
             return PhotoLight()
-        clamp = self.rig.clamp
-        solved = [solve(luminance(render.detach()), (render.detach() < clamp).all(dim=-1), photo, photo_ok)
-                  for render, (photo, photo_ok) in zip((reflection, transmission), self._photo_linear())]
+        renders = (reflection.detach(), transmission.detach())
+        solved = [solve(luminance(render), (render < self.rig.clamp).all(dim=-1), photo, photo_ok)
+                  for render, (photo, photo_ok) in zip(renders, self._photo_linear())]
         return PhotoLight(*solved)
 
     def rendered(self, fabric: ParamTensors | FabricParams, camera_blur_px: float | None = None

@@ -55,7 +55,6 @@ from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..model import rng
 from ..model.render import Renderer
 from ..texture import candidates, lattice
-from ..texture.candidates import signatures as pattern_signatures
 from . import network as init_net
 
 LATTICE_ERROR = 0.003    # relative s.d. of the lattice estimator's tiles (checked on the golden pairs)
@@ -231,7 +230,7 @@ def _shard_main() -> None:
     """Entry point of a worker process: its job list and settings come as JSON on stdin."""
     job = json.loads(sys.stdin.read())
     make_items(Path(job["out"]), [tuple(j) for j in job["jobs"]], DatasetSettings(**job["settings"]),
-               pattern_signatures(DEFAULT_RIG), job["compile"])
+               candidates.signatures(DEFAULT_RIG), job["compile"])
 
 
 def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: int, report) -> None:
@@ -336,7 +335,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
                   f"eta {eta / 60:.1f} min", file=log, flush=True)
 
     if workers <= 1:
-            make_items(out, jobs, settings, signatures or pattern_signatures(DEFAULT_RIG), compile, report)
+            make_items(out, jobs, settings, signatures or candidates.signatures(DEFAULT_RIG), compile, report)
     else:
         _run_shards(out, jobs, settings, compile, workers, report)
     return done

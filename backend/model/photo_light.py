@@ -23,6 +23,7 @@ term, so its derivative with respect to them is near zero there).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import torch
@@ -35,8 +36,11 @@ DARK = 1e-5           # linear block means below this are not compared (log of n
 NO_LIGHT = (0.0, 0.0, 0.0)
 
 
+@functools.lru_cache(maxsize=8)
 def basis(size: int, dtype=torch.float32, device="cpu") -> torch.Tensor:
-    """(3, size, size): x, y and the centred x^2 + y^2 at the pixel centres, x and y in [-1, 1]."""
+    """(3, size, size): x, y and the centred x^2 + y^2 at the pixel centres, x and y in [-1, 1].
+    Cached (every loss evaluation applies and solves a light at the same sizes): read it, never
+    write to it."""
     coords = (torch.arange(size, dtype=torch.float64, device=device) + 0.5) / size * 2 - 1
     y, x = torch.meshgrid(coords, coords, indexing="ij")
     r2 = x * x + y * y
