@@ -345,6 +345,21 @@ def test_fallback_lobes_match_the_backend():
             np.testing.assert_allclose(tm[yarn], fm_through.numpy()[yarn], rtol=1e-5)
 
 
+def test_eevee_translucency_is_capped_at_grazing_views():
+    """EEVEE's yarn transmission factor n . wi / wi_z is capped (shader_fallback.EEVEE_TRANSLUCENT_CAP): the
+    same as the Cycles fallback's in the rig, bounded at grazing views where that one grows as 1 / wi_z."""
+    rng = np.random.default_rng(4)
+    p = FabricParams(pattern="plain", **FALLBACK_PARAMS)
+    x, y, wi = rig_points(rng, 2000)
+    out = shader_fallback.run(NumpyBuilder(), fallback_env(p, x, y, wi))
+    np.testing.assert_allclose(out["translucent_eevee"], out["translucent"], rtol=1e-12)
+    grazing = np.stack([np.full(2000, math.sqrt(1 - 0.02 ** 2)), np.zeros(2000), np.full(2000, 0.02)])
+    out = shader_fallback.run(NumpyBuilder(), fallback_env(p, x, y, grazing))
+    bound = np.asarray(out["kd_t"]) * (1 + (shader_fallback.EEVEE_TRANSLUCENT_CAP - 1) * p.diffuse_normal_weight)
+    assert (out["translucent_eevee"] <= bound + 1e-12).all()
+    assert out["translucent"].max() > 2 * bound.max()
+
+
 # -- Blender (subprocesses) -----------------------------------------------------------------
 @pytest.mark.blender
 def test_osl_compiles_with_cycles(tmp_path):

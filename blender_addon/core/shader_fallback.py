@@ -94,6 +94,11 @@ TT_MULTIPLE = (1.1, 0.5)
 # merges them and the transmission grows further. So the EEVEE output has three closures: one Diffuse, one
 # Glossy and one Translucent of colour sqrt(sum of the transmission weights).
 
+# EEVEE's diffuse transmission: the yarn term's n . wi / wi_z (spec 4.5's 1 / |w_z| at wo = -wi) grows
+# without bound at grazing views, an orange fringe on the silhouettes of a backlit drape; it is capped
+# here (measured on the rig draws, which see the fabric near its normal: at most 1.21 there).
+EEVEE_TRANSLUCENT_CAP = 2.0
+
 _GEOMETRY = """
 {header}
 su = x(UV) * tiles_warp * uv_scale
@@ -316,7 +321,9 @@ eevee_diffuse_normal = normalize(eevee_m)
 eevee_diffuse = scale(kd_r, sqrt(dot(eevee_m, eevee_m)))
 eevee_0 = vadd(scale(ks0, eevee_s0), scale(km0, eevee_m0))
 eevee_1 = vadd(scale(ks1, eevee_s1), scale(km1, eevee_m1))
-eevee_t = vadd(translucent, vadd(eevee_0, eevee_1))
+yarn_t_eevee = diffuse_normal_weight * other * min(max(dot(wi, nm), 0) / wiz, {cap!r})
+translucent_eevee = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t_eevee))
+eevee_t = vadd(translucent_eevee, vadd(eevee_0, eevee_1))
 eevee_translucent = vpow(eevee_t, vec(0.5, 0.5, 0.5))
 eevee_gloss = vadd(vadd(gloss_s_color0, gloss_m_color0), vadd(gloss_s_color1, gloss_m_color1))
 gw_s0 = dot(gloss_s_color0, vec(1, 1, 1))
@@ -348,7 +355,7 @@ def program() -> list[tuple[str, str]]:
     text += "".join(_LAYER_PARAMS.format(k=k, sigma=_sigma(f"ci{k}", f"a{k}")) for k in LAYERS)
     text += "".join(_layer(k) for k in LAYERS)
     n_main = _world("nm")
-    text += _DIFFUSE.format(n_main=n_main)
+    text += _DIFFUSE.format(n_main=n_main, cap=EEVEE_TRANSLUCENT_CAP)
     return parse(text)
 
 
