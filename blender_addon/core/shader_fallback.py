@@ -95,7 +95,7 @@ TT_MULTIPLE = (1.1, 0.5)
 # Glossy and one Translucent of colour sqrt(sum of the transmission weights).
 
 # EEVEE's diffuse transmission: the yarn term's n . wi / wi_z (spec 4.5's 1 / |w_z| at wo = -wi) grows
-# without bound at grazing views, an orange fringe on the silhouettes of a backlit drape; it is capped
+# without bound at grazing views, bright specks on the silhouettes of a backlit drape; it is capped
 # here (measured on the rig draws, which see the fabric near its normal: at most 1.21 there).
 EEVEE_TRANSLUCENT_CAP = 2.0
 
@@ -314,14 +314,15 @@ n_main = normalize({n_main})
 other = y0 * y1 * max(dot(wi, n1), 0) + 1 - y0 * y1
 diffuse_flat = scale(kd_r, 1 - diffuse_normal_weight)
 diffuse_yarn = scale(kd_r, diffuse_normal_weight)
-yarn_t = diffuse_normal_weight * other * max(dot(wi, nm), 0) / wiz
+yarn_cos = max(dot(wi, nm), 0) / wiz
+yarn_t = diffuse_normal_weight * other * yarn_cos
 translucent = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t))
 eevee_m = vadd(scale(Normal, 1 - diffuse_normal_weight), scale(n_main, diffuse_normal_weight))
 eevee_diffuse_normal = normalize(eevee_m)
 eevee_diffuse = scale(kd_r, sqrt(dot(eevee_m, eevee_m)))
 eevee_0 = vadd(scale(ks0, eevee_s0), scale(km0, eevee_m0))
 eevee_1 = vadd(scale(ks1, eevee_s1), scale(km1, eevee_m1))
-yarn_t_eevee = diffuse_normal_weight * other * min(max(dot(wi, nm), 0) / wiz, {cap!r})
+yarn_t_eevee = diffuse_normal_weight * other * min(yarn_cos, {cap!r})
 translucent_eevee = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t_eevee))
 eevee_t = vadd(translucent_eevee, vadd(eevee_0, eevee_1))
 eevee_translucent = vpow(eevee_t, vec(0.5, 0.5, 0.5))
