@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from backend.bench import photolike
-from backend.init import photo_like
 from backend.bench.novel_light import NOVEL_LIGHTS, novel_light_error
 from backend.core.params import FabricParams
 from backend.core.priors import typical
 from backend.core.rig import CaptureRig
+from backend.init import photo_like
 from backend.model.imaging import display_transform
 from backend.model.phone import PhoneEffects
 from backend.model.render import Renderer
