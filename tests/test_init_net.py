@@ -135,3 +135,44 @@ def test_a_tiny_training_run_reduces_its_loss(tiny_dataset):
     model = init_net.InitModel.load(path)
     targets, logits = model.predict(arrays.features[:, :5])
     assert targets.shape == (2, 5, init_net.TARGET_SIZE) and logits.shape == (2, 5)
+
+
+def test_photo_like_items_are_photographed_turned_samples(tmp_path, trivial_signatures):
+    from backend.init.photo_like import MAX_ROTATION_DEG, PIXELS_PER_YARN
+    from backend.texture.lattice import yarns_in_view
+    photo = dataset.DatasetSettings(seed=3, photo_scale=1)
+    quiet = open("/dev/null", "w")
+    assert dataset.generate(tmp_path / "a", 1, settings=photo, compile=False, patterns=("twill0",),
+                            signatures=trivial_signatures, log=quiet) == 1
+    assert dataset.generate(tmp_path / "b", 1, settings=photo, compile=False, patterns=("twill0",),
+                            signatures=trivial_signatures, log=quiet) == 1
+    made = (tmp_path / "a" / "twill0_00000.npz").read_bytes()
+    assert made == (tmp_path / "b" / "twill0_00000.npz").read_bytes()
+    item = dataset.read_item(tmp_path / "a" / "twill0_00000.npz")
+    truth = FabricParams.from_interchange(str(item["params"]))
+    # Framed as a photographer frames a sample: the denser axis's yarns get at least 2 film pixels each.
+    assert DEFAULT_RIG.film_size / yarns_in_view("twill0", truth.tiles, DEFAULT_RIG) >= PIXELS_PER_YARN[0] - 1e-6
+    assert item["reflection"].shape == (init_net.WORK_SIZE, init_net.WORK_SIZE, 3)
+    assert np.isfinite(item["features"]).all() and item["tiles"][-1] == pytest.approx(truth.tiles)
+    # The photo is not the clean render of its truth: turned in the holder, blurred, noisy, unevenly lit.
+    clean = render_pair(truth, DEFAULT_RIG, size=init_net.WORK_SIZE, spp=4, seed=0).reflection.numpy()
+    photo_image = dataset._from_uint16(item["reflection"]).numpy()
+    assert np.abs(photo_image - clean).mean() > 0.01
+    # The item is the shot of its seed: the same draws as photo_like.photograph with that seed.
+    from backend.init.photo_like import photograph
+    shot = photograph("twill0", random.Random(dataset.item_seed(3, "twill0", 0)), DEFAULT_RIG, 1)
+    assert shot.params == truth and abs(shot.rig.sample_rotation_deg) <= MAX_ROTATION_DEG
+    with pytest.raises(ValueError, match="working size"):
+        dataset.generate(tmp_path / "c", 1, settings=dataset.DatasetSettings(size=128, photo_scale=2),
+                         compile=False, patterns=("plain",), signatures=trivial_signatures, log=quiet)
+
+
+def test_training_reads_several_dataset_folders(tiny_dataset, tmp_path, trivial_signatures):
+    other = dataset.DatasetSettings(size=32, spp=1, seed=4)
+    dataset.generate(tmp_path / "more", 1, settings=other, compile=False, patterns=("twill1",),
+                     signatures=trivial_signatures, log=open("/dev/null", "w"))
+    arrays = train.load_arrays([tiny_dataset, tmp_path / "more"], log=open("/dev/null", "w"))
+    first = tiny_dataset.name
+    assert arrays.names == [f"{first}/plain_00000", f"{first}/satin0_00000", "more/twill1_00000"]
+    assert arrays.patterns.tolist() == [priors.PATTERNS.index(p) for p in ("plain", "satin0", "twill1")]
+    assert arrays.features.shape == (3, 6, init_net.FEATURE_DIM)

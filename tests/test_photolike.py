@@ -13,6 +13,7 @@ from backend.bench.novel_light import NOVEL_LIGHTS, novel_light_error
 from backend.core.params import FabricParams
 from backend.core.priors import typical
 from backend.core.rig import CaptureRig
+from backend.init import photo_like
 from backend.model.imaging import display_transform
 from backend.model.phone import PhoneEffects
 from backend.model.render import Renderer
@@ -31,7 +32,7 @@ def test_a_photo_like_set_is_a_function_of_its_seed(tmp_path):
     assert other["params"] != first[0]["params"]
     truth = first[1]
     assert FabricParams.from_interchange(truth["params"]).pattern == "satin0"
-    assert abs(truth["rig"]["sample_rotation_deg"]) <= photolike.MAX_ROTATION_DEG
+    assert abs(truth["rig"]["sample_rotation_deg"]) <= photo_like.MAX_ROTATION_DEG
     assert truth["rig"]["camera_blur_px"] == pytest.approx(truth["phone"]["blur_px"], abs=1e-4)
     assert 0.5 <= truth["phone"]["blur_px"] <= 2.0 and 75 <= truth["phone"]["jpeg_quality"] <= 95
     json.dumps(first)  # the cases.json entry is plain JSON
@@ -90,11 +91,11 @@ def test_framing_resolves_the_weave_and_leaves_a_coarse_one_alone():
     rig = CaptureRig()
     dense = typical("twill0")                                   # about 1 px per yarn at 512 px
     assert rig.film_size / yarns_in_view("twill0", dense.tiles, rig) < 2
-    framed = photolike.framed(dense, 3.0, rig)
+    framed = photo_like.framed(dense, 3.0, rig)
     assert rig.film_size / yarns_in_view("twill0", framed.tiles, rig) == pytest.approx(3.0)
     assert framed.tiles[0] / framed.tiles[1] == pytest.approx(dense.tiles[0] / dense.tiles[1])  # same weave, closer
     coarse = dense.replace(tiles=(20.0, 20.0))
-    assert photolike.framed(coarse, 3.0, rig) == coarse
+    assert photo_like.framed(coarse, 3.0, rig) == coarse
 
 
 def _high_frequency_std(image: torch.Tensor) -> float:

@@ -675,3 +675,14 @@ def test_metrics_match_the_team_checker(shared_tools):
     assert metrics.spectrum_corr(photo, render) == imagemetrics.spectrum_corr(photo, render)
     assert metrics.colour_l1(photo, render) == imagemetrics.downsample_l1(photo, render)
     assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
+
+
+@pytest.mark.parametrize("index", [0, 35])
+def test_photo_like_plain_weaves_are_not_refused_as_framed_differently(tmp_path, index):
+    # Dense plain weaves (2-4 px per yarn) whose photos' strongest peaks are aliased harmonics, matched at
+    # a chance ratio (1.45x, one peak) or at a harmonic one (0.5x, two peaks): once refused, now a warning.
+    from backend.bench.photolike import make_item
+    name = make_item(tmp_path, seed=31, index=index)["name"]
+    pair = load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
+    assert any("framed at different scales, but the evidence is weak" in w for w in pair.warnings)
+    assert abs(np.log(pair.info["yarn_frequency"]["scale"])) > np.log(1.2)

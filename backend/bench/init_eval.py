@@ -118,6 +118,8 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
               f"thickness MAE {network_mae.get('thickness')} (prior {prior_mae.get('thickness')})",
               file=log, flush=True)
     return {"cases": rows, "pattern_accuracy": float(np.mean([r["pattern"] == r["predicted_pattern"] for r in rows])),
+            "family_accuracy": float(np.mean([priors.family(r["pattern"]) == priors.family(r["predicted_pattern"])
+                                              for r in rows])),
             "network_mae": _mean_errors(net_rows), "prior_mae": _mean_errors(prior_rows)}
 
 
@@ -185,7 +187,8 @@ def evaluate_fits(model: init_net.InitModel, folder: str | Path, names: list[str
 
 # -- command line ----------------------------------------------------------------------------------
 def print_table(title: str, section: dict) -> None:
-    print(f"\n{title}: pattern accuracy {section['pattern_accuracy']:.3f}")
+    family = f", family accuracy {section['family_accuracy']:.3f}" if "family_accuracy" in section else ""
+    print(f"\n{title}: pattern accuracy {section['pattern_accuracy']:.3f}{family}")
     print(f"  {'parameter':24s} {'network MAE':>12s} {'prior MAE':>12s}")
     for name in REPORTED:
         if name in section.get("network_mae", {}):

@@ -10,7 +10,7 @@ from .common import positive_int
 
 
 def run_dataset(args) -> int:
-    settings = DatasetSettings(size=args.size, spp=args.spp, seed=args.seed)
+    settings = DatasetSettings(size=args.size, spp=args.spp, seed=args.seed, photo_scale=args.photo_scale)
     try:
         generate(args.out, args.per_pattern, args.workers, settings,
                  compile={"auto": None, "on": True, "off": False}[args.compile], patterns=tuple(args.patterns))
@@ -28,6 +28,9 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="dataset seed (use another for a held-out set)")
     p.add_argument("--size", type=positive_int, default=DatasetSettings.size, help="render size (default 256)")
     p.add_argument("--spp", type=positive_int, default=DatasetSettings.spp, help="samples per pixel (default 16)")
+    p.add_argument("--photo-scale", type=int, default=0, metavar="K",
+                   help="photo-like items: the sample turned and photographed by a phone at K phone pixels per "
+                        "film pixel (default 0: clean renders)")
     p.add_argument("--patterns", nargs="+", default=list(priors.PATTERNS), choices=priors.PATTERNS,
                    help="presets to draw (default: all)")
     p.add_argument("--compile", choices=("auto", "on", "off"), default="auto",

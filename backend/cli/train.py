@@ -21,9 +21,7 @@ def run_train(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     net, info = train(arrays, settings)
-    settings_file = Path(args.dataset) / "dataset.json"
-    dataset = json.loads(settings_file.read_text()) if settings_file.exists() else {}
-    info["dataset"] = {k: dataset.get(k) for k in ("size", "spp", "seed")}
+    info["datasets"] = [_dataset_settings(Path(folder)) for folder in args.dataset]
     path = network.save(net, args.out, {"training": info})
     size_mb = path.stat().st_size / 1e6
     print(f"train: wrote {path} ({size_mb:.1f} MB); validation L1 {info['validation']['l1']:.4f}, "
@@ -31,9 +29,15 @@ def run_train(args) -> int:
     return 0
 
 
+def _dataset_settings(folder: Path) -> dict:
+    settings_file = folder / "dataset.json"
+    dataset = json.loads(settings_file.read_text()) if settings_file.exists() else {}
+    return {k: dataset.get(k) for k in ("size", "spp", "seed", "photo_scale")}
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser("train", help="train the initialisation network on a synthetic dataset")
-    p.add_argument("dataset", help="a folder made by `python -m backend dataset`")
+    p.add_argument("dataset", nargs="+", help="folders made by `python -m backend dataset` (trained on together)")
     p.add_argument("--out", required=True, help="weights file to write (the shipped one: backend/data/init_net.pt)")
     p.add_argument("--epochs", type=int, default=TrainSettings.epochs)
     p.add_argument("--batch", type=int, default=TrainSettings.batch)
@@ -42,6 +46,6 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int, default=TrainSettings.seed)
     p.add_argument("--validation", type=float, default=TrainSettings.validation,
                    help="fraction of items held back to choose the best epoch")
-    p.add_argument("--limit", type=int, help="use only the first N items (by name)")
+    p.add_argument("--limit", type=int, help="use only the first N items (by name) of each folder")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1: a shared machine)")
     p.set_defaults(run=run_train)

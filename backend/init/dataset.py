@@ -14,6 +14,12 @@ fit would propose for that pair:
   and best matches its harmonic signature (what :func:`backend.texture.lattice.candidates` does), with the
   same small error. Those rows teach the network which candidate is the photos' weave.
 
+Photo-like items (``--photo-scale K``): the sample is drawn, framed, turned and photographed by a
+phone instead (:func:`backend.init.photo_like.photograph` at K phone pixels per film pixel), and the
+8-bit photos are reduced to the working size as the fit reduces a photo; the candidates are read at
+the true (axis-aligned) lattice as above, so the network learns the features of turned, blurred,
+noisy, unevenly lit photos. The renders then have no ``--spp``: one sample per phone pixel.
+
 Resolution and samples: 256 x 256 (the working size of the fit, where the features are read) with
 16 samples per pixel on a fixed stratified jitter (the fit's own renders use the same). Measured
 against 512 x 64-spp renders area-downsampled to 256 (10 prior draws, all presets), the mean
@@ -56,6 +62,7 @@ from ..model import rng
 from ..model.render import Renderer
 from ..texture import candidates, lattice
 from . import network as init_net
+from .photo_like import photograph
 
 LATTICE_ERROR = 0.003    # relative s.d. of the lattice estimator's tiles (checked on the golden pairs)
 LATTICE_ERROR_MAX = 0.01
@@ -67,6 +74,7 @@ class DatasetSettings:
     size: int = init_net.WORK_SIZE
     spp: int = 16
     seed: int = 0
+    photo_scale: int = 0    # 0: clean renders; k: photo-like shots at k phone pixels per film pixel
 
 
 def item_name(pattern: str, index: int) -> str:
@@ -171,9 +179,16 @@ class ItemMaker:
 
     def make(self, pattern: str, index: int) -> dict[str, np.ndarray]:
         seed = item_seed(self.settings.seed, pattern, index)
-        params = priors.sample(pattern, random.Random(seed))
-        with torch.no_grad():
-            rendered = self.renderer.render(params)
+        if self.settings.photo_scale:
+            shot = photograph(pattern, random.Random(seed), self.rig, self.settings.photo_scale)
+            params = shot.params
+            # The fit's own path: 8-bit photos at the film's size, area-averaged in linear light.
+            rendered = init_net.WorkingPair.from_images(torch.from_numpy(shot.reflection),
+                                                        torch.from_numpy(shot.transmission), self.rig.gamma)
+        else:
+            params = priors.sample(pattern, random.Random(seed))
+            with torch.no_grad():
+                rendered = self.renderer.render(params)
         # Quantised to 16 bits first, as stored: the features of a reloaded item are the same.
         reflection, transmission = _to_uint16(rendered.reflection), _to_uint16(rendered.transmission)
         pair = init_net.WorkingPair.from_images(_from_uint16(reflection), _from_uint16(transmission), self.rig.gamma)
@@ -310,6 +325,9 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if settings.photo_scale < 0 or (settings.photo_scale and settings.size != init_net.WORK_SIZE):
+        raise ValueError(f"photo-like items need a photo scale >= 1 and the working size {init_net.WORK_SIZE} "
+                         f"(got scale {settings.photo_scale}, size {settings.size})")
     unknown = [p for p in patterns if p not in priors.PATTERNS]
     if unknown:
         raise ValueError(f"unknown pattern(s) {', '.join(unknown)}; expected some of {', '.join(priors.PATTERNS)}")

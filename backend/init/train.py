@@ -1,6 +1,6 @@
 """Training the initialisation network (:mod:`backend.init.network`) on a synthetic dataset.
 
-    python -m backend train DATASET --out CHECKPOINT [--epochs 120] [--batch 64] [--lr 1e-3]
+    python -m backend train DATASET [DATASET ...] --out CHECKPOINT [--epochs 120] [--batch 64] [--lr 1e-3]
         [--hidden 256] [--seed 0] [--validation 0.05] [--limit N]
 
 Data (:mod:`backend.init.dataset`): per item, features of six (pattern, tiles) candidates (one per
@@ -25,6 +25,7 @@ import math
 import sys
 import time
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,8 +60,19 @@ class Arrays:
         return len(self.names)
 
 
-def load_arrays(folder: str | Path, limit: int | None = None, log=sys.stderr) -> Arrays:
-    """Reads every item of a dataset folder (features, targets, patterns)."""
+def load_arrays(folders: str | Path | Sequence[str | Path], limit: int | None = None, log=sys.stderr) -> Arrays:
+    """Reads every item of one or several dataset folders (features, targets, patterns); ``limit``
+    applies per folder. Items of several folders are named ``<folder>/<item>`` (the validation
+    hold-out hashes the name)."""
+    folders = [folders] if isinstance(folders, (str, Path)) else list(folders)
+    parts = [_load_folder(Path(folder), limit, log, prefix=f"{Path(folder).name}/" if len(folders) > 1 else "")
+             for folder in folders]
+    return Arrays(torch.cat([p.features for p in parts]), torch.cat([p.targets for p in parts]),
+                  torch.cat([p.patterns for p in parts]), [n for p in parts for n in p.names],
+                  [q for p in parts for q in p.params])
+
+
+def _load_folder(folder: Path, limit: int | None, log, prefix: str) -> Arrays:
     files = load_items(folder, limit)
     if not files:
         raise ValueError(f"{folder}: no dataset items (*.npz); make them with `python -m backend dataset`")
@@ -76,11 +88,12 @@ def load_arrays(folder: str | Path, limit: int | None = None, log=sys.stderr) ->
             targets.append(data["target"])
             patterns.append(int(data["pattern"]))
             params.append(str(data["params"]))
-        names.append(path.stem)
+        names.append(prefix + path.stem)
         if (k + 1) % 1000 == 0:
-            print(f"train: read {k + 1}/{len(files)} items", file=log, flush=True)
+            print(f"train: read {k + 1}/{len(files)} items of {folder}", file=log, flush=True)
     if stale:
-        print(f"train: {stale} item(s) re-described (feature version {init_net.FEATURE_VERSION})", file=log)
+        print(f"train: {stale} item(s) of {folder} re-described (feature version {init_net.FEATURE_VERSION})",
+              file=log)
     return Arrays(torch.from_numpy(np.stack(features)).float(), torch.from_numpy(np.stack(targets)).float(),
                   torch.tensor(patterns), names, params)
 
