@@ -76,7 +76,7 @@ def test_novel_light_error_tells_a_wrong_parameter_and_applies_the_cameras_gains
 
 
 def test_the_phones_jpeg_is_a_deterministic_lossy_copy_at_the_film_size():
-    from backend.image.png import phone_jpeg
+    from backend.model.phone import phone_jpeg
     rng = np.random.default_rng(3)
     image = np.clip(0.5 + 0.1 * rng.standard_normal((128, 128, 3)), 0, 1)
     phone = phone_jpeg(image, 75, 32)

@@ -1,5 +1,5 @@
 """Writing the project's images: RGB float in [0, 1] -> 8/16-bit PNG (re-renders, reports), or an
-8-bit JPEG; and a phone's JPEG compression seen at the working size (the photo-like test data)."""
+8-bit JPEG."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -34,17 +34,3 @@ def write_png(path: str | Path, image, bits: int = 16) -> Path:
 def write_jpeg(path: str | Path, image, quality: int) -> Path:
     """Writes an RGB image in [0, 1] as an 8-bit JPEG of ``quality`` (0-100)."""
     return _write(path, image, 8, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-
-
-def phone_jpeg(image, quality: int, size: int) -> np.ndarray:
-    """``image`` (RGB in [0, 1] at the phone's resolution) as its JPEG of quality ``quality`` looks
-    after the resize to ``size`` x ``size``: compressed and decoded at the phone's resolution, then
-    area-downsampled. A phone compresses at its own resolution and the photo is resized afterwards,
-    so its 8-pixel blocks are a fraction of a working pixel, not a grid at size / 8 cycles."""
-    rgb = np.clip(to_numpy(image), 0.0, 1.0)
-    data = np.round(rgb * 255).astype(np.uint8)[..., ::-1]
-    ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(data), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise OSError("JPEG encoding failed")
-    decoded = cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32) / 255
-    return cv2.resize(decoded, (size, size), interpolation=cv2.INTER_AREA).astype(np.float64)

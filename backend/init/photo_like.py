@@ -14,7 +14,7 @@ One shot of a weave preset, all drawn from one seeded generator ``rng`` in this 
 The rig renders the turned sample at ``phone_scale`` times the film's resolution with one sample per
 phone pixel (``phone_scale``\\ :sup:`2` per film pixel), the phone turns each radiance into its photo
 at that resolution, JPEG-compresses it there and it is area-resized to the film
-(:func:`backend.image.png.phone_jpeg`). The benchmark photographs at :data:`PHONE_SCALE` (a 2048-px
+(:func:`backend.model.phone.phone_jpeg`). The benchmark photographs at :data:`PHONE_SCALE` (a 2048-px
 crop of a 12 MP photo); the training set at 2, which costs a quarter as much (a 1024-px crop: the
 same blur, noise level and JPEG, with its blocks twice as large in film pixels).
 """
@@ -30,8 +30,7 @@ import torch
 from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
-from ..image.png import phone_jpeg
-from ..model.phone import PhoneEffects
+from ..model.phone import PhoneEffects, phone_jpeg
 from ..model.render import Renderer
 from ..texture.lattice import yarns_in_view
 

@@ -18,7 +18,7 @@ resolution (``k`` phone pixels per film pixel; every length below is in film pix
     photo    = display_transform(noisy)               the rig's clamp, 1/gamma and vignetting
 
 and the file is ``photo`` JPEG-compressed at ``jpeg_quality`` at the phone's resolution and
-area-resized to the film (:func:`backend.image.png.phone_jpeg`; the caller writes it). The order is
+area-resized to the film (:func:`phone_jpeg`; the caller writes it). The order is
 the physical one: the optics act on the light before the sensor samples it, so a weave finer than
 the blur reaches the photo as the soft texture a phone shows, not as the false lattice that point
 samples of a sharp image would alias it into. Everything is drawn from a seeded generator
@@ -32,6 +32,8 @@ import math
 import random
 from dataclasses import asdict, dataclass
 
+import cv2
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -111,3 +113,18 @@ class PhoneEffects:
         y, x = torch.meshgrid(coords, coords, indexing="ij")
         r2 = (x - offset) ** 2 + (y + offset) ** 2
         return (1 + tilt_x * x + tilt_y * y + bowl * r2 / 2).clamp_min(0.2)
+
+
+def phone_jpeg(image, quality: int, size: int) -> np.ndarray:
+    """``image`` (RGB in [0, 1] at the phone's resolution) as its JPEG of quality ``quality`` looks
+    after the resize to ``size`` x ``size``: compressed and decoded at the phone's resolution, then
+    area-downsampled. A phone compresses at its own resolution and the photo is resized afterwards,
+    so its 8-pixel blocks are a fraction of a working pixel, not a grid at size / 8 cycles."""
+    array = image.detach().cpu().numpy() if hasattr(image, "detach") else image
+    rgb = np.clip(np.asarray(array, dtype=np.float64), 0.0, 1.0)
+    data = np.round(rgb * 255).astype(np.uint8)[..., ::-1]
+    ok, encoded = cv2.imencode(".jpg", np.ascontiguousarray(data), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise OSError("JPEG encoding failed")
+    decoded = cv2.imdecode(encoded, cv2.IMREAD_COLOR)[..., ::-1].astype(np.float32) / 255
+    return cv2.resize(decoded, (size, size), interpolation=cv2.INTER_AREA).astype(np.float64)
