@@ -126,6 +126,20 @@ def test_dataset_is_deterministic_and_resumable(tiny_dataset, tmp_path, trivial_
     assert item["target"] == pytest.approx(init_net.target_vector(truth))
 
 
+def test_a_folder_made_before_photo_like_items_resumes_as_clean_renders(tiny_dataset, tmp_path, trivial_signatures):
+    folder = tmp_path / "older"
+    folder.mkdir()
+    manifest = json.loads((tiny_dataset / "dataset.json").read_text())
+    del manifest["photo_scale"]  # what a folder made before the setting existed holds
+    (folder / "dataset.json").write_text(json.dumps(manifest))
+    quiet = open("/dev/null", "w")
+    assert dataset.generate(folder, 1, settings=TINY, compile=False, patterns=("plain", "satin0"),
+                            signatures=trivial_signatures, log=quiet) == 2
+    with pytest.raises(ValueError, match="photo_scale: 0 there, 2 now"):
+        dataset.generate(folder, 1, settings=dataset.DatasetSettings(size=256, spp=1, seed=3, photo_scale=2),
+                         compile=False, patterns=("plain", "satin0"), signatures=trivial_signatures, log=quiet)
+
+
 def test_a_tiny_training_run_reduces_its_loss(tiny_dataset):
     arrays = train.load_arrays(tiny_dataset, log=open("/dev/null", "w"))
     net, info = train.train(arrays, train.TrainSettings(batch=2, lr=3e-3, dropout=0.0), log=open("/dev/null", "w"),

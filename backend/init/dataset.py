@@ -298,7 +298,8 @@ def _check_settings(out: Path, settings: DatasetSettings, patterns: tuple[str, .
     manifest = out / "dataset.json"
     wanted = {**asdict(settings), "patterns": list(patterns)}
     if manifest.exists():
-        found = json.loads(manifest.read_text())
+        # A setting added since the folder was made reads as its default (photo_scale 0: clean renders).
+        found = {**asdict(DatasetSettings()), **json.loads(manifest.read_text())}
         mismatch = {k: (found.get(k), v) for k, v in wanted.items() if found.get(k) != v}
         if mismatch:
             raise ValueError(f"{manifest}: this folder was made with other settings "
