@@ -1,13 +1,14 @@
 """``python -m backend train``: the initialisation network from a dataset (:mod:`backend.init.train`)."""
 from __future__ import annotations
 
-import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
 
 from ..init import network
+from ..init.dataset import DatasetSettings, recorded_settings
 from ..init.train import TrainSettings, load_arrays, train
 
 
@@ -30,9 +31,9 @@ def run_train(args) -> int:
 
 
 def _dataset_settings(folder: Path) -> dict:
-    settings_file = folder / "dataset.json"
-    dataset = json.loads(settings_file.read_text()) if settings_file.exists() else {}
-    return {k: dataset.get(k) for k in ("size", "spp", "seed", "photo_scale")}
+    """The folder's DatasetSettings as its dataset.json records them (None each without one)."""
+    recorded = recorded_settings(folder) or {}
+    return {name: recorded.get(name) for name in asdict(DatasetSettings())}
 
 
 def add_parser(sub) -> None:

@@ -294,12 +294,20 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
         raise RuntimeError(f"dataset: {len(waiting)} item(s) not made; worker exit codes {failed}")
 
 
+def recorded_settings(folder: str | Path) -> dict | None:
+    """What a dataset folder's ``dataset.json`` records (None without one). A setting added since the
+    folder was made reads as its default (photo_scale 0: clean renders)."""
+    manifest = Path(folder) / "dataset.json"
+    if not manifest.exists():
+        return None
+    return {**asdict(DatasetSettings()), **json.loads(manifest.read_text())}
+
+
 def _check_settings(out: Path, settings: DatasetSettings, patterns: tuple[str, ...]) -> None:
     manifest = out / "dataset.json"
     wanted = {**asdict(settings), "patterns": list(patterns)}
-    if manifest.exists():
-        # A setting added since the folder was made reads as its default (photo_scale 0: clean renders).
-        found = {**asdict(DatasetSettings()), **json.loads(manifest.read_text())}
+    found = recorded_settings(out)
+    if found is not None:
         mismatch = {k: (found.get(k), v) for k, v in wanted.items() if found.get(k) != v}
         if mismatch:
             raise ValueError(f"{manifest}: this folder was made with other settings "
