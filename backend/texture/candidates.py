@@ -80,9 +80,10 @@ def sample_rotation(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[s
 
 
 def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
-            per_pattern: int = 2) -> list[Candidate]:
+            per_pattern: int = 2, anchors: bool = True) -> list[Candidate]:
     """(pattern, tiles) candidates for a sample turned by the rig's ``sample_rotation_deg``, best
-    lattice score first (scores compare within a pattern only)."""
+    lattice score first (scores compare within a pattern only); ``anchors``: see
+    :func:`backend.texture.lattice.candidates`."""
     scale = rig.view_size / rig.plane_size
     ranges = {p: tile_range(p, rig) for p in patterns}
     lo, hi = _search_range(rig, patterns)
@@ -93,7 +94,8 @@ def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...]
     for pattern in patterns:
         (tu_lo, tu_hi), (tv_lo, tv_hi) = ranges[pattern]
         found = lattice.candidates(spectra, combs, sigs[pattern], (tu_lo * scale, tu_hi * scale),
-                                   (tv_lo * scale, tv_hi * scale), top=per_pattern, rotation_deg=rotation)
+                                   (tv_lo * scale, tv_hi * scale), top=per_pattern, rotation_deg=rotation,
+                                   anchors=anchors)
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
     return out
 
@@ -102,18 +104,23 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
            per_pattern: int = 1) -> tuple[float, list[Candidate]]:
     """(the sample's rotation, the candidates for it). A given ``rotation`` is used as it is; otherwise
     the rotation read from the spectra (:func:`sample_rotation`) is checked against the unturned
-    sample: both get candidates, and the unturned one stays unless the turned one's best candidate
-    scores higher. The rotation estimate verifies lattices with generic low harmonics; on a dense
-    satin those can prefer a turn of a tenth of a degree by a hair, and at that turn the sieve misses
-    the weave's own lattice (measured on the dev golden satin1 renders: 0.15 and 0.24 degrees)."""
-    if rotation is not None:
-        return rotation, propose(spectra, replace(rig, sample_rotation_deg=rotation), patterns, per_pattern)
-    turned = sample_rotation(spectra, rig, patterns)
-    unturned = propose(spectra, replace(rig, sample_rotation_deg=0.0), patterns, per_pattern)
-    if turned == 0.0:
-        return 0.0, unturned
-    found = propose(spectra, replace(rig, sample_rotation_deg=turned), patterns, per_pattern)
+    sample: both get comb candidates, and the unturned one stays unless the turned one's best
+    candidate scores higher. The rotation estimate verifies lattices with generic low harmonics; on
+    a dense satin those can prefer a turn of a tenth of a degree by a hair, and at that turn the
+    sieve misses the weave's own lattice (measured on the dev golden satin1 renders: 0.15 and 0.24
+    degrees). The comparison leaves out the lattices read from single peaks: on an aliased clean
+    render one can explain a pattern's signature better at a wrong turn than the true lattice does
+    unturned (dev golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the candidates of the
+    rotation chosen."""
+    if rotation is None:
+        turned = sample_rotation(spectra, rig, patterns)
+        rotation = 0.0
+        if turned != 0.0:
+            unturned = propose(spectra, replace(rig, sample_rotation_deg=0.0), patterns, per_pattern, anchors=False)
+            found = propose(spectra, replace(rig, sample_rotation_deg=turned), patterns, per_pattern, anchors=False)
+            rotation = turned if _best_score(found) > _best_score(unturned) else 0.0
+    return rotation, propose(spectra, replace(rig, sample_rotation_deg=rotation), patterns, per_pattern)
 
-    def best(cands):
-        return max((c.score for c in cands), default=-float("inf"))
-    return (turned, found) if best(found) > best(unturned) else (0.0, unturned)
+
+def _best_score(found: list[Candidate]) -> float:
+    return max((c.score for c in found), default=-float("inf"))

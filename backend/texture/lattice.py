@@ -14,8 +14,9 @@ What runs:
    sieve (:func:`comb_scores`): the spacing whose folded multiples explain the strongest peaks, minus
    a cost per comb tooth so that the coarsest comb that explains them wins. This pins the lattice
    up to small sub- and super-multiples, without knowing the weave.
-2. :func:`candidates`: for one pattern, that lattice times small ratios per axis (:data:`RATIOS`),
-   each polished (:func:`polish`) and scored by the pattern's *signature*
+2. :func:`candidates`: for one pattern, that lattice times small ratios per axis (:data:`RATIOS`)
+   and the lattices read from single peaks named as the pattern's strongest oblique harmonics
+   (:func:`anchored`), each polished (:func:`polish`) and scored by the pattern's *signature*
    (:func:`signature_score`): which harmonics (m, n) carry the energy depends on the weave (and on
    the BSDF), measured once from a render at a low density where every significant harmonic is
    below Nyquist (:func:`signature`).
@@ -386,21 +387,66 @@ RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
 
 def candidates(spectra: Spectra, combs: list[Lattice], signatures: list[Signature],
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
-               top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
+               top: int = 3, rotation_deg: float = 0.0, anchors: bool = True) -> list[Lattice]:
     """Lattices for one pattern: each comb estimate times small ratios per axis (a comb pins the
-    lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
-    and scored by the pattern's signature on the sharp peakness maps. Best first."""
+    lattice only up to sub- and super-multiples), and with ``anchors`` the lattices read from single
+    peaks (:func:`anchored`), kept within the pattern's range, each polished and scored by the
+    pattern's signature on the sharp peakness maps. Best first."""
     size, sharp = spectra.size, spectra.maps
     seen, out = set(), []
-    for comb, ra in ((comb, ra) for comb in combs for ra in RATIOS):
-        for rb in ((ra,) if square else RATIOS):
-            a, b = comb.a * ra, (comb.a * ra if square else comb.b * rb)
-            if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
-                continue
-            key = (round(a, 1), round(b, 1))
-            if key in seen:
-                continue
-            seen.add(key)
-            out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002,
-                              rotation_deg=rotation_deg))
+    starts = [(comb.a * ra, comb.a * ra if square else comb.b * rb)
+              for comb in combs for ra in RATIOS for rb in ((ra,) if square else RATIOS)]
+    if anchors:
+        starts += [(lat.a, lat.b) for lat in anchored(spectra, signatures, a_range, b_range, square, rotation_deg)]
+    for a, b in starts:
+        if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
+            continue
+        key = (round(a, 1), round(b, 1))
+        if key in seen:
+            continue
+        seen.add(key)
+        out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002,
+                          rotation_deg=rotation_deg))
     return sorted(out, key=lambda lat: -lat.score)[:top]
+
+
+ANCHOR_PEAKS = 4
+ANCHOR_HARMONICS = 4
+
+
+def anchored(spectra: Spectra, signatures: list[Signature], a_range, b_range, square: bool,
+             rotation_deg: float, peaks: int = ANCHOR_PEAKS, harmonics: int = ANCHOR_HARMONICS,
+             keep: int = 6) -> list[Lattice]:
+    """Lattices read from single peaks: each of an image's ``peaks`` strongest peaks p (or -p) taken
+    as one of its signature's ``harmonics`` strongest oblique harmonics (m, n), both non-zero, and
+    turned back by ``rotation_deg`` into fabric frequencies (f1, f2): (a, b) = (f1 / m, f2 / n); the
+    ``keep`` best by signature score.
+
+    A dense weave behind a phone's blur can leave a single low harmonic standing (a twill's
+    diagonal, with side bands from uneven yarn spacing); no comb on one axis explains it, but its
+    position alone pins the lattice once the harmonic is named. The peak is taken as it is, not as
+    an alias: what survives the optics' blur lies below Nyquist (an aliased reading of a clean
+    render's peaks can explain a signature at a wrong lattice; see
+    :func:`backend.texture.candidates.placed`)."""
+    size = spectra.size
+    hyp_a, hyp_b = [], []
+    for image_peaks, sig in zip(spectra.peaks, signatures):
+        oblique = [(m, n) for m, n in zip(sig.m, sig.n) if m != 0 and n != 0][:harmonics]
+        for p in image_peaks[:peaks]:
+            for sign in (1.0, -1.0):
+                f1, f2 = fabric_frequencies(np.array([sign * p.fx]), np.array([sign * p.fy]), rotation_deg)
+                for m, n in oblique:
+                    hyp_a.append(f1 / m)
+                    hyp_b.append(f2 / n)
+    if not hyp_a:
+        return []
+    a, b = np.concatenate(hyp_a), np.concatenate(hyp_b)
+    if square:
+        b = a
+    ok = (a >= a_range[0]) & (a <= a_range[1]) & (b >= b_range[0]) & (b <= b_range[1])
+    a, b = a[ok], b[ok]
+    if a.size == 0:
+        return []
+    scores = signature_score(spectra.maps, signatures, a, b, size, rotation_deg)
+    best = np.argsort(-scores, kind="stable")[:keep]
+    return [Lattice(float(a[i]), float(b[i]), float(scores[i])) for i in best]
