@@ -11,6 +11,7 @@ import pytest
 import torch
 from conftest import ROOT
 
+from backend.bench import photolike
 from backend.core.params import FabricParams
 from backend.core.priors import PATTERNS, typical
 from backend.core.protocol import decode
@@ -283,6 +284,22 @@ def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
     assert rotation == 0.0
     assert satin.tiles == pytest.approx(truth.tiles, rel=0.01)
     assert max(found, key=lambda c: c.score).pattern == "satin1"
+
+
+@pytest.mark.parametrize("index, pattern", [(6, "twill0"), (14, "satin1")])
+def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
+    # Photo-like pairs (photolike --seed 31) at 2-3 px per yarn behind 1-2 px of blur: twill0_006
+    # keeps one diagonal peak (with side bands from its uneven yarns), satin1_014 a few low oblique
+    # ones. The per-axis combs read them as 264 % and 338 % off; named as the pattern's strongest
+    # oblique harmonic, one peak gives the lattice.
+    case = photolike.make_item(tmp_path, seed=31, index=index)
+    truth = FabricParams.from_interchange(case["params"])
+    assert truth.pattern == pattern
+    pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
+    spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
+    rotation, found = search.placed(spectra, DEFAULT_RIG, (pattern,), None)
+    assert rotation == pytest.approx(case["rig"]["sample_rotation_deg"], abs=0.25)
+    assert found[0].tiles == pytest.approx(truth.tiles, rel=0.01)
 
 
 def test_a_given_sample_rotation_is_kept_and_a_clear_turn_is_found(twill_pair):

@@ -389,15 +389,29 @@ def candidates(spectra: Spectra, combs: list[Lattice], signatures: list[Signatur
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
                top: int = 3, rotation_deg: float = 0.0, anchors: bool = True) -> list[Lattice]:
     """Lattices for one pattern: each comb estimate times small ratios per axis (a comb pins the
-    lattice only up to sub- and super-multiples), and with ``anchors`` the lattices read from single
-    peaks (:func:`anchored`), kept within the pattern's range, each polished and scored by the
-    pattern's signature on the sharp peakness maps. Best first."""
-    size, sharp = spectra.size, spectra.maps
-    seen, out = set(), []
+    lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
+    and scored by the pattern's signature on the sharp peakness maps. Best first.
+
+    With ``anchors``, the lattices read from single peaks (:func:`anchored`) join them when they
+    score ANCHOR_GAIN times the best comb lattice: where the combs explain the peaks, a single
+    peak's reading wins by a few percent at most and is as often a near miss (photo-like satins
+    off by 3-9 %, the dev real satin1 read as a lattice 5 times coarser); where they fail, it wins
+    by 1.3-4 times (photo-like twills and satins at 2-4 px per yarn behind the phone's blur)."""
     starts = [(comb.a * ra, comb.a * ra if square else comb.b * rb)
               for comb in combs for ra in RATIOS for rb in ((ra,) if square else RATIOS)]
+    out = _polished(spectra, signatures, starts, a_range, b_range, square, rotation_deg)
     if anchors:
-        starts += [(lat.a, lat.b) for lat in anchored(spectra, signatures, a_range, b_range, square, rotation_deg)]
+        floor = ANCHOR_GAIN * max((lat.score for lat in out), default=0.0)
+        read = anchored(spectra, signatures, a_range, b_range, square, rotation_deg)
+        out += [lat for lat in _polished(spectra, signatures, [(lat.a, lat.b) for lat in read], a_range, b_range,
+                                         square, rotation_deg) if lat.score > floor]
+    return sorted(out, key=lambda lat: -lat.score)[:top]
+
+
+def _polished(spectra: Spectra, signatures, starts, a_range, b_range, square: bool,
+              rotation_deg: float) -> list[Lattice]:
+    """Each distinct start (a, b) inside the ranges, polished."""
+    seen, out = set(), []
     for a, b in starts:
         if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
             continue
@@ -405,11 +419,12 @@ def candidates(spectra: Spectra, combs: list[Lattice], signatures: list[Signatur
         if key in seen:
             continue
         seen.add(key)
-        out.append(polish(sharp, signatures, Lattice(a, b, 0.0), size, square, span=0.004, step=0.0002,
-                          rotation_deg=rotation_deg))
-    return sorted(out, key=lambda lat: -lat.score)[:top]
+        out.append(polish(spectra.maps, signatures, Lattice(a, b, 0.0), spectra.size, square, span=0.004,
+                          step=0.0002, rotation_deg=rotation_deg))
+    return out
 
 
+ANCHOR_GAIN = 1.25
 ANCHOR_PEAKS = 4
 ANCHOR_HARMONICS = 4
 
