@@ -80,22 +80,41 @@ def sample_rotation(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[s
 
 
 def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
-            per_pattern: int = 2, anchors: bool = True) -> list[Candidate]:
+            per_pattern: int = 2) -> list[Candidate]:
     """(pattern, tiles) candidates for a sample turned by the rig's ``sample_rotation_deg``, best
-    lattice score first (scores compare within a pattern only); ``anchors``: see
-    :func:`backend.texture.lattice.candidates`."""
+    lattice score first (scores compare within a pattern only): the comb lattices joined by those
+    read from single peaks (:func:`backend.texture.lattice.with_anchored`)."""
+    return _with_anchored(spectra, rig, _comb_lattices(spectra, rig, patterns, per_pattern), per_pattern)
+
+
+def _scaled_ranges(pattern: str, rig: CaptureRig) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The pattern's :func:`tile_range` in tiles across and down the image."""
     scale = rig.view_size / rig.plane_size
-    ranges = {p: tile_range(p, rig) for p in patterns}
+    (tu_lo, tu_hi), (tv_lo, tv_hi) = tile_range(pattern, rig)
+    return (tu_lo * scale, tu_hi * scale), (tv_lo * scale, tv_hi * scale)
+
+
+def _comb_lattices(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
+                   per_pattern: int) -> dict[str, list[lattice.Lattice]]:
+    """Per pattern, the comb lattices (:func:`backend.texture.lattice.candidates`) for a sample
+    turned by the rig's ``sample_rotation_deg``."""
     lo, hi = _search_range(rig, patterns)
     rotation = rig.sample_rotation_deg
     combs = lattice.estimates(spectra, (lo, hi), (lo, hi), rotation_deg=rotation)
     sigs = signatures(rig)
+    return {pattern: lattice.candidates(spectra, combs, sigs[pattern], *_scaled_ranges(pattern, rig),
+                                        top=per_pattern, rotation_deg=rotation)
+            for pattern in patterns}
+
+
+def _with_anchored(spectra: lattice.Spectra, rig: CaptureRig, combs: dict[str, list[lattice.Lattice]],
+                   per_pattern: int) -> list[Candidate]:
+    """The comb lattices per pattern joined by those read from single peaks, as candidates."""
+    sigs = signatures(rig)
     out = []
-    for pattern in patterns:
-        (tu_lo, tu_hi), (tv_lo, tv_hi) = ranges[pattern]
-        found = lattice.candidates(spectra, combs, sigs[pattern], (tu_lo * scale, tu_hi * scale),
-                                   (tv_lo * scale, tv_hi * scale), top=per_pattern, rotation_deg=rotation,
-                                   anchors=anchors)
+    for pattern, found in combs.items():
+        found = lattice.with_anchored(spectra, found, sigs[pattern], *_scaled_ranges(pattern, rig),
+                                      top=per_pattern, rotation_deg=rig.sample_rotation_deg)
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
     return out
 
@@ -104,23 +123,24 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
            per_pattern: int = 1) -> tuple[float, list[Candidate]]:
     """(the sample's rotation, the candidates for it). A given ``rotation`` is used as it is; otherwise
     the rotation read from the spectra (:func:`sample_rotation`) is checked against the unturned
-    sample: both get comb candidates, and the unturned one stays unless the turned one's best
-    candidate scores higher. The rotation estimate verifies lattices with generic low harmonics; on
-    a dense satin those can prefer a turn of a tenth of a degree by a hair, and at that turn the
-    sieve misses the weave's own lattice (measured on the dev golden satin1 renders: 0.15 and 0.24
-    degrees). The comparison leaves out the lattices read from single peaks: on an aliased clean
-    render one can explain a pattern's signature better at a wrong turn than the true lattice does
-    unturned (dev golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the candidates of the
-    rotation chosen."""
+    sample: both get comb lattices, and the unturned one stays unless the turned one's best lattice
+    scores higher. The rotation estimate verifies lattices with generic low harmonics; on a dense
+    satin those can prefer a turn of a tenth of a degree by a hair, and at that turn the sieve misses
+    the weave's own lattice (measured on the dev golden satin1 renders: 0.15 and 0.24 degrees). The
+    comparison leaves out the lattices read from single peaks: on an aliased clean render one can
+    explain a pattern's signature better at a wrong turn than the true lattice does unturned (dev
+    golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the comb lattices of the rotation
+    chosen."""
     if rotation is None:
-        turned = sample_rotation(spectra, rig, patterns)
-        rotation = 0.0
+        rotation, turned = 0.0, sample_rotation(spectra, rig, patterns)
         if turned != 0.0:
-            unturned = propose(spectra, replace(rig, sample_rotation_deg=0.0), patterns, per_pattern, anchors=False)
-            found = propose(spectra, replace(rig, sample_rotation_deg=turned), patterns, per_pattern, anchors=False)
-            rotation = turned if _best_score(found) > _best_score(unturned) else 0.0
+            at = {angle: _comb_lattices(spectra, replace(rig, sample_rotation_deg=angle), patterns, per_pattern)
+                  for angle in (0.0, turned)}
+            rotation = turned if _best_score(at[turned]) > _best_score(at[0.0]) else 0.0
+            return rotation, _with_anchored(spectra, replace(rig, sample_rotation_deg=rotation), at[rotation],
+                                            per_pattern)
     return rotation, propose(spectra, replace(rig, sample_rotation_deg=rotation), patterns, per_pattern)
 
 
-def _best_score(found: list[Candidate]) -> float:
-    return max((c.score for c in found), default=-float("inf"))
+def _best_score(found: dict[str, list[lattice.Lattice]]) -> float:
+    return max((lat.score for lats in found.values() for lat in lats), default=-float("inf"))

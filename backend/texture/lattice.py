@@ -15,8 +15,9 @@ What runs:
    a cost per comb tooth so that the coarsest comb that explains them wins. This pins the lattice
    up to small sub- and super-multiples, without knowing the weave.
 2. :func:`candidates`: for one pattern, that lattice times small ratios per axis (:data:`RATIOS`)
-   and the lattices read from single peaks named as the pattern's strongest oblique harmonics
-   (:func:`anchored`), each polished (:func:`polish`) and scored by the pattern's *signature*
+   (and, :func:`with_anchored`, the lattices read from single peaks named as the pattern's
+   strongest oblique harmonics, :func:`anchored`), each polished (:func:`polish`) and scored by the
+   pattern's *signature*
    (:func:`signature_score`): which harmonics (m, n) carry the energy depends on the weave (and on
    the BSDF), measured once from a render at a low density where every significant harmonic is
    below Nyquist (:func:`signature`).
@@ -387,25 +388,32 @@ RATIOS = (1 / 3, 1 / 2, 2 / 3, 1.0, 3 / 2, 2.0, 3.0)
 
 def candidates(spectra: Spectra, combs: list[Lattice], signatures: list[Signature],
                a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
-               top: int = 3, rotation_deg: float = 0.0, anchors: bool = True) -> list[Lattice]:
+               top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
     """Lattices for one pattern: each comb estimate times small ratios per axis (a comb pins the
     lattice only up to sub- and super-multiples), kept within the pattern's range, each polished
-    and scored by the pattern's signature on the sharp peakness maps. Best first.
-
-    With ``anchors``, the lattices read from single peaks (:func:`anchored`) join them when they
-    score ANCHOR_GAIN times the best comb lattice: where the combs explain the peaks, a single
-    peak's reading wins by a few percent at most and is as often a near miss (photo-like satins
-    off by 3-9 %, the dev real satin1 read as a lattice 5 times coarser); where they fail, it wins
-    by 1.3-4 times (photo-like twills and satins at 2-4 px per yarn behind the phone's blur)."""
+    and scored by the pattern's signature on the sharp peakness maps. Best first."""
     starts = [(comb.a * ra, comb.a * ra if square else comb.b * rb)
               for comb in combs for ra in RATIOS for rb in ((ra,) if square else RATIOS)]
-    out = _polished(spectra, signatures, starts, a_range, b_range, square, rotation_deg)
-    if anchors:
-        floor = ANCHOR_GAIN * max((lat.score for lat in out), default=0.0)
-        read = anchored(spectra, signatures, a_range, b_range, square, rotation_deg)
-        out += [lat for lat in _polished(spectra, signatures, [(lat.a, lat.b) for lat in read], a_range, b_range,
-                                         square, rotation_deg) if lat.score > floor]
-    return sorted(out, key=lambda lat: -lat.score)[:top]
+    found = _polished(spectra, signatures, starts, a_range, b_range, square, rotation_deg)
+    return sorted(found, key=lambda lat: -lat.score)[:top]
+
+
+def with_anchored(spectra: Spectra, found: list[Lattice], signatures: list[Signature],
+                  a_range: tuple[float, float], b_range: tuple[float, float], square: bool = False,
+                  top: int = 3, rotation_deg: float = 0.0) -> list[Lattice]:
+    """``found`` (a pattern's :func:`candidates`, best first) joined by the lattices read from single
+    peaks (:func:`anchored`), polished, that score ANCHOR_GAIN times the best of ``found``. Best
+    first.
+
+    Where the combs explain the peaks, a single peak's reading wins by a few percent at most and is
+    as often a near miss (photo-like satins off by 3-9 %, the dev real satin1 read as a lattice 5
+    times coarser); where they fail, it wins by 1.3-4 times (photo-like twills and satins at 2-4 px
+    per yarn behind the phone's blur)."""
+    floor = ANCHOR_GAIN * max((lat.score for lat in found), default=0.0)
+    read = anchored(spectra, signatures, a_range, b_range, square, rotation_deg)
+    polished = _polished(spectra, signatures, [(lat.a, lat.b) for lat in read], a_range, b_range, square,
+                         rotation_deg)
+    return sorted(found + [lat for lat in polished if lat.score > floor], key=lambda lat: -lat.score)[:top]
 
 
 def _polished(spectra: Spectra, signatures, starts, a_range, b_range, square: bool,
