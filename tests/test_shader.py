@@ -401,9 +401,7 @@ def test_multiple_transmission_closures_follow_the_exact_lobe_in_the_rig():
                                            torch.tensor(1.0), torch.tensor(am), torch.tensor(Tm))
                 fm, peak = fm.numpy(), peak.numpy()
                 r = min(max(math.asin(min(0.5 * am / math.sqrt(1 - am * am), 1)), 0.001), 1)
-                theta = np.arcsin((wi * o).sum(0))
-                ab = np.arctan((math.pi / 2 + theta) / (2 * r)) - np.arctan((theta - math.pi / 2) / (2 * r))
-                hair_peak = 1 / (2 * math.atan(math.pi / 2)) / (2 * r * ab * np.cos(theta))
+                hair_peak = cycles_hair_transmission(wi, -wi, o, r)
                 glow = min(max((am - lo) / (hi - lo), 0), 1)
                 cone = (1 - glow) * shader_fallback.TT_CONE * peak / hair_peak * cycles_hair_transmission(wi, wo, o, r)
                 translucent = glow * math.pi * peak / wi[2] * np.abs(wo[2]) / math.pi

@@ -25,9 +25,10 @@ the dependence on the light direction wo is left to the closures:
   that its peak is the exact lobe at the straight-through direction wo = -wi, times the OSL shader's
   factors (0.3 + 0.7 alpha^2 single, TT_CONE multiple); the multiple lobe turns into a Translucent BSDF
   of weight pi f_m(-wi) / |wi_z| (its straight-through value) as alpha_m grows (TT_GLOW). EEVEE lights
-  no hair closure on a surface, so there a Translucent BSDF takes the lesser of a hair closure's energy
-  (its weight: the closure is a normalised density) and the weight whose value at wo = -wi is the lobe's
-  peak (pi f / |wi_z|): a sharp lobe keeps its energy, a wide one its straight-through value;
+  no hair closure on a surface, so there the Translucent BSDF takes, for each hair closure's share, the
+  lesser of its energy (its weight: the closure is a normalised density) and the weight whose value at
+  wo = -wi is its peak (pi f / |wi_z|), plus the multiple lobe's glow: a sharp lobe keeps its energy, a
+  wide one its straight-through value;
 - two layers (4.5): the back layer's reflection lobes carry att0(wi) att0(wo*), the transmission
   lobes att1(wi) (front layer) and att0(wi) (back layer), att = exp(-T sigma(w) / |w_z|);
 - diffuse: (1 - w) k_d^r diffuse(N) + w k_d^r diffuse(n), n the front yarn's normal (the back one's
