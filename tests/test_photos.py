@@ -547,9 +547,11 @@ def test_pair_framed_at_another_scale_is_refused(tmp_path):
 def test_pair_framed_at_a_slightly_different_scale_is_a_warning(tmp_path):
     r, t = synthetic_pair(tmp_path, transmission_scale=1 / 1.1)
     pair = load_pair(r, t, size=256)
-    [warning] = pair.warnings
+    warning, registered = pair.warnings  # the framing check's doubt, then what registration did about it
     assert "magnified 1.1" in warning and "slightly different scales" in warning
     assert pair.info["yarn_frequency"]["scale"] == pytest.approx(1.1, rel=0.03)
+    assert "the reflection photo was magnified 1.1" in registered
+    assert pair.info["registration"]["magnification"] == pytest.approx(1.1, rel=0.01)
 
 
 def test_a_pair_without_any_yarn_pattern_is_refused_and_one_without_is_a_warning(tmp_path):

@@ -223,7 +223,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         written["metrics"] = str(out / "metrics.json")
         report = optional("report.png", lambda: write_report(
             out / "report.png", (photos.reflection, photos.transmission), renders, metrics, result.params, rig,
-            time.perf_counter() - started, at_bounds, result.light))
+            time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration")))
         if report is not None:
             written["report"] = str(report)
     reporter.progress("report", 1, 1)

@@ -1,7 +1,8 @@
 """The fit report (report.png): what the fit found and how its re-renders compare with the photos.
 
 - a header: pattern, tiles, the main parameters (warp / weft), the camera blur, sample rotation and
-  photo light falloff the fit read (the re-renders show them; the material carries none), and every
+  photo light falloff the fit read (the re-renders show them; the material carries none), whether
+  the photos were registered onto one framing (:mod:`backend.image.registration`), and every
   parameter that ended at a bound of its declared range (in red: the fit wanted a value beyond the
   range, or the images do not constrain it);
 - per image (reflection, transmission): photo, re-render and |error| x 4 (inferno) at 320 px, with
@@ -77,7 +78,7 @@ def _pairs(values, digits: int) -> str:
 
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
                  metrics: dict[str, dict[str, float]], params: FabricParams, rig: CaptureRig, wall_s: float,
-                 at_bounds: list[str], light: PhotoLight = PhotoLight()) -> Path:
+                 at_bounds: list[str], light: PhotoLight = PhotoLight(), registration: dict | None = None) -> Path:
     """Writes report.png (see the module docstring)."""
     header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
                f"camera blur {rig.camera_blur_px:.2f} px   sample rotation {rig.sample_rotation_deg:+.2f} deg   "
@@ -88,6 +89,10 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
     if not light.flat:
         header.append((f"photo light falloff (x, y, r): R {_signed(light.reflection)}   T {_signed(light.transmission)}"
                        "   (in the re-renders, not in the material)", None))
+    if registration is not None:
+        header.append((f"photos registered: their lattices were {registration['magnification']:.3f}x and "
+                       f"{registration['turn_deg']:+.2f} deg apart (the phone moved between the shots); the "
+                       f"{registration['moved']} photo is shown and compared magnified onto the other's framing", None))
     header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
     header = [(line, colour) for text, colour in header for line in wrapped(text, width - 20)]

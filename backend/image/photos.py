@@ -20,6 +20,9 @@ the same way (the tests use it to check each step on its own).
 - Pair checks (:mod:`.pair_checks`) run on the working images before the flat-field division
   (:mod:`.flat_field`): a framing problem raises :class:`PhotoError`, doubts about the order are
   warnings, or :class:`PhotoError` with ``strict=True``.
+- Registration (:mod:`.registration`), last: where the two photos' lattices clearly differ by a
+  magnification and turn (the phone moved between the shots), the photo showing more fabric is
+  magnified onto the other's framing, with a warning that says so; ``info["registration"]``.
 
 Errors are :class:`PhotoError` (a ``ValueError``, declared in :mod:`.errors`) whose message names the
 file and the problem.
@@ -45,6 +48,7 @@ from .pair_checks import (
     order_cues,
     order_score,
 )
+from .registration import register
 from .tone import auto_exposure, encode, resize_linear, to_linear
 
 __all__ = ["DEFAULT_SIZE", "Photo", "PhotoError", "PhotoPair", "check_crop_size", "crop_box", "load_pair",
@@ -217,6 +221,14 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     flat_r, flat_t = _flat_paths(flat_field)
     image_r = flat_corrected(image_r, flat_r, reflection, box, size, warnings)
     image_t = flat_corrected(image_t, flat_t, transmission, box, size, warnings)
+    image_r, image_t, registration = register(image_r, image_t, frequency_info["scale"])
+    if registration is not None:
+        m = registration.magnification
+        warnings.append(f"{label}: the photos are framed differently (the transmission photo's yarn lattice is the "
+                        f"reflection's turned {registration.turn_deg:+.2f} degrees and magnified "
+                        f"{1 / m if registration.moved == 'transmission' else m:.3f}x, {registration.matches} "
+                        f"matching peaks): the {registration.moved} photo was magnified {m:.3f}x about its centre "
+                        f"to match (the fit sees the central {1 / m:.0%} of its width)")
 
     def describe(source: SourceImage, scale):
         return {"path": str(source.path), "format": source.format, "source_size": list(source.size),
@@ -225,5 +237,6 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     info = {"reflection": describe(reflection, scale_r), "transmission": describe(transmission, scale_t),
             "size": size,
             "order": {"reflection": cues_r, "transmission": cues_t, "score": order_score(cues_r, cues_t)},
-            "yarn_frequency": frequency_info}
+            "yarn_frequency": frequency_info,
+            "registration": None if registration is None else registration.to_dict()}
     return PhotoPair(image_r, image_t, warnings, info)

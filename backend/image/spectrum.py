@@ -13,9 +13,13 @@ The high-pass removes the lighting gradient, glow and vignetting (everything muc
 power through the spectrum. The spectrum metric (:mod:`.metrics`), the yarn peaks of the pair checks
 (:mod:`.pair_checks`) and the camera blur (:mod:`.camera_blur`) take their spectra from here;
 ``windowed_highpass(image, N / 64)`` is, bit for bit, the input of the fit's yarn lattice
-(``texture/lattice.py``).
+(``texture/lattice.py``) and of the sharp spectral peaks (:func:`peakness`, :func:`spectral_peaks`)
+that the lattice and the pair's registration (:mod:`.registration`) read.
 """
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -42,3 +46,50 @@ def windowed_highpass(image: np.ndarray, sigma: float) -> np.ndarray:
 def power_spectrum(windowed: np.ndarray) -> np.ndarray:
     """``|fftshift(fft2(windowed))|^2``: the power at each frequency, DC at the centre."""
     return np.abs(np.fft.fftshift(np.fft.fft2(windowed))) ** 2
+
+
+def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
+    """log power minus its local background (clipped at 0), on a pad-times zero-padded FFT grid,
+    blurred by ``blur`` original bins so a lattice grid of finite step cannot step over a peak."""
+    y = windowed_highpass(image, image.shape[0] / 64)
+    h, w = y.shape
+    spectrum = np.abs(np.fft.fft2(y, s=(h * pad, w * pad))) ** 2
+    logp = np.log(np.fft.fftshift(spectrum) + 1e-12)
+    background = cv2.GaussianBlur(logp, (0, 0), 6 * pad)
+    excess = np.clip(logp - background, 0.0, None)
+    return cv2.GaussianBlur(excess, (0, 0), blur * pad) if blur > 0 else excess
+
+
+
+@dataclass(frozen=True)
+class Peak:
+    fx: float        # cycles per image, to the right
+    fy: float        # cycles per image, down the image
+    strength: float  # peakness (log power above the local background)
+
+
+def spectral_peaks(image: np.ndarray, count: int = 24, threshold: float = 2.5, pad: int = 4) -> list[Peak]:
+    """The strongest isolated spectral peaks (half plane), with sub-bin positions."""
+    q = peakness(image, pad=pad, blur=0.0).astype(np.float32)
+    size = image.shape[0]
+    local_max = q >= cv2.dilate(q, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
+    cy, cx = q.shape[0] // 2, q.shape[1] // 2
+    rows, cols = np.nonzero(local_max & (q > threshold))
+    peaks = []
+    for r, c in zip(rows, cols):
+        fx, fy = (c - cx) / pad, (r - cy) / pad
+        inside = 0 < r < q.shape[0] - 1 and 0 < c < q.shape[1] - 1
+        if fy < 0 or (fy == 0 and fx <= 0) or math.hypot(fx, fy) < 4 or not inside:
+            continue
+        # Parabolic interpolation of the log-power excess along each axis.
+        dx = _vertex_offset(q[r, c - 1], q[r, c], q[r, c + 1])
+        dy = _vertex_offset(q[r - 1, c], q[r, c], q[r + 1, c])
+        peaks.append(Peak(fx + dx / pad, fy + dy / pad, float(q[r, c])))
+    peaks.sort(key=lambda p: -p.strength)
+    return [p for p in peaks if abs(p.fx) < size / 2 - 1 and p.fy < size / 2 - 1][:count]
+
+
+def _vertex_offset(left: float, centre: float, right: float) -> float:
+    """Offset of the vertex of the parabola through three equally spaced samples (0 unless it is a maximum)."""
+    curvature = left - 2 * centre + right
+    return 0.5 * (left - right) / max(curvature, -1e9) if curvature < 0 else 0.0

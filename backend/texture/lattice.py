@@ -28,11 +28,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..core.weave import PRESETS
-from ..image.spectrum import windowed_highpass
+from ..image.spectrum import Peak, peakness, spectral_peaks, windowed_highpass
 from ..image.tone import GAMMA, encode, resize_linear
 
 
@@ -154,18 +153,6 @@ def signature(image: np.ndarray, a: float, b: float, order: int = 6, keep: int =
     return Signature(mm[best], nn[best], weight)
 
 
-def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
-    """log power minus its local background (clipped at 0), on a pad-times zero-padded FFT grid,
-    blurred by ``blur`` original bins so a lattice grid of finite step cannot step over a peak."""
-    y = windowed_highpass(image, image.shape[0] / 64)
-    h, w = y.shape
-    spectrum = np.abs(np.fft.fft2(y, s=(h * pad, w * pad))) ** 2
-    logp = np.log(np.fft.fftshift(spectrum) + 1e-12)
-    background = cv2.GaussianBlur(logp, (0, 0), 6 * pad)
-    excess = np.clip(logp - background, 0.0, None)
-    return cv2.GaussianBlur(excess, (0, 0), blur * pad) if blur > 0 else excess
-
-
 def _fold(f: np.ndarray, size: int) -> np.ndarray:
     """Frequency (cycles per image) after sampling with `size` pixels: folded into [-size/2, size/2]."""
     return (f + size / 2) % size - size / 2
@@ -212,40 +199,6 @@ def polish(maps, signatures, start: Lattice, size: int, square: bool, span: floa
     a_best = float(np.broadcast_to(a, scores.shape)[row, col])
     b_best = float(np.broadcast_to(b, scores.shape)[row, col])
     return Lattice(a_best, b_best, float(scores[row, col]))
-
-
-@dataclass(frozen=True)
-class Peak:
-    fx: float        # cycles per image, to the right
-    fy: float        # cycles per image, down the image
-    strength: float  # peakness (log power above the local background)
-
-
-def spectral_peaks(image: np.ndarray, count: int = 24, threshold: float = 2.5, pad: int = 4) -> list[Peak]:
-    """The strongest isolated spectral peaks (half plane), with sub-bin positions."""
-    q = peakness(image, pad=pad, blur=0.0).astype(np.float32)
-    size = image.shape[0]
-    local_max = q >= cv2.dilate(q, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
-    cy, cx = q.shape[0] // 2, q.shape[1] // 2
-    rows, cols = np.nonzero(local_max & (q > threshold))
-    peaks = []
-    for r, c in zip(rows, cols):
-        fx, fy = (c - cx) / pad, (r - cy) / pad
-        inside = 0 < r < q.shape[0] - 1 and 0 < c < q.shape[1] - 1
-        if fy < 0 or (fy == 0 and fx <= 0) or math.hypot(fx, fy) < 4 or not inside:
-            continue
-        # Parabolic interpolation of the log-power excess along each axis.
-        dx = _vertex_offset(q[r, c - 1], q[r, c], q[r, c + 1])
-        dy = _vertex_offset(q[r - 1, c], q[r, c], q[r + 1, c])
-        peaks.append(Peak(fx + dx / pad, fy + dy / pad, float(q[r, c])))
-    peaks.sort(key=lambda p: -p.strength)
-    return [p for p in peaks if abs(p.fx) < size / 2 - 1 and p.fy < size / 2 - 1][:count]
-
-
-def _vertex_offset(left: float, centre: float, right: float) -> float:
-    """Offset of the vertex of the parabola through three equally spaced samples (0 unless it is a maximum)."""
-    curvature = left - 2 * centre + right
-    return 0.5 * (left - right) / max(curvature, -1e9) if curvature < 0 else 0.0
 
 
 def comb_scores(freqs: np.ndarray, strengths: np.ndarray, periods: np.ndarray, size: int,
