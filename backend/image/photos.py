@@ -226,7 +226,7 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
         m = registration.magnification
         warnings.append(f"{label}: the photos are framed differently (the transmission photo's yarn lattice is the "
                         f"reflection's turned {registration.turn_deg:+.2f} degrees and magnified "
-                        f"{1 / m if registration.moved == 'transmission' else m:.3f}x, {registration.matches} "
+                        f"{registration.scale:.3f}x, {registration.matches} "
                         f"matching peaks): the {registration.moved} photo was magnified {m:.3f}x about its centre "
                         f"to match (the fit sees the central {1 / m:.0%} of its width)")
 

@@ -52,20 +52,28 @@ MAX_MAGNIFICATION = 1.2
 
 @dataclass(frozen=True)
 class Registration:
-    """What :func:`register` did: ``matrix`` A (k_R = A k_T), the photo it magnified, the peaks
-    matched, the fit's residual and the matched peaks' shift under A (RMS, cycles per image)."""
+    """What :func:`register` did: ``matrix`` A (k_R = A k_T), the peaks matched, the fit's residual
+    and the matched peaks' shift under A (RMS, cycles per image)."""
 
     matrix: tuple[tuple[float, float], tuple[float, float]]
-    moved: str          # "reflection" or "transmission"
     matches: int
     residual: float
     shift: float
 
     @property
+    def scale(self) -> float:
+        """How much denser the reflection's lattice is than the transmission's: sqrt(det A)."""
+        return math.sqrt(float(np.linalg.det(np.asarray(self.matrix))))
+
+    @property
+    def moved(self) -> str:
+        """The photo that was magnified: the one whose lattice is denser."""
+        return "reflection" if self.scale > 1 else "transmission"
+
+    @property
     def magnification(self) -> float:
-        """How much the moved photo was magnified (the square root of |det A|, or of its inverse)."""
-        det = abs(float(np.linalg.det(np.asarray(self.matrix))))
-        return math.sqrt(max(det, 1.0 / det))
+        """How much the moved photo was magnified."""
+        return max(self.scale, 1.0 / self.scale)
 
     @property
     def turn_deg(self) -> float:
@@ -89,16 +97,13 @@ def lattice_map(reflection: np.ndarray, transmission: np.ndarray, scale: float
     if len(ref) < 3 or len(trans) < 3:
         return None
     matrix = scale * np.eye(2)
-    pairs = None
     for round_ in range(ROUNDS + 1):
         predicted = trans @ matrix.T
         tolerance = START_TOLERANCE * np.linalg.norm(ref, axis=1) if round_ == 0 else np.full(len(ref), MATCH_CYCLES)
-        pairs = _matched(ref, predicted, trans, tolerance)
-        if len(pairs[0]) < 3:
+        q, p = _matched(ref, predicted, trans, tolerance)
+        if len(q) < 3:
             return None
-        q, p = pairs
         matrix = np.linalg.lstsq(q, p, rcond=None)[0].T
-    q, p = pairs
     residual = float(np.sqrt(np.mean(np.sum((q @ matrix.T - p) ** 2, axis=1))))
     shift = float(np.sqrt(np.mean(np.sum((q @ (matrix - np.eye(2)).T) ** 2, axis=1))))
     return matrix, len(q), residual, shift
@@ -147,8 +152,7 @@ def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | No
              and 1 / MAX_MAGNIFICATION ** 2 <= det <= MAX_MAGNIFICATION ** 2)
     if not clear:
         return reflection, transmission, None
-    done = Registration(tuple(tuple(float(x) for x in row) for row in matrix),
-                        "reflection" if det > 1 else "transmission", matches, residual, shift)
-    if det > 1:
+    done = Registration(tuple(tuple(float(x) for x in row) for row in matrix), matches, residual, shift)
+    if done.moved == "reflection":
         return magnified(reflection, np.linalg.inv(matrix).T), transmission, done
     return reflection, magnified(transmission, matrix.T), done

@@ -60,7 +60,6 @@ def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
     return cv2.GaussianBlur(excess, (0, 0), blur * pad) if blur > 0 else excess
 
 
-
 @dataclass(frozen=True)
 class Peak:
     fx: float        # cycles per image, to the right
