@@ -262,12 +262,14 @@ def test_metrics_match_the_team_checker(shared_tools, twill_pair):
 
 
 def test_the_sample_rotation_is_read_from_the_spectra(twill_pair):
-    # A turned sample moves every lattice peak; the estimate must find the turn (and none when there is none).
+    # A turned sample moves every lattice peak; the estimate must find the turn (and none when there
+    # is none), without a shear.
     turned = render_pair(TWILL, CaptureRig(sample_rotation_deg=-2.5), size=512, spp=8, seed=3)
-    estimate = search.sample_rotation(lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()]),
-                                      DEFAULT_RIG)
-    assert estimate == pytest.approx(-2.5, abs=0.25)
-    assert search.sample_rotation(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG) == pytest.approx(0.0, abs=0.25)
+    found = search.sample_placement(lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()]),
+                                    DEFAULT_RIG)
+    assert (found.rotation_deg, found.skew_deg) == pytest.approx((-2.5, 0.0), abs=0.25)
+    found = search.sample_placement(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG)
+    assert (found.rotation_deg, found.skew_deg) == pytest.approx((0.0, 0.0), abs=0.25)
 
 
 @pytest.mark.parametrize("name", ["satin1_s1", "satin1_s2"])
@@ -278,10 +280,10 @@ def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
     # unturned placement are now hypotheses too, judged by the pattern signature.
     truth = FabricParams.from_interchange(next(c for c in golden_cases if c["name"] == name)["params"])
     pair = load_pair(golden_dir / f"{name}_R.png", golden_dir / f"{name}_T.png", size=512)
-    rotation, found = search.placed(lattice.Spectra.of([pair.reflection, pair.transmission]), DEFAULT_RIG,
-                                    PATTERNS, None)
+    placement, found = search.placed(lattice.Spectra.of([pair.reflection, pair.transmission]), DEFAULT_RIG,
+                                     PATTERNS, None)
     satin = next(c for c in found if c.pattern == "satin1")
-    assert rotation == 0.0
+    assert placement == (0.0, 0.0)
     assert satin.tiles == pytest.approx(truth.tiles, rel=0.01)
     assert max(found, key=lambda c: c.score).pattern == "satin1"
 
@@ -297,19 +299,19 @@ def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
     assert truth.pattern == pattern
     pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
     spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
-    rotation, found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)  # as the fit places it
-    assert rotation == pytest.approx(case["rig"]["sample_rotation_deg"], abs=0.25)
+    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)  # as the fit places it
+    assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=0.25)
     assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01)
 
 
 def test_a_given_sample_rotation_is_kept_and_a_clear_turn_is_found(twill_pair):
     turned = render_pair(TWILL, CaptureRig(sample_rotation_deg=-2.5), size=512, spp=8, seed=3)
     spectra = lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()])
-    rotation, found = search.placed(spectra, DEFAULT_RIG, ("twill1",), None)
-    assert rotation == pytest.approx(-2.5, abs=0.25)
+    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, ("twill1",), None)
+    assert (rotation, skew) == pytest.approx((-2.5, 0.0), abs=0.25)
     assert found[0].tiles == pytest.approx(TWILL.tiles, rel=0.01)
     given, _ = search.placed(spectra, DEFAULT_RIG, ("twill1",), 1.0)
-    assert given == 1.0
+    assert given == (1.0, 0.0)
 
 
 def test_dense_weaves_get_the_photos_full_resolution():

@@ -136,7 +136,8 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                 fitted, rig = result["params"], result["rig"]
                 row.update(pattern=fitted.pattern, tiles=[round(x, 1) for x in fitted.tiles],
                            peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
-                           rotation_deg=rig.sample_rotation_deg, at_bounds=result["at_bounds"])
+                           rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
+                           at_bounds=result["at_bounds"])
                 for tag in ("reflection", "transmission"):
                     for key, value in result["metrics"][tag].items():
                         row[f"{key}_{tag[0].upper()}"] = round(value, 4)
@@ -167,7 +168,7 @@ def _format(row: dict) -> str:
             f"tiles {row['tiles'][0]:6.1f} {row['tiles'][1]:6.1f}"
             f"  FLIP {row['flip_R']:.3f}/{row['flip_T']:.3f}  colour {row['colour_l1_R']:.4f}/{row['colour_l1_T']:.4f}"
             f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}"
-            f"  blur {row['camera_blur_px']:.2f}  rot {row['rotation_deg']:+.2f}"
+            f"  blur {row['camera_blur_px']:.2f}  rot {row['rotation_deg']:+.2f}  skew {row['skew_deg']:+.2f}"
             f"  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB")
     if "roughness_mae" in row:
         text += (f"  pattern {'ok' if row['pattern_ok'] else 'WRONG'}{'' if row['family_ok'] else ' (family WRONG)'}"

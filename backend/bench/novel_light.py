@@ -42,7 +42,7 @@ NOVEL_LIGHTS = {
 def novel_light_images(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size: int = 256, spp: int = 16,
                        gains: tuple[torch.Tensor, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
     """Display-space images (size, size, 3) of ``params`` under each novel light."""
-    base = dataclasses.replace(rig, sample_rotation_deg=0.0, camera_blur_px=0.0)
+    base = dataclasses.replace(rig, sample_rotation_deg=0.0, sample_skew_deg=0.0, camera_blur_px=0.0)
     out = {}
     for name, (photo, changes) in NOVEL_LIGHTS.items():
         renderer = Renderer(dataclasses.replace(base, **changes), size=size, spp=spp, seed=5,

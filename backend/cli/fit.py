@@ -123,7 +123,8 @@ def add_fit_options(p) -> None:
     p.add_argument("--sample-rotation", default=FolderFitOptions.sample_rotation,
                    type=_auto_or_number(MAX_SAMPLE_ROTATION_DEG, "degrees"), metavar="auto|DEG",
                    help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the "
-                        "photos (auto, default; a rig file's non-zero sample_rotation_deg is kept) or fixed")
+                        "photos with its skew (auto, default; a rig file's non-zero sample_rotation_deg is kept) or "
+                        "fixed (then the rig file's sample_skew_deg, 0 by default, is kept too)")
     p.add_argument("--light-falloff", choices=("fit", "none"), default=FolderFitOptions.light_falloff,
                    help="the photos' smooth light falloff (a tilt and a bowl per photo, which the rig's point lamps "
                         "do not make): solved with the fit and kept out of the material (fit, default), or none")

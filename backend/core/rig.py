@@ -23,6 +23,12 @@ about the centre of the visible square (counter-clockwise as the camera sees it)
 that many degrees off the image's vertical. The paper's renderer has none (0, the default); a real
 sample sits a few degrees off, which the fit reads from the photos' spectra.
 
+``sample_skew_deg`` is how far the sample is sheared in the holder (fabric skew: a cloth pulled a
+little out of square when it was laid flat): the warps are turned by rotation + skew / 2 and the
+wefts by rotation - skew / 2, so they cross at 90 + skew degrees (:attr:`yarn_angles_deg`). Each
+yarn keeps its own shape; only its direction changes. The paper's renderer has none; the dev real
+twills show 1.5-4 degrees, enough to move the lattice by more than a cycle across the image.
+
 ``width_cm`` is the real width of the visible square when known (for physical scale).
 """
 from __future__ import annotations
@@ -36,6 +42,7 @@ from .jsonfile import read_json
 
 MAX_CAMERA_BLUR_PX = 4.0
 MAX_SAMPLE_ROTATION_DEG = 45.0
+MAX_SAMPLE_SKEW_DEG = 10.0
 
 
 class RigError(ValueError):
@@ -59,6 +66,7 @@ class CaptureRig:
     clamp: float = 1.0
     camera_blur_px: float = 0.0
     sample_rotation_deg: float = 0.0
+    sample_skew_deg: float = 0.0
     width_cm: float | None = None
 
     def __post_init__(self):
@@ -80,6 +88,10 @@ class CaptureRig:
         if not isinstance(rotation, (int, float)) or not abs(rotation) <= MAX_SAMPLE_ROTATION_DEG:
             raise RigError(f"rig.sample_rotation_deg: must be in [-{MAX_SAMPLE_ROTATION_DEG:g}, "
                            f"{MAX_SAMPLE_ROTATION_DEG:g}] degrees, got {rotation!r}")
+        skew = self.sample_skew_deg
+        if not isinstance(skew, (int, float)) or not abs(skew) <= MAX_SAMPLE_SKEW_DEG:
+            raise RigError(f"rig.sample_skew_deg: must be in [-{MAX_SAMPLE_SKEW_DEG:g}, "
+                           f"{MAX_SAMPLE_SKEW_DEG:g}] degrees, got {skew!r}")
         if self.glow_strength < 0:
             raise RigError(f"rig.glow_strength: must be >= 0, got {self.glow_strength!r}")
         for name, side in (("front_light", 1), ("back_light", -1)):
@@ -104,6 +116,13 @@ class CaptureRig:
     @property
     def view_centre(self) -> tuple[float, float]:
         return self.view_size / 2.0, -self.view_size / 2.0
+
+    @property
+    def yarn_angles_deg(self) -> tuple[float, float]:
+        """(warp, weft): how far the warps and the wefts are turned, counter-clockwise as the camera
+        sees it: rotation + skew / 2 and rotation - skew / 2."""
+        half = self.sample_skew_deg / 2.0
+        return self.sample_rotation_deg + half, self.sample_rotation_deg - half
 
     def camera_position(self) -> tuple[float, float, float]:
         cx, cy = self.view_centre

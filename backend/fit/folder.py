@@ -175,7 +175,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
 
     # the placement the fit read from the photos: the re-renders and params.json's rig use it
     rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4),
-                              sample_rotation_deg=round(result.sample_rotation_deg, 4))
+                              sample_rotation_deg=round(result.sample_rotation_deg, 4),
+                              sample_skew_deg=round(result.sample_skew_deg, 4))
     at_bounds = result.params.at_bounds(FITTED)
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
@@ -243,6 +244,7 @@ def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings
                "timings": {k: round(v, 2) for k, v in result.timings.items()},
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
                "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
+               "sample_skew_deg": rig.sample_skew_deg,
                "light_falloff": result.light.to_dict(), "at_bounds": at_bounds}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()

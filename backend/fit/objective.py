@@ -73,7 +73,8 @@ class Objective:
         if key != self._probe_key:
             a, b = lattice_of(tiles, self.rig)
             self._probe = LatticeProbe(self.target.size, a, b, device=self.target.reflection.device,
-                                       rotation_deg=self.rig.sample_rotation_deg)
+                                       rotation_deg=self.rig.sample_rotation_deg,
+                                       skew_deg=self.rig.sample_skew_deg)
             self._photo = (describe(self.target.reflection, self._probe, self.rig.gamma),
                            describe(self.target.transmission, self._probe, self.rig.gamma))
             self._probe_key = key

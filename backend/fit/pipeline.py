@@ -1,7 +1,8 @@
 """Fitting fabric parameters to a reflection/transmission photo pair.
 
-    placement  the sample's rotation in the holder, read from the photos' spectra (unless given)
-               and kept only when its lattice candidates score higher than the unturned sample's
+    placement  the sample's rotation and skew in the holder, read from the photos' spectra (unless
+               the rotation is given) and kept only when its lattice candidates score higher than
+               the unturned sample's
                (:func:`backend.texture.candidates.placed`): the lattice, the loss's probes and the
                renders all use it
     search     candidates from the spectra, starting points, camera blur, short trial fits,
@@ -71,8 +72,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
     spectra = Spectra.of([reflection, transmission])
-    rotation, found = placed(spectra, rig, patterns, settings.sample_rotation)
-    rig = dataclasses.replace(rig, sample_rotation_deg=rotation)
+    (rotation, skew), found = placed(spectra, rig, patterns, settings.sample_rotation)
+    rig = dataclasses.replace(rig, sample_rotation_deg=rotation, sample_skew_deg=skew)
     found = found or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
 
     def check_stop(run: Run | None = None):
@@ -115,7 +116,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         _, light = run.objective.rendered(run.best, run.best_blur)
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
-                     run.history, timings, run.best_blur, rotation, light, settings.size, settings.spp,
+                     run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
                      settings.iterations)
 
 

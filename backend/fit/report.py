@@ -82,6 +82,7 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
     """Writes report.png (see the module docstring)."""
     header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
                f"camera blur {rig.camera_blur_px:.2f} px   sample rotation {rig.sample_rotation_deg:+.2f} deg   "
+               f"skew {rig.sample_skew_deg:+.2f} deg   "
                f"fit {wall_s:.0f} s", None),
               (f"roughness {_pairs(params.roughness, 2)}   thickness {_pairs(params.thickness, 2)}   "
                f"height {_pairs(params.height_scale, 2)}   gap {_pairs(params.gap_scale, 2)}   "

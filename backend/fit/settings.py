@@ -56,6 +56,7 @@ class FitResult:
     timings: dict[str, float] = field(default_factory=dict)
     camera_blur_px: float = 0.0
     sample_rotation_deg: float = 0.0
+    sample_skew_deg: float = 0.0
     light: PhotoLight = PhotoLight()  # the photos' light falloff at the best parameters
     size: int = 0                    # the working size, samples per pixel and iterations the fit used
     spp: int = 0

@@ -145,7 +145,7 @@ def candidate_features(pair: WorkingPair, pattern: str, tiles: Sequence[float], 
     """The network input (FEATURE_DIM,) for one (pattern, tiles) candidate of a working pair."""
     with torch.no_grad():
         a, b = lattice_of(tiles, rig)
-        probe = LatticeProbe(WORK_SIZE, a, b, rotation_deg=rig.sample_rotation_deg)
+        probe = LatticeProbe(WORK_SIZE, a, b, rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg)
         parts = [f for image in (pair.reflection, pair.transmission) for f in _image_features(image, probe, rig.gamma)]
         one_hot = torch.zeros(len(PATTERNS))
         one_hot[PATTERNS.index(pattern)] = 1.0

@@ -6,9 +6,15 @@ the discrete parameters (pattern, tiles, gap scale, twist, noise), so the optimi
 once per discrete state and reuses it across iterations.
 
 UV mapping (spec 1): u = x / P, v = y / P + 1; tile coordinates s = frac(u tu), t = 1 - frac(v tv);
-tile units X = s * tile_width, Y = t * tile_height (Y grows down the image). A sample turned by the
-rig's ``sample_rotation_deg`` theta about the view centre c is looked up at the fabric point
-c + R(-theta)(p - c), and its yarn normals and fiber directions are turned by R(theta) about z.
+tile units X = s * tile_width, Y = t * tile_height (Y grows down the image). A sample whose warps are
+turned by theta_1 and wefts by theta_2 about the view centre c (the rig's ``yarn_angles_deg``:
+rotation +- skew / 2) is looked up at the fabric point
+
+    f = c + ( cos(theta_1) d_x + sin(theta_1) d_y,  -sin(theta_2) d_x + cos(theta_2) d_y ),  d = p - c
+
+(lines of constant f_x, the warps, run along R(theta_1) y; lines of constant f_y, the wefts, along
+R(theta_2) x; with no skew this is c + R(-theta)(p - c)), and the yarn normals and fiber directions of
+a warp are turned by R(theta_1) about z, those of a weft by R(theta_2).
 Tension (spec 3.4): thickness *= S_min + (1 - mu)(1 - S_min).
 Noise (spec 4.6, N > 0): for non-plain weaves the albedos are scaled by min(-ln xi, 10) per cell of
 a grid of spacing 1 / (11 - N) tile units; for plain the height scale of each yarn segment moves by
@@ -63,22 +69,27 @@ class GeometryKey:
 
 
 def fabric_point(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig) -> tuple[torch.Tensor, torch.Tensor]:
-    """The point of the (turned) fabric under world (x, y): c + R(-theta)(p - c)."""
-    if rig.sample_rotation_deg == 0:
+    """The point of the (turned, sheared) fabric under world (x, y) (the module's formula)."""
+    warp_deg, weft_deg = rig.yarn_angles_deg
+    if warp_deg == 0 and weft_deg == 0:
         return x, y
-    theta = math.radians(rig.sample_rotation_deg)
+    t1, t2 = math.radians(warp_deg), math.radians(weft_deg)
     cx, cy = rig.view_centre
     dx, dy = x - cx, y - cy
-    return (cx + math.cos(theta) * dx + math.sin(theta) * dy,
-            cy - math.sin(theta) * dx + math.cos(theta) * dy)
+    return cx + math.cos(t1) * dx + math.sin(t1) * dy, cy - math.sin(t2) * dx + math.cos(t2) * dy
 
 
-def turned(vectors: torch.Tensor, rig: CaptureRig) -> torch.Tensor:
-    """(3, S) directions of the fabric's frame in the world: R(theta) about z."""
-    if rig.sample_rotation_deg == 0:
+def turned(vectors: torch.Tensor, rig: CaptureRig, warp: torch.Tensor) -> torch.Tensor:
+    """(3, S) directions of the yarns' frames in the world: R(theta_1) about z where ``warp`` (S,) is
+    true, R(theta_2) elsewhere."""
+    warp_deg, weft_deg = rig.yarn_angles_deg
+    if warp_deg == 0 and weft_deg == 0:
         return vectors
-    theta = math.radians(rig.sample_rotation_deg)
-    c, s = math.cos(theta), math.sin(theta)
+    if warp_deg == weft_deg:
+        theta = torch.tensor(math.radians(warp_deg), dtype=vectors.dtype, device=vectors.device)
+    else:
+        theta = torch.where(warp, math.radians(warp_deg), math.radians(weft_deg)).to(vectors.dtype)
+    c, s = torch.cos(theta), torch.sin(theta)
     return torch.stack((c * vectors[0] - s * vectors[1], s * vectors[0] + c * vectors[1], vectors[2]))
 
 
@@ -102,8 +113,9 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     out = []
     for index, layer in enumerate(layers):
         n, o = local_frame(layer, twist)
-        n, o = turned(n, rig), turned(o, rig)
-        warp = (layer.yarn == WARP).to(dtype)
+        is_warp = layer.yarn == WARP
+        n, o = turned(n, rig, is_warp), turned(o, rig, is_warp)
+        warp = is_warp.to(dtype)
         weft = (layer.yarn == WEFT).to(dtype)
         thickness_scale = (s_min + (1.0 - layer.mu) * (1.0 - s_min)).to(dtype)
         albedo_scale = height_offset = None

@@ -5,8 +5,8 @@
 2. for each preset, :func:`backend.texture.lattice.candidates` scales those lattices by small ratios,
    polishes each hypothesis and scores it with the preset's *signature* (its harmonic structure,
    measured once per rig from a render of the preset's typical parameters at a low density);
-3. :func:`placed` does this for the sample's rotation read from the spectra and for the unturned
-   sample, and keeps the placement whose best candidate scores higher.
+3. :func:`placed` does this for the sample's placement (rotation and skew) read from the spectra and
+   for the unturned sample, and keeps the placement whose best candidate scores higher.
 
 The fit then gives the best few (pattern, tiles) candidates a short optimisation each and keeps the
 one that explains the photos best (:mod:`backend.fit.search`).
@@ -35,9 +35,17 @@ class Candidate:
     score: float
 
 
-@lru_cache(maxsize=4)
 def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
-    """Per preset, the (reflection, transmission) harmonic signatures of its typical parameters."""
+    """Per preset, the (reflection, transmission) harmonic signatures of its typical parameters,
+    rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little off the
+    unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for the
+    fundamentals at 2 degrees; rendering them unturned changes which placement wins on some
+    photo-like pairs and has not been measured enough to change.)"""
+    return _signatures(replace(rig, sample_skew_deg=0.0))
+
+
+@lru_cache(maxsize=4)
+def _signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
     renderer = Renderer(rig, size=512, spp=4, cache_samples=0)
     tiles = SIGNATURE_DENSITY * rig.plane_size / rig.view_size
     out = {}
@@ -73,15 +81,17 @@ def _search_range(rig: CaptureRig, patterns: tuple[str, ...]) -> tuple[float, fl
     return (min(min(r[0][0], r[1][0]) for r in ranges) * scale, max(max(r[0][1], r[1][1]) for r in ranges) * scale)
 
 
-def sample_rotation(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...] = priors.PATTERNS) -> float:
-    """The sample's rotation in the holder, read from both photos' spectra (degrees)."""
+def sample_placement(spectra: lattice.Spectra, rig: CaptureRig,
+                     patterns: tuple[str, ...] = priors.PATTERNS) -> lattice.Placement:
+    """The sample's rotation and skew in the holder, read from both photos' spectra, with the
+    lattice that shows them (:func:`backend.texture.lattice.estimate_placement`)."""
     span = _search_range(rig, patterns)
-    return lattice.estimate_rotation(spectra, span, span)
+    return lattice.estimate_placement(spectra, span, span)
 
 
 def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
             per_pattern: int = 2) -> list[Candidate]:
-    """(pattern, tiles) candidates for a sample turned by the rig's ``sample_rotation_deg``, best
+    """(pattern, tiles) candidates for a sample placed as the rig says (rotation, skew), best
     lattice score first (scores compare within a pattern only): the comb lattices joined by those
     read from single peaks (:func:`backend.texture.lattice.with_anchored`)."""
     return _with_anchored(spectra, rig, _comb_lattices(spectra, rig, patterns, per_pattern), per_pattern)
@@ -95,15 +105,15 @@ def _scaled_ranges(pattern: str, rig: CaptureRig) -> tuple[tuple[float, float], 
 
 
 def _comb_lattices(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
-                   per_pattern: int) -> dict[str, list[lattice.Lattice]]:
+                   per_pattern: int, also: tuple[lattice.Lattice, ...] = ()) -> dict[str, list[lattice.Lattice]]:
     """Per pattern, the comb lattices (:func:`backend.texture.lattice.candidates`) for a sample
-    turned by the rig's ``sample_rotation_deg``."""
+    placed as the rig says (rotation, skew), from the sieve's estimates and ``also``."""
     lo, hi = _search_range(rig, patterns)
-    rotation = rig.sample_rotation_deg
-    combs = lattice.estimates(spectra, (lo, hi), (lo, hi), rotation_deg=rotation)
+    rotation, skew = rig.sample_rotation_deg, rig.sample_skew_deg
+    combs = lattice.estimates(spectra, (lo, hi), (lo, hi), rotation_deg=rotation, skew_deg=skew) + list(also)
     sigs = signatures(rig)
     return {pattern: lattice.candidates(spectra, combs, sigs[pattern], *_scaled_ranges(pattern, rig),
-                                        top=per_pattern, rotation_deg=rotation)
+                                        top=per_pattern, rotation_deg=rotation, skew_deg=skew)
             for pattern in patterns}
 
 
@@ -114,32 +124,45 @@ def _with_anchored(spectra: lattice.Spectra, rig: CaptureRig, combs: dict[str, l
     out = []
     for pattern, found in combs.items():
         found = lattice.with_anchored(spectra, found, sigs[pattern], *_scaled_ranges(pattern, rig),
-                                      top=per_pattern, rotation_deg=rig.sample_rotation_deg)
+                                      top=per_pattern, rotation_deg=rig.sample_rotation_deg,
+                                      skew_deg=rig.sample_skew_deg)
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
     return out
 
 
 def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...], rotation: float | None,
-           per_pattern: int = 1) -> tuple[float, list[Candidate]]:
-    """(the sample's rotation, the candidates for it). A given ``rotation`` is used as it is; otherwise
-    the rotation read from the spectra (:func:`sample_rotation`) is checked against the unturned
-    sample: both get comb lattices, and the unturned one stays unless the turned one's best lattice
-    scores higher. The rotation estimate verifies lattices with generic low harmonics; on a dense
-    satin those can prefer a turn of a tenth of a degree by a hair, and at that turn the sieve misses
-    the weave's own lattice (measured on the dev golden satin1 renders: 0.15 and 0.24 degrees). The
-    comparison leaves out the lattices read from single peaks: on an aliased clean render one can
-    explain a pattern's signature better at a wrong turn than the true lattice does unturned (dev
-    golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the comb lattices of the rotation
-    chosen."""
-    if rotation is None:
-        rotation, turned = 0.0, sample_rotation(spectra, rig, patterns)
-        if turned != 0.0:
-            at = {angle: _comb_lattices(spectra, replace(rig, sample_rotation_deg=angle), patterns, per_pattern)
-                  for angle in (0.0, turned)}
-            rotation = turned if _best_score(at[turned]) > _best_score(at[0.0]) else 0.0
-            return rotation, _with_anchored(spectra, replace(rig, sample_rotation_deg=rotation), at[rotation],
-                                            per_pattern)
-    return rotation, propose(spectra, replace(rig, sample_rotation_deg=rotation), patterns, per_pattern)
+           per_pattern: int = 1) -> tuple[tuple[float, float], list[Candidate]]:
+    """((the sample's rotation, its skew), the candidates for them). A given ``rotation`` is used as it
+    is, with the rig's skew; otherwise the placement read from the spectra (:func:`sample_placement`).
+    A sheared placement has passed its own stricter test there (both photos, both angles) and is
+    kept, with the lattice that showed it joining the sieve's: at a skew the sieve, one axis at a
+    time, can miss the pair of spacings the 2D maps confirm (dev real twill1). A turned one is
+    checked against the unturned sample: both get comb lattices, and the unturned one stays unless
+    the turned one's best lattice scores higher. The rotation estimate verifies lattices with
+    generic low harmonics; on a dense satin those can prefer a turn of a tenth of a degree by a hair,
+    and at that turn the sieve misses the weave's own lattice (measured on the dev golden satin1
+    renders: 0.15 and 0.24 degrees). The comparison leaves out the lattices read from single peaks:
+    on an aliased clean render one can explain a pattern's signature better at a wrong turn than the
+    true lattice does unturned (dev golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the
+    comb lattices of the placement chosen."""
+    if rotation is not None:
+        placement = (rotation, rig.sample_skew_deg)
+        return placement, propose(spectra, _placed_rig(rig, placement), patterns, per_pattern)
+    estimate = sample_placement(spectra, rig, patterns)
+    unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
+    if found == unturned:
+        return unturned, propose(spectra, _placed_rig(rig, unturned), patterns, per_pattern)
+    if estimate.skew_deg != 0.0:
+        sheared = _placed_rig(rig, found)
+        combs = _comb_lattices(spectra, sheared, patterns, per_pattern, also=(estimate.lattice,))
+        return found, _with_anchored(spectra, sheared, combs, per_pattern)
+    at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
+    placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
+    return placement, _with_anchored(spectra, _placed_rig(rig, placement), at[placement], per_pattern)
+
+
+def _placed_rig(rig: CaptureRig, placement: tuple[float, float]) -> CaptureRig:
+    return replace(rig, sample_rotation_deg=placement[0], sample_skew_deg=placement[1])
 
 
 def _best_score(found: dict[str, list[lattice.Lattice]]) -> float:

@@ -79,21 +79,22 @@ def harmonic_indices(order: int = ORDER) -> list[tuple[int, int]]:
 class LatticeProbe:
     """Regional Fourier magnitudes of an image at the harmonics of one lattice (a, b).
 
-    a, b: tiles across and down the fabric (cycles per image); ``rotation_deg``: the sample's turn in
-    the holder, so harmonic (m, n) sits at the image frequency
+    a, b: tiles across and down the fabric (cycles per image); ``rotation_deg``, ``skew_deg``: the
+    sample's turn and shear in the holder, so harmonic (m, n) sits at the image frequency
     :func:`backend.texture.lattice.turned_frequencies` (m a, n b). The frequency is still one 2D
     plane wave, so the transform stays separable: the probe precomputes the windowed complex
     exponentials of each region along x and y; calling it is two small matrix products per region.
     """
 
     def __init__(self, size: int, a: float, b: float, device="cpu", dtype=torch.float32,
-                 regions: int = REGIONS, order: int = ORDER, rotation_deg: float = 0.0):
+                 regions: int = REGIONS, order: int = ORDER, rotation_deg: float = 0.0,
+                 skew_deg: float = 0.0):
         self.size, self.a, self.b, self.regions = size, a, b, regions
         self.harmonics = harmonic_indices(order)
         # Lattice harmonics, then the same count of off-lattice probes for the noise floor.
         ms = torch.tensor([m for m, _ in self.harmonics] + [m + 0.5 for m, _ in self.harmonics], dtype=torch.float64)
         ns = torch.tensor([n for _, n in self.harmonics] + [n + 0.5 for _, n in self.harmonics], dtype=torch.float64)
-        fx, fy = turned_frequencies(ms * a, ns * b, rotation_deg)
+        fx, fy = turned_frequencies(ms * a, ns * b, rotation_deg, skew_deg)
         self.bounds = [round(k * size / regions) for k in range(regions + 1)]
         self.ex, self.ey = [], []
         for k in range(regions):

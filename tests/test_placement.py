@@ -1,0 +1,96 @@
+"""How the sample lies in the holder: rotation and skew (shear) in the renderer's geometry, in the
+lattice's frequency maps, and as the fit reads them from a photo pair."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from backend.core import priors
+from backend.core.rig import CaptureRig, RigError
+from backend.model.camera import CameraSamples
+from backend.model.geometry import GeometryKey, sample_geometry
+from backend.model.layers import WeaveLookup
+from backend.model.render import Renderer
+from backend.texture import candidates, lattice
+
+
+def test_fabric_frequencies_undo_turned_frequencies_with_a_skew():
+    rng = np.random.default_rng(5)
+    f1, f2 = rng.uniform(-80, 80, 50), rng.uniform(-80, 80, 50)
+    for rotation, skew in ((0.0, 0.0), (2.0, 0.0), (-3.0, 4.0), (1.5, -6.0)):
+        fx, fy = lattice.turned_frequencies(f1, f2, rotation, skew)
+        back = lattice.fabric_frequencies(fx, fy, rotation, skew)
+        np.testing.assert_allclose(back, (f1, f2), atol=1e-9)
+    # no skew: a rotation keeps lengths; a skew does not
+    fx, fy = lattice.turned_frequencies(f1, f2, 3.0)
+    np.testing.assert_allclose(np.hypot(fx, fy), np.hypot(f1, f2))
+    fx, fy = lattice.turned_frequencies(f1, f2, 3.0, 4.0)
+    assert np.abs(np.hypot(fx, fy) - np.hypot(f1, f2)).max() > 0.5
+
+
+def test_a_sheared_samples_yarns_run_along_their_own_angles():
+    # Warps run along R(rotation + skew / 2) y, wefts along R(rotation - skew / 2) x: read from the
+    # fiber directions of a twill without twist (the fiber lies along its yarn, tilted only in z).
+    rig = CaptureRig(sample_rotation_deg=1.5, sample_skew_deg=4.0)
+    warp_deg, weft_deg = rig.yarn_angles_deg
+    assert (warp_deg, weft_deg) == (3.5, -0.5)
+    params = priors.typical("twill0").replace(tiles=(30.0, 30.0), twist_deg=(0.0, 0.0))
+    rng = np.random.default_rng(2)
+    xs, ys = rng.uniform(0, rig.view_size, 400), rng.uniform(-rig.view_size, 0, 400)
+    chunk = CameraSamples(rig, 512, 1, dtype=torch.float64).at_points(torch.tensor(xs), torch.tensor(ys))
+    key = GeometryKey(params.pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, True, 2)
+    geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), rig, key, torch.float64)
+    seen = {"warp": 0, "weft": 0}
+    for layer in geometry.layers:
+        for kind, mask, expected in (("warp", layer.warp, 90.0 + warp_deg), ("weft", layer.weft, weft_deg)):
+            fiber = layer.fiber[:, mask > 0]
+            angle = torch.rad2deg(torch.atan2(fiber[1], fiber[0])) % 180.0
+            np.testing.assert_allclose(angle.numpy(), expected % 180.0, atol=1e-6)
+            seen[kind] += fiber.shape[1]
+    assert min(seen.values()) > 50
+
+
+def test_a_sheared_renders_peaks_sit_on_its_turned_lattice():
+    # The renderer's geometry and the lattice's frequency map must describe the same shear: every
+    # strong spectral peak of a sheared render turns back to a whole harmonic (m a, n b).
+    rig = CaptureRig(sample_rotation_deg=1.0, sample_skew_deg=4.0)
+    params = priors.typical("twill0").replace(tiles=(12.0, 12.0))
+    with torch.no_grad():
+        pair = Renderer(rig, 512, 4).render(params)
+    a, b = lattice.lattice_of(params.tiles, rig)
+    for image in (pair.reflection.numpy(), pair.transmission.numpy()):
+        peaks = lattice.spectral_peaks(image)[:8]
+        fx, fy = np.array([p.fx for p in peaks]), np.array([p.fy for p in peaks])
+
+        def off_lattice(skew):
+            f1, f2 = lattice.fabric_frequencies(fx, fy, 1.0, skew)
+            return np.abs(f1 - a * np.round(f1 / a)) + np.abs(f2 - b * np.round(f2 / b))
+
+        assert off_lattice(4.0).max() < 0.5          # cycles per image
+        assert off_lattice(0.0).mean() > 1.0         # the shear is not negligible
+
+
+def test_the_sample_skew_is_read_from_the_spectra():
+    params = priors.typical("twill0").replace(tiles=(18.0, 24.0))
+    sheared = CaptureRig(sample_rotation_deg=-1.5, sample_skew_deg=3.5)
+    for rig in (sheared, CaptureRig()):
+        with torch.no_grad():
+            pair = Renderer(rig, 512, 8, seed=3).render(params)
+        spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+        found = candidates.sample_placement(spectra, CaptureRig())
+        assert found.rotation_deg == pytest.approx(rig.sample_rotation_deg, abs=0.25)
+        assert found.skew_deg == pytest.approx(rig.sample_skew_deg, abs=0.3)
+        if rig is sheared:  # the fit's candidates: the sheared placement, and the weave's own lattice at it
+            (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill0",), None)
+            assert (rotation, skew) == pytest.approx((-1.5, 3.5), abs=0.3)
+            assert found[0].tiles == pytest.approx(params.tiles, rel=0.01)
+    (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill1",), 0.5)
+    assert (rotation, skew) == (0.5, 0.0)  # a given rotation keeps the rig's skew
+
+
+@pytest.mark.parametrize("skew", [11.0, float("nan"), "2"])
+def test_a_skew_out_of_range_is_refused_by_name(skew):
+    with pytest.raises(RigError, match="sample_skew_deg"):
+        CaptureRig(sample_skew_deg=skew)
+    assert math.isfinite(CaptureRig(sample_skew_deg=-10.0).sample_skew_deg)
