@@ -72,20 +72,20 @@ def test_a_sheared_renders_peaks_sit_on_its_turned_lattice():
 
 
 def test_the_sample_skew_is_read_from_the_spectra():
+    # (An unsheared sample reads skew 0: test_fit's test_the_sample_rotation_is_read_from_the_spectra.)
     params = priors.typical("twill0").replace(tiles=(18.0, 24.0))
-    sheared = CaptureRig(sample_rotation_deg=-1.5, sample_skew_deg=3.5)
-    for rig in (sheared, CaptureRig()):
-        with torch.no_grad():
-            pair = Renderer(rig, 512, 8, seed=3).render(params)
-        spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
-        found = candidates.sample_placement(spectra, CaptureRig())
-        assert found.rotation_deg == pytest.approx(rig.sample_rotation_deg, abs=0.25)
-        assert found.skew_deg == pytest.approx(rig.sample_skew_deg, abs=0.3)
-        if rig is sheared:  # the fit's candidates: the sheared placement, and the weave's own lattice at it
-            (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill0",), None)
-            assert (rotation, skew) == pytest.approx((-1.5, 3.5), abs=0.3)
-            assert found[0].tiles == pytest.approx(params.tiles, rel=0.01)
-    (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill1",), 0.5)
+    rig = CaptureRig(sample_rotation_deg=-1.5, sample_skew_deg=3.5)
+    with torch.no_grad():
+        pair = Renderer(rig, 512, 8, seed=3).render(params)
+    spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+    found = candidates.sample_placement(spectra, CaptureRig())
+    assert found.rotation_deg == pytest.approx(rig.sample_rotation_deg, abs=0.25)
+    assert found.skew_deg == pytest.approx(rig.sample_skew_deg, abs=0.3)
+    # the fit's candidates: the sheared placement, and the weave's own lattice at it
+    (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill0",), None)
+    assert (rotation, skew) == pytest.approx((-1.5, 3.5), abs=0.3)
+    assert found[0].tiles == pytest.approx(params.tiles, rel=0.01)
+    (rotation, skew), found = candidates.placed(spectra, CaptureRig(), ("twill0",), 0.5)
     assert (rotation, skew) == (0.5, 0.0)  # a given rotation keeps the rig's skew
 
 
