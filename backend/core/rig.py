@@ -45,6 +45,17 @@ MAX_SAMPLE_ROTATION_DEG = 45.0
 MAX_SAMPLE_SKEW_DEG = 10.0
 
 
+def yarn_angles(rotation_deg: float, skew_deg: float) -> tuple[float, float]:
+    """(warp, weft) angles of a sample turned by ``rotation_deg`` and sheared by ``skew_deg``:
+    rotation + skew / 2 and rotation - skew / 2 (degrees, counter-clockwise as the camera sees it)."""
+    return rotation_deg + skew_deg / 2.0, rotation_deg - skew_deg / 2.0
+
+
+def placement_of(warp_deg: float, weft_deg: float) -> tuple[float, float]:
+    """The inverse of :func:`yarn_angles`: (rotation, skew) of yarn angles (warp, weft)."""
+    return (warp_deg + weft_deg) / 2.0, warp_deg - weft_deg
+
+
 class RigError(ValueError):
     """A rig setting is missing or out of range; the message names it."""
 
@@ -119,10 +130,8 @@ class CaptureRig:
 
     @property
     def yarn_angles_deg(self) -> tuple[float, float]:
-        """(warp, weft): how far the warps and the wefts are turned, counter-clockwise as the camera
-        sees it: rotation + skew / 2 and rotation - skew / 2."""
-        half = self.sample_skew_deg / 2.0
-        return self.sample_rotation_deg + half, self.sample_rotation_deg - half
+        """(warp, weft): how far the warps and the wefts are turned (:func:`yarn_angles`)."""
+        return yarn_angles(self.sample_rotation_deg, self.sample_skew_deg)
 
     def camera_position(self) -> tuple[float, float, float]:
         cx, cy = self.view_centre

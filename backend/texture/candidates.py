@@ -5,8 +5,9 @@
 2. for each preset, :func:`backend.texture.lattice.candidates` scales those lattices by small ratios,
    polishes each hypothesis and scores it with the preset's *signature* (its harmonic structure,
    measured once per rig from a render of the preset's typical parameters at a low density);
-3. :func:`placed` does this for the sample's placement (rotation and skew) read from the spectra and
-   for the unturned sample, and keeps the placement whose best candidate scores higher.
+3. :func:`placed` does this for the sample's placement read from the spectra: a sheared one is
+   kept as it is; a turned one is compared with the unturned sample, and the placement whose best
+   candidate scores higher is kept.
 
 The fit then gives the best few (pattern, tiles) candidates a short optimisation each and keeps the
 one that explains the photos best (:mod:`backend.fit.search`).

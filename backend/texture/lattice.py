@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.rig import placement_of, yarn_angles
 from ..core.weave import PRESETS
 from ..image.spectrum import Peak, peakness, spectral_peaks, windowed_highpass
 from ..image.tone import GAMMA, encode, resize_linear
@@ -117,7 +118,7 @@ def turned_frequencies(f1, f2, rotation_deg: float, skew_deg: float = 0.0):
     fabric turns its frequencies clockwise in (fx, fy)). Arrays broadcast."""
     if rotation_deg == 0 and skew_deg == 0:
         return f1, f2
-    t1, t2 = math.radians(rotation_deg + skew_deg / 2), math.radians(rotation_deg - skew_deg / 2)
+    t1, t2 = (math.radians(angle) for angle in yarn_angles(rotation_deg, skew_deg))
     return math.cos(t1) * f1 + math.sin(t2) * f2, -math.sin(t1) * f1 + math.cos(t2) * f2
 
 
@@ -130,7 +131,7 @@ def fabric_frequencies(fx, fy, rotation_deg: float, skew_deg: float = 0.0):
     normal of the warps."""
     if rotation_deg == 0 and skew_deg == 0:
         return fx, fy
-    t1, t2 = math.radians(rotation_deg + skew_deg / 2), math.radians(rotation_deg - skew_deg / 2)
+    t1, t2 = (math.radians(angle) for angle in yarn_angles(rotation_deg, skew_deg))
     d = math.cos(t1 - t2)
     return (math.cos(t2) * fx - math.sin(t2) * fy) / d, (math.sin(t1) * fx + math.cos(t1) * fy) / d
 
@@ -376,22 +377,25 @@ def _shear_confirmed(spectra: Spectra, sheared: "Placement", turned: "Placement"
     harmonics) SHEAR_GAIN times better than the best turned placement does, and than its own lattice
     does at the best single angle (each yarn's angle and their middle, refined): a true shear shows
     in both photos of the same fabric and needs both angles; a chance one explains one photo's noise
-    or aliased harmonics, or owes its score to a better lattice rather than to the shear."""
+    or aliased harmonics, or owes its score to a better lattice rather than to the shear. The cheap
+    comparison with the turned placement goes first: most shears fail it."""
     generic = [_generic_signature()] * len(spectra.maps)
-    angles = (sheared.warp_deg, sheared.weft_deg, (sheared.warp_deg + sheared.weft_deg) / 2)
-    unsheared = [_refine_placement(spectra.maps, generic, sheared.lattice, angle, angle, spectra.size, False)
-                 for angle in angles]
-    for q in spectra.maps:
-        score = _map_score(q, generic[:1], sheared, spectra.size)
-        rivals = [turned] + unsheared
-        if score <= SHEAR_GAIN * max(_map_score(q, generic[:1], rival, spectra.size) for rival in rivals):
-            return False
-    return True
+
+    def beats(rivals: list["Placement"]) -> bool:
+        return all(_map_score(q, generic[:1], sheared, spectra.size)
+                   > SHEAR_GAIN * max(_map_score(q, generic[:1], rival, spectra.size) for rival in rivals)
+                   for q in spectra.maps)
+
+    if not beats([turned]):
+        return False
+    angles = (sheared.warp_deg, sheared.weft_deg, placement_of(sheared.warp_deg, sheared.weft_deg)[0])
+    return beats([_refine_placement(spectra.maps, generic, sheared.lattice, angle, angle, spectra.size, False)
+                  for angle in angles])
 
 
 def _map_score(q: np.ndarray, signatures, placement: "Placement", size: int) -> float:
     a, b = np.array([placement.lattice.a]), np.array([placement.lattice.b])
-    return float(signature_score([q], signatures, a, b, size, *_placement(placement.warp_deg, placement.weft_deg))[0])
+    return float(signature_score([q], signatures, a, b, size, *placement_of(placement.warp_deg, placement.weft_deg))[0])
 
 
 @dataclass(frozen=True)
@@ -405,11 +409,11 @@ class Placement:
 
     @property
     def rotation_deg(self) -> float:
-        return float(round((self.warp_deg + self.weft_deg) / 2, 3))
+        return float(round(placement_of(self.warp_deg, self.weft_deg)[0], 3))
 
     @property
     def skew_deg(self) -> float:
-        return float(round(self.warp_deg - self.weft_deg, 3))
+        return float(round(placement_of(self.warp_deg, self.weft_deg)[1], 3))
 
 
 def _local_maxima(scores: np.ndarray) -> list[int]:
@@ -420,11 +424,6 @@ def _local_maxima(scores: np.ndarray) -> list[int]:
     return sorted(local, key=lambda k: -scores[k])
 
 
-def _placement(warp_deg: float, weft_deg: float) -> tuple[float, float]:
-    """(rotation, skew) of yarn angles (warp, weft)."""
-    return (warp_deg + weft_deg) / 2, warp_deg - weft_deg
-
-
 def _multiples(maps, signatures, lattice: Lattice, a_range, b_range, warp_deg: float, weft_deg: float,
                size: int) -> list[Lattice]:
     """``lattice`` times every pair of ROTATION_RATIOS inside the ranges, scored by ``signatures`` at
@@ -433,17 +432,16 @@ def _multiples(maps, signatures, lattice: Lattice, a_range, b_range, warp_deg: f
              if a_range[0] <= lattice.a * ra <= a_range[1] and b_range[0] <= lattice.b * rb <= b_range[1]]
     pairs = pairs or [(lattice.a, lattice.b)]
     a, b = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
-    scores = signature_score(maps, signatures, a, b, size, *_placement(warp_deg, weft_deg))
+    scores = signature_score(maps, signatures, a, b, size, *placement_of(warp_deg, weft_deg))
     order = np.argsort(-scores, kind="stable")
     return [Lattice(float(a[i]), float(b[i]), float(scores[i])) for i in order]
 
 
 def _refine_placement(maps, signatures, start: Lattice, warp_deg: float, weft_deg: float, size: int,
                       sheared: bool) -> "Placement":
-    """Alternately the best angle within +-0.3 degrees for the
-    current spacing (of each yarn in turn when ``sheared``, else of both together) and the polished
-    spacing for those angles, twice."""
-    rotation, skew = _placement(warp_deg, weft_deg)
+    """Alternately the best angle within +-0.3 degrees for the current spacing (of each yarn in turn
+    when ``sheared``, else of both together) and the polished spacing for those angles, twice."""
+    rotation, skew = placement_of(warp_deg, weft_deg)
     lattice_now = polish(maps, signatures, start, size, False, span=0.01, step=0.0005, rotation_deg=rotation,
                          skew_deg=skew)
     steps = np.arange(-0.3, 0.3 + 1e-9, 0.02)
@@ -451,9 +449,9 @@ def _refine_placement(maps, signatures, start: Lattice, warp_deg: float, weft_de
         for moves in ((1, 0), (0, 1)) if sheared else ((1, 1),):
             trial = [(warp_deg + moves[0] * d, weft_deg + moves[1] * d) for d in steps]
             scores = [signature_score(maps, signatures, np.array([lattice_now.a]), np.array([lattice_now.b]), size,
-                                      *_placement(*angles))[0] for angles in trial]
+                                      *placement_of(*angles))[0] for angles in trial]
             warp_deg, weft_deg = trial[int(np.argmax(scores))]
-        rotation, skew = _placement(warp_deg, weft_deg)
+        rotation, skew = placement_of(warp_deg, weft_deg)
         lattice_now = polish(maps, signatures, lattice_now, size, False, span=0.004, step=0.0002,
                              rotation_deg=rotation, skew_deg=skew)
     return Placement(lattice_now.score, warp_deg, weft_deg, lattice_now)
