@@ -184,17 +184,19 @@ def _lookup(q: np.ndarray, fx: np.ndarray, fy: np.ndarray, size: int) -> np.ndar
 def signature_score(maps, signatures, a, b, size, rotation_deg: float = 0.0, skew_deg: float = 0.0) -> np.ndarray:
     """Search score of lattices (a, b) (arrays of equal shape) of a sample turned by ``rotation_deg``
     and sheared by ``skew_deg`` on peakness maps."""
-    total = np.zeros(np.broadcast(a, b).shape)
+    shape = np.broadcast(a, b).shape
+    a, b = np.broadcast_to(a, shape).ravel(), np.broadcast_to(b, shape).ravel()
+    total = np.zeros(a.shape)
     for q, sig in zip(maps, signatures):
         weights = np.sqrt(sig.weight)
         weights = weights / weights.sum()
-        for m, n, weight in zip(sig.m, sig.n, weights):
-            fx, fy = turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
-            folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
-            fx, fy = np.broadcast_arrays(_fold(fx, size), _fold(fy, size))
-            looked_up = _lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
-            total = total + weight * np.where(folded, 0.5, 1.0) * looked_up
-    return total
+        # every harmonic at once (rows), added one row at a time in the signature's order
+        fx, fy = turned_frequencies(sig.m[:, None] * a[None, :], sig.n[:, None] * b[None, :], rotation_deg, skew_deg)
+        folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
+        looked_up = _lookup(q, _fold(fx, size), _fold(fy, size), size)
+        for weight, row_folded, row in zip(weights, folded, looked_up):
+            total = total + weight * np.where(row_folded, 0.5, 1.0) * row
+    return total.reshape(shape)
 
 
 def polish(maps, signatures, start: Lattice, size: int, square: bool, span: float = 0.006,
@@ -219,8 +221,9 @@ def comb_scores(freqs: np.ndarray, strengths: np.ndarray, periods: np.ndarray, s
     folded = np.where(multiples <= reach * size, np.abs(_fold(multiples, size)), np.inf)
     scores = np.zeros(len(periods))
     for f, s in zip(freqs, strengths):  # one peak at a time keeps the arrays (M, G) small
-        hit = np.exp(-0.5 * ((folded - abs(f)) / sigma) ** 2)
-        scores += s * hit.max(axis=0)
+        # the nearest tooth's hit: exp is monotonic, so one exp per spacing instead of M
+        nearest = np.abs(folded - abs(f)).min(axis=0)
+        scores += s * np.exp(-0.5 * (nearest / sigma) ** 2)
     return scores
 
 
