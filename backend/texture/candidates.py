@@ -40,8 +40,9 @@ def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
     """Per preset, the (reflection, transmission) harmonic signatures of its typical parameters,
     rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little off the
     unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for the
-    fundamentals at 2 degrees; rendering them unturned changes which placement wins on some
-    photo-like pairs and has not been measured enough to change.)"""
+    fundamentals at 2 degrees. Rendered unturned, on 42 photo-like / golden pairs the best candidate's
+    pattern was right on 31 instead of 27, the rotation within 0.5 degree on 21 instead of 22: not
+    yet measured on every pair nor through the fits, so unchanged.)"""
     return _signatures(replace(rig, sample_skew_deg=0.0))
 
 

@@ -182,8 +182,9 @@ def _lookup(q: np.ndarray, fx: np.ndarray, fy: np.ndarray, size: int) -> np.ndar
 
 
 def signature_score(maps, signatures, a, b, size, rotation_deg: float = 0.0, skew_deg: float = 0.0) -> np.ndarray:
-    """Search score of lattices (a, b) (arrays of equal shape) of a sample turned by ``rotation_deg``
-    and sheared by ``skew_deg`` on peakness maps."""
+    """Search score of lattices (a, b) (numbers or arrays that broadcast; the score has their
+    broadcast shape) of a sample turned by ``rotation_deg`` and sheared by ``skew_deg`` on peakness
+    maps."""
     shape = np.broadcast(a, b).shape
     a, b = np.broadcast_to(a, shape).ravel(), np.broadcast_to(b, shape).ravel()
     total = np.zeros(a.shape)
@@ -204,9 +205,7 @@ def polish(maps, signatures, start: Lattice, size: int, square: bool, span: floa
     factors = np.exp(np.arange(-span, span + step / 2, step))
     a = start.a * factors[None, :]
     b = (start.a * factors[None, :]) if square else start.b * factors[:, None]
-    shape = np.broadcast(a, b).shape
-    scores = signature_score(maps, signatures, np.broadcast_to(a, shape), np.broadcast_to(b, shape), size,
-                             rotation_deg, skew_deg)
+    scores = signature_score(maps, signatures, a, b, size, rotation_deg, skew_deg)
     row, col = np.unravel_index(int(np.argmax(scores)), scores.shape)
     a_best = float(np.broadcast_to(a, scores.shape)[row, col])
     b_best = float(np.broadcast_to(b, scores.shape)[row, col])
@@ -397,8 +396,8 @@ def _shear_confirmed(spectra: Spectra, sheared: "Placement", turned: "Placement"
 
 
 def _map_score(q: np.ndarray, signatures, placement: "Placement", size: int) -> float:
-    a, b = np.array([placement.lattice.a]), np.array([placement.lattice.b])
-    return float(signature_score([q], signatures, a, b, size, *placement_of(placement.warp_deg, placement.weft_deg))[0])
+    return float(signature_score([q], signatures, placement.lattice.a, placement.lattice.b, size,
+                                 *placement_of(placement.warp_deg, placement.weft_deg)))
 
 
 @dataclass(frozen=True)
@@ -451,8 +450,8 @@ def _refine_placement(maps, signatures, start: Lattice, warp_deg: float, weft_de
     for _ in range(2):
         for moves in ((1, 0), (0, 1)) if sheared else ((1, 1),):
             trial = [(warp_deg + moves[0] * d, weft_deg + moves[1] * d) for d in steps]
-            scores = [signature_score(maps, signatures, np.array([lattice_now.a]), np.array([lattice_now.b]), size,
-                                      *placement_of(*angles))[0] for angles in trial]
+            scores = [float(signature_score(maps, signatures, lattice_now.a, lattice_now.b, size,
+                                            *placement_of(*angles))) for angles in trial]
             warp_deg, weft_deg = trial[int(np.argmax(scores))]
         rotation, skew = placement_of(warp_deg, weft_deg)
         lattice_now = polish(maps, signatures, lattice_now, size, False, span=0.004, step=0.0002,
