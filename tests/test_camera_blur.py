@@ -7,7 +7,7 @@ from backend.bench.photolike import item_rng
 from backend.core.params import FabricParams
 from backend.core.priors import PATTERNS
 from backend.core.rig import DEFAULT_RIG, CaptureRig
-from backend.image.camera_blur import MIN_GAIN, SOFT_PHOTO_PX, noise_blur_px, photo_blur_px, read_blur
+from backend.image.camera_blur import MIN_GAIN, SOFT_PHOTO_PX, photo_blur_px, read_blur
 from backend.image.photos import load_pair
 from backend.init.photo_like import photograph
 from backend.model.render import render_pair
@@ -21,7 +21,9 @@ def noise_image(seed=0, size=512):
 @pytest.mark.parametrize("sigma", [0.8, 1.0, 1.5])
 def test_blurred_noise_gives_its_sigma(sigma):
     blurred = cv2.GaussianBlur(noise_image(), (0, 0), sigma)  # mirrored borders, kernel to 4 sigma
-    assert noise_blur_px(blurred) == pytest.approx(sigma, abs=0.1)
+    reading = read_blur(blurred)
+    assert reading.blurred
+    assert reading.sigma_px == pytest.approx(sigma, abs=0.1)
 
 
 @pytest.mark.parametrize("sigma", [0.8, 1.5])
@@ -36,11 +38,11 @@ def test_noise_added_after_the_blur_does_not_hide_it(sigma):
 
 
 def test_white_noise_and_a_lattice_read_as_sharp():
-    assert noise_blur_px(noise_image()) < 0.1
+    assert not read_blur(noise_image()).blurred
     # A strong yarn lattice on top of the noise does not count (ring medians skip its peaks).
     y, x = np.mgrid[0:512, 0:512]
     lattice = 0.2 * np.sin(2 * np.pi * (0.21 * x + 0.1 * y))[..., None] * np.ones(3)
-    assert noise_blur_px(np.clip(noise_image(1) + lattice, 0, 1)) < 0.1
+    assert not read_blur(np.clip(noise_image(1) + lattice, 0, 1)).blurred
 
 
 def test_renders_are_sharp_and_a_blurred_render_is_not():

@@ -121,12 +121,6 @@ def read_blur(*images: np.ndarray, gamma: float = GAMMA) -> BlurReading:
     return BlurReading(float(sigmas[best]), float(misfits[0] / max(misfits[best], 1e-12)))
 
 
-def noise_blur_px(image: np.ndarray, gamma: float = GAMMA) -> float:
-    """sigma in pixels of one photo; 0 where its spectrum does not show a blur."""
-    reading = read_blur(image, gamma=gamma)
-    return reading.sigma_px if reading.blurred else 0.0
-
-
 def photo_blur_px(reflection: np.ndarray, transmission: np.ndarray, film_size: int) -> float:
     """The pair's blur in film pixels (both photos fitted together, scaled from their size); 0 where
     the pair does not show one."""
