@@ -55,6 +55,42 @@ def test_a_phone_without_effects_is_the_renderers_display_transform():
     assert 0.002 < float(difference.std()) < 0.05 and abs(float(difference.mean())) < 0.005
 
 
+def _stripe_phase(photo: np.ndarray, period: float) -> np.ndarray:
+    """Per row, the phase (radians) of stripes of ``period`` pixels running down the image, against
+    cos(2 pi x / period), along x: the photo demodulated at the stripes' frequency and averaged over
+    four periods (which cancels the harmonics the display transform's gamma adds)."""
+    x = np.arange(photo.shape[1]) + 0.5
+    demodulated = photo * np.exp(-2j * np.pi * x / period)
+    width = int(4 * period)
+    averaged = np.stack([np.convolve(row, np.ones(width) / width, mode="same") for row in demodulated])
+    return np.angle(averaged)
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_the_phones_warp_changes_the_yarn_spacing_along_each_axis(axis):
+    # Stripes of an 8-pixel pitch across one axis: the warp moves each stripe along that axis by
+    # A sin(2 pi p / L + phi) (p along the same axis), so their spacing varies by 2 pi A / L and they
+    # stay straight (the same phase on every line across them).
+    n, period, length, amplitude, phase = 512, 8.0, 200.0, 0.03 * 200.0 / (2 * np.pi), 0.7
+    rig = CaptureRig(film_size=n)
+    x = torch.arange(n, dtype=torch.float64) + 0.5
+    stripes = (0.45 + 0.35 * torch.cos(2 * np.pi * x / period))[None, :].expand(n, n)
+    radiance = (stripes if axis == 0 else stripes.T)[..., None].expand(n, n, 3).contiguous()
+    phone = PhoneEffects(blur_px=0.0, exposure=1.0, photo_exposure=(1.0, 1.0), white_balance=(1.0, 1.0, 1.0),
+                         falloff=(0.0, 0.0, 0.0, 0.0), warp_px=amplitude, warp_period_px=(length, length),
+                         warp_phase=(phase, phase), noise_gain=0.0, read_noise=0.0, jpeg_quality=95, seed=1)
+    photo = phone.apply(radiance, 0, rig)[..., 0].numpy()
+    measured = _stripe_phase(photo if axis == 0 else photo.T, period)[:, 64:-64]
+    inner = x.numpy()[64:-64]
+    expected = 2 * np.pi / period * amplitude * np.sin(2 * np.pi * inner / length + phase)
+    assert np.abs(np.angle(np.exp(1j * (measured - expected)))).max() < 0.08  # rad (the 4-period average smooths it a little); the swing is 0.75
+    # the displacement's sinusoid fitted to the phase: its slope, the scale change, peaks at 3 %
+    basis = np.stack([np.sin(2 * np.pi * inner / length), np.cos(2 * np.pi * inner / length)], axis=1)
+    coefficients = np.linalg.lstsq(basis, np.unwrap(measured.mean(axis=0)), rcond=None)[0]
+    displacement = np.hypot(*coefficients) * period / (2 * np.pi)
+    assert 2 * np.pi * displacement / length == pytest.approx(0.03, abs=0.003)
+
+
 def test_phone_draws_stay_in_their_ranges():
     rng = random.Random(11)
     for _ in range(50):

@@ -6,8 +6,9 @@ linear radiance of a render of the (possibly turned) sample without camera blur,
 resolution (``k`` phone pixels per film pixel; every length below is in film pixels), one photo is
 
     warped   = radiance(p + d(p))                     mild non-uniform yarn spacing: a smooth
-               d(p) = A (sin(2 pi p_y / L_x + phi_x), sin(2 pi p_x / L_y + phi_y)), local scale
-               changes of 2 pi A / L (1-3 %)
+               d(p) = A (sin(2 pi p_x / L_x + phi_x), sin(2 pi p_y / L_y + phi_y)), so the yarns
+               across x and down y are spaced 1 + 2 pi A / L_x,y cos(...) times their mean pitch
+               (local scale changes of up to 1-3 %; each axis's displacement runs along that axis)
     lit      = warped * (1 + falloff(p))              low-frequency light falloff the rig does not
                model: a random tilt and bowl, at most a few tens of percent across the image
     blurred  = G_sigma * lit                          the camera's point spread (sigma film pixels)
@@ -100,8 +101,8 @@ class PhoneEffects:
         rows, cols = torch.meshgrid(centres, centres, indexing="ij")
         amplitude = self.warp_px / film
         (lx, ly), (px, py) = (p / film for p in self.warp_period_px), self.warp_phase
-        x = cols + amplitude * torch.sin(2 * math.pi * rows / lx + px)
-        y = rows + amplitude * torch.sin(2 * math.pi * cols / ly + py)
+        x = cols + amplitude * torch.sin(2 * math.pi * cols / lx + px)
+        y = rows + amplitude * torch.sin(2 * math.pi * rows / ly + py)
         grid = torch.stack((x / n * 2 - 1, y / n * 2 - 1), dim=-1)[None].to(image.dtype)
         warped = F.grid_sample(image.permute(2, 0, 1)[None], grid, mode="bilinear", padding_mode="reflection",
                                align_corners=False)
