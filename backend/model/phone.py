@@ -95,6 +95,14 @@ class PhoneEffects:
         vignette = CameraSamples(rig, n, 1, dtype=image.dtype).pixel_falloff(rig.vignette_sigma_px)
         return display_transform(image.clamp_min(0), rig.gamma, rig.clamp, vignette).clamp(0, 1)
 
+    def spacing_change(self, x_px: float, y_px: float) -> tuple[float, float]:
+        """The warp's relative change of the yarn frequency at film pixel (x, y), across x and down y:
+        d'(p) = 2 pi A / L cos(2 pi p / L + phi) (the photo shows the radiance at p + d(p), so its
+        yarns are 1 + d'(p) times as dense there as the sample's own)."""
+        (lx, ly), (px, py) = self.warp_period_px, self.warp_phase
+        return (2 * math.pi * self.warp_px / lx * math.cos(2 * math.pi * x_px / lx + px),
+                2 * math.pi * self.warp_px / ly * math.cos(2 * math.pi * y_px / ly + py))
+
     def _warped(self, image: torch.Tensor, film: float) -> torch.Tensor:
         n = image.shape[0]
         centres = torch.arange(n, dtype=torch.float64) + 0.5
