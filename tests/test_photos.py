@@ -679,10 +679,12 @@ def test_metrics_match_the_team_checker(shared_tools):
     assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
 
 
-@pytest.mark.parametrize("index", [0, 35])
+@pytest.mark.parametrize("index", [55, 35])
 def test_photo_like_plain_weaves_are_not_refused_as_framed_differently(tmp_path, index):
     # Dense plain weaves (2-4 px per yarn) whose photos' strongest peaks are aliased harmonics, matched at
-    # a chance ratio (1.45x, one peak) or at a harmonic one (0.5x, two peaks): once refused, now a warning.
+    # a chance ratio (1.49x, one peak) or at a harmonic one (0.5x, two peaks): once refused, now a warning.
+    # (Since the phone's warp varies the yarn spacing, seed 31's plain_000, the chance-ratio case
+    # before, shows no clear yarn peaks at all.)
     from backend.bench.photolike import make_item
     name = make_item(tmp_path, seed=31, index=index)["name"]
     pair = load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
