@@ -87,11 +87,12 @@ def test_the_phones_warp_changes_the_yarn_spacing_along_each_axis(axis):
     assert np.abs(np.angle(np.exp(1j * (measured - expected)))).max() < 0.08
     # the displacement's sinusoid fitted to the phase: its slope, the scale change, peaks at 3 %
     basis = np.stack([np.sin(2 * np.pi * inner / length), np.cos(2 * np.pi * inner / length)], axis=1)
-    coefficients = np.linalg.lstsq(basis, np.unwrap(measured.mean(axis=0)), rcond=None)[0]
+    profile = np.unwrap(measured.mean(axis=0))  # the phase along the axis, the same on every line
+    coefficients = np.linalg.lstsq(basis, profile, rcond=None)[0]
     displacement = np.hypot(*coefficients) * period / (2 * np.pi)
     assert 2 * np.pi * displacement / length == pytest.approx(0.03, abs=0.003)
     # and the phone says so: the local frequency change is the phase's slope
-    slope = np.gradient(np.unwrap(measured.mean(axis=0)), inner) * period / (2 * np.pi)
+    slope = np.gradient(profile, inner) * period / (2 * np.pi)
     said = np.array([phone.spacing_change(p, p)[axis] for p in inner])
     assert np.abs(np.convolve(slope - said, np.ones(16) / 16, mode="valid")).max() < 0.005
 
