@@ -194,3 +194,34 @@ def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_
     assert section["pattern_accuracy"] == 0.5 and section["tiles_error_pct_max"] == 120.0
     assert section["resolved"] == {"pairs": 1, "pattern_accuracy": 1.0, "family_accuracy": 1.0, "roughness_mae": 0.1,
                                    "thickness_mae": 0.2, "tiles_error_pct_max": 0.5, "tiles_error_pct_mean": 0.5}
+
+
+def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_the_truth(tmp_path, capsys):
+    from backend.bench.placement import summary
+    from backend.cli.main import main
+
+    # Seed 31's satin1_014: a few low oblique peaks at 2-3 px per yarn (tests/test_fit.py's lone
+    # harmonic case), turned 0.15 degrees.
+    case = photolike.make_item(tmp_path, seed=31, index=14)
+    (tmp_path / "cases.json").write_text(json.dumps([case]))
+    assert main(["bench", "placement", "--synthetic", str(tmp_path), "--json"]) == 0
+    row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert row["name"] == "satin1_014" and row["true_rotation_deg"] == pytest.approx(0.15, abs=0.01)
+    assert row["rotation_error_deg"] == pytest.approx(abs(row["rotation_deg"] - row["true_rotation_deg"]), abs=1e-3)
+    assert row["rotation_error_deg"] < 0.25 and row["tiles_error_pct"] < 1.0
+    assert any(pattern == "satin1" for pattern, _ in row["candidates"])
+    assert total["pairs"] == 1 and total["tiles_error_over_1_pct"] == 0 and total["rotation_error_over_0.5_deg"] == 0
+
+    # A pair without a candidate of its own pattern counts as off by more than the target.
+    rows = [{"rotation_error_deg": 0.7, "tiles_error_pct": None, "seconds": 1.0},
+            {"rotation_error_deg": 0.1, "tiles_error_pct": 0.4, "seconds": 2.0}]
+    assert summary(rows) == {"summary": "placement", "pairs": 2, "rotation_error_mean_deg": 0.4,
+                             "rotation_error_median_deg": 0.4, "rotation_error_over_0.5_deg": 1,
+                             "tiles_error_mean_pct": 0.4, "tiles_error_median_pct": 0.4,
+                             "tiles_error_over_1_pct": 1, "seconds": 3.0}
+
+    # Without the truth there is nothing to score: a clear error, exit status 2.
+    assert main(["bench", "placement"]) == 2
+    assert "bench placement: give --synthetic DIR" in capsys.readouterr().err
+    assert main(["bench", "placement", "--synthetic", str(tmp_path / "missing")]) == 2
+    assert f"{tmp_path / 'missing'}: file not found" in capsys.readouterr().err

@@ -98,7 +98,7 @@ def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
             "tiles_error_pct": 100 * max(abs(f / t - 1) for f, t in zip(fitted.tiles, truth.tiles))}
 
 
-def _jobs(synthetic: list[str], real: list[str], names: list[str] | None) -> list[dict]:
+def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) -> list[dict]:
     jobs = []
     for folder in map(Path, synthetic):
         files = {pair.name: pair for pair in find_pairs(folder)[0]}
@@ -124,7 +124,7 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
     rows = []
     with tempfile.TemporaryDirectory(prefix="fit-bench-") as tmp:
         work = Path(keep) if keep else Path(tmp)
-        for job in _jobs(synthetic, real, names):
+        for job in pair_jobs(synthetic, real, names):
             out = work / f"{job['kind']}_{job['name']}"
             if keep and out.exists():
                 shutil.rmtree(out)

@@ -1,8 +1,9 @@
-"""``python -m backend bench render|fit|fit-speed|batch``: performance figures (never timed tests).
+"""``python -m backend bench render|fit|placement|fit-speed|batch``: performance figures (never timed tests).
 
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
         [--no-novel-light] [--fit-args "EXTRA FIT ARGUMENTS"]
+    bench placement --synthetic DIR ... [--cases ...] [--json]     (the fit's placement and lattice only)
     bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
         [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
@@ -15,6 +16,7 @@ from ..batch.scheduler import BatchError
 from ..bench.batch import bench_batch
 from ..bench.fit import bench_fit
 from ..bench.fit_speed import bench_fit_speed
+from ..bench.placement import bench_placement
 from ..bench.render import bench_render
 from .common import InputError, device, positive_int
 
@@ -27,6 +29,10 @@ def run_bench(args) -> int:
             raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
         return bench_fit(synthetic, args.real, args.cases, extra + shlex.split(args.fit_args), args.json,
                          keep=args.keep, novel_light=not args.no_novel_light)
+    if args.what == "placement":
+        if not args.synthetic + args.golden:
+            raise InputError("bench placement: give --synthetic DIR (golden or photo-like: the truth is needed)")
+        return bench_placement(args.synthetic + args.golden, args.cases, args.json)
     if args.what == "fit-speed":
         if args.fit_size:
             extra += ["--size", str(args.fit_size)]
@@ -44,16 +50,17 @@ def run_bench(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render", "fit", "fit-speed", "batch"])
+    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "batch"])
     p.add_argument("--json", action="store_true", help="JSON lines")
     p.add_argument("--synthetic", nargs="*", default=[],
-                   help="fit: folders with cases.json and <name>_R/_T images (golden renders, photo-like sets)")
+                   help="fit, placement: folders with cases.json and <name>_R/_T images (golden renders, "
+                        "photo-like sets)")
     p.add_argument("--golden", nargs="*", default=[], help="fit: the same as --synthetic")
     p.add_argument("--real", nargs="*", default=[], help="fit: folders of <name>_R.* / <name>_T.* photo pairs")
     p.add_argument("--keep", help="fit: keep every fit's results in this folder (<kind>_<name>/)")
     p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
     p.add_argument("--fit-args", default="", help='fit: extra arguments of every fit, one string ("--size 512")')
-    p.add_argument("--cases", nargs="*", help="fit: only these names")
+    p.add_argument("--cases", nargs="*", help="fit, placement: only these names")
     p.add_argument("--iterations", type=positive_int,
                    help="iterations per fit (fit, fit-speed: the fit's default; batch: 20)")
     p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
