@@ -8,10 +8,9 @@ best-scoring candidate is of the true pattern (scores compare within a pattern o
 hint, not the fit's choice: the fit's trial fits choose, :mod:`backend.fit.search`).
 
 The placement and the tiles stay fixed through the fit (:mod:`backend.fit.pipeline`), so these
-errors are the fit's; at about 10 s a pair (the first also renders the patterns' signatures, about
-15 s) against 2-3 minutes for ``bench fit``, this is the loop
-for work on the lattice and the placement. Prints one line per pair and a summary against the fit
-issue's tiles target.
+errors are the fit's. At about 10 s a pair (the first also renders the patterns' signatures, about
+15 s) against 2-3 minutes for ``bench fit``, this is the loop for work on the lattice and the
+placement. Prints one line per pair and a summary against the fit issue's tiles target.
 """
 from __future__ import annotations
 
