@@ -55,7 +55,7 @@ def add_parser(sub) -> None:
     p.add_argument("--synthetic", nargs="*", default=[],
                    help="fit, placement: folders with cases.json and <name>_R/_T images (golden renders, "
                         "photo-like sets)")
-    p.add_argument("--golden", nargs="*", default=[], help="fit: the same as --synthetic")
+    p.add_argument("--golden", nargs="*", default=[], help="fit, placement: the same as --synthetic")
     p.add_argument("--real", nargs="*", default=[], help="fit: folders of <name>_R.* / <name>_T.* photo pairs")
     p.add_argument("--keep", help="fit: keep every fit's results in this folder (<kind>_<name>/)")
     p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
