@@ -685,13 +685,18 @@ def test_metrics_match_the_team_checker(shared_tools):
     assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
 
 
+def seed_31_photo_like_pair(tmp_path, index: int):
+    """Item ``index`` of the photo-like set of seed 31, made in ``tmp_path`` and loaded as the fit loads it."""
+    from backend.bench.photolike import make_item
+    name = make_item(tmp_path, seed=31, index=index)["name"]
+    return load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
+
+
 def test_a_photo_like_plain_weave_matched_at_a_chance_ratio_is_a_weak_warning(tmp_path):
     # A dense plain weave (2-4 px per yarn) whose photos' strongest peaks are aliased harmonics, matched
     # at a chance ratio (1.49x, one peak): once refused, now a warning. (Since the phone's warp varies
     # the yarn spacing, seed 31's plain_000, the case before, shows no clear yarn peaks at all.)
-    from backend.bench.photolike import make_item
-    name = make_item(tmp_path, seed=31, index=55)["name"]
-    pair = load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
+    pair = seed_31_photo_like_pair(tmp_path, 55)
     assert any("framed at different scales, but the evidence is weak" in w for w in pair.warnings)
     assert abs(np.log(pair.info["yarn_frequency"]["scale"])) > np.log(1.2)
 
@@ -702,9 +707,7 @@ def test_photo_like_plain_weaves_showing_other_harmonics_of_their_lattice_pass_t
     # the yarn gaps (their sum and difference) and aliased harmonics. They got "the yarn patterns share
     # no spectral peak" (30; also 80 and 100) or "magnified 0.50x, the evidence is weak" (35) for photos
     # of the same fabric, framed the same.
-    from backend.bench.photolike import make_item
-    name = make_item(tmp_path, seed=31, index=index)["name"]
-    pair = load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
+    pair = seed_31_photo_like_pair(tmp_path, index)
     assert pair.info["yarn_frequency"]["reflection"] and pair.info["yarn_frequency"]["transmission"]
     assert not [w for w in pair.warnings if "spectral peak" in w or "framed" in w or "scales" in w], pair.warnings
 

@@ -95,7 +95,12 @@ def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
 
     return {"pattern_ok": fitted.pattern == truth.pattern, "family_ok": family(fitted.pattern) == family(truth.pattern),
             "roughness_mae": mae("roughness"), "thickness_mae": mae("thickness"),
-            "tiles_error_pct": 100 * max(abs(f / t - 1) for f, t in zip(fitted.tiles, truth.tiles))}
+            "tiles_error_pct": tiles_error_pct(fitted.tiles, truth.tiles)}
+
+
+def tiles_error_pct(found, truth) -> float:
+    """The worst axis's relative error of ``found`` tiles against the ``truth``, in percent."""
+    return 100 * max(abs(f / t - 1) for f, t in zip(found, truth))
 
 
 def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) -> list[dict]:

@@ -23,7 +23,7 @@ from ..core.rig import DEFAULT_RIG
 from ..image.photos import load_pair
 from ..texture.candidates import placed
 from ..texture.lattice import Spectra
-from .fit import TARGETS, pair_jobs
+from .fit import TARGETS, pair_jobs, tiles_error_pct
 
 ROTATION_ERROR_DEG = 0.5  # the summary counts the pairs placed further off than this
 
@@ -39,8 +39,7 @@ def place(job: dict) -> dict:
     return {"kind": job["kind"], "name": job["name"], "rotation_deg": rotation, "skew_deg": skew,
             "true_rotation_deg": round(rig.sample_rotation_deg, 3), "true_skew_deg": round(rig.sample_skew_deg, 3),
             "rotation_error_deg": round(abs(rotation - rig.sample_rotation_deg), 3),
-            "tiles_error_pct": round(100 * max(abs(f / t - 1) for f, t in zip(own[0].tiles, truth.tiles)), 2)
-            if own else None,
+            "tiles_error_pct": round(tiles_error_pct(own[0].tiles, truth.tiles), 2) if own else None,
             "best_scored_is_true": max(found, key=lambda c: c.score).pattern == truth.pattern if found else False,
             "candidates": [[c.pattern, [round(t, 2) for t in c.tiles]] for c in found],
             "seconds": round(time.perf_counter() - started, 1)}

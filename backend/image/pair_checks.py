@@ -190,6 +190,12 @@ def lattice_match(peaks_a: Sequence, peaks_b: Sequence, scale: float) -> tuple[f
     return score, matched
 
 
+def _direction_gap(p: Sequence[float], q: Sequence[float]) -> float:
+    """The angle (radians, 0 to pi / 2) between the lines of two peaks (a peak is one of a +-f pair)."""
+    angle = abs(math.atan2(p[1], p[0]) - math.atan2(q[1], q[0])) % math.pi
+    return min(angle, math.pi - angle)
+
+
 def with_lattice_combinations(peaks: Sequence) -> list:
     """``peaks`` joined by the sum and the difference of the strongest two that point different ways
     (over 10 degrees apart), each as strong as the weaker of the two: the lattice's other low
@@ -201,8 +207,7 @@ def with_lattice_combinations(peaks: Sequence) -> list:
         return list(peaks)
     p = peaks[0]
     for q in peaks[1:]:
-        angle = abs(math.atan2(p[1], p[0]) - math.atan2(q[1], q[0])) % math.pi
-        if min(angle, math.pi - angle) > math.radians(10):
+        if _direction_gap(p, q) > math.radians(10):
             power = min(p[2], q[2])
             return [*peaks, (p[0] + q[0], p[1] + q[1], power), (p[0] - q[0], p[1] - q[1], power)]
     return list(peaks)
@@ -225,8 +230,7 @@ def best_lattice_scale(peaks_a: Sequence, peaks_b: Sequence) -> tuple[float, flo
     best = (1.0, *lattice_match(peaks_a, peaks_b, 1.0))
     for p in peaks_a:
         for q in peaks_b:
-            angle = abs(math.atan2(p[1], p[0]) - math.atan2(q[1], q[0])) % math.pi
-            if min(angle, math.pi - angle) > math.radians(3):
+            if _direction_gap(p, q) > math.radians(3):
                 continue
             scale = math.hypot(p[0], p[1]) / max(math.hypot(q[0], q[1]), 1e-9)
             if 0.5 <= scale <= 2.0:
