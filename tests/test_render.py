@@ -195,6 +195,43 @@ def test_compiled_renderer_matches_eager():
         torch.testing.assert_close(fused, eager, rtol=3e-4, atol=1e-6)
 
 
+def test_a_compiling_renderer_fuses_only_the_renders_that_need_gradients(monkeypatch, tmp_path):
+    """Renders without gradients stay eager (a compile per working size would cost more than they
+    save); renders with gradients go through the compiled graph, one call per chunk of rows. Here
+    torch.compile hands back the function itself with a counter, so no C++ compiler is needed."""
+    import backend.model.render as render_module
+    calls = []
+
+    def fake_compile(fn, **kwargs):
+        def counted(*args):
+            calls.append(torch.is_grad_enabled())
+            return fn(*args)
+        return counted
+
+    monkeypatch.setattr(render_module.torch, "compile", fake_compile)
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
+    params = FabricParams(pattern="twill1")
+    renderer = Renderer(size=32, spp=4, compile=True, max_chunk_samples=32 * 4 * 8)  # 4 chunks of rows
+    assert renderer.compiled and len(renderer.ranges) == 4
+    with torch.no_grad():
+        plain = renderer.render(params)
+    assert calls == []
+    fabric = ParamTensors.from_params(params, requires_grad=OPTIMISED)
+    fused = renderer.render(fabric)
+    (fused.reflection.mean() + fused.transmission.mean()).backward()
+    # each chunk is recomputed in the backward pass (with gradients), after a forward without them
+    assert calls.count(True) == 4 and len(calls) == 8
+    assert torch.equal(fused.reflection.detach(), plain.reflection)
+    assert torch.equal(fused.transmission.detach(), plain.transmission)
+    assert all(fabric.values[n].grad is not None for n in OPTIMISED)
+    calls.clear()
+    whole = Renderer(size=32, spp=4, compile=True)  # one chunk: the fit's usual case, no recomputation
+    with torch.no_grad():
+        whole.render(params)
+    whole.render(ParamTensors.from_params(params, requires_grad=OPTIMISED))
+    assert calls == [True]
+
+
 def test_glow_shows_only_through_gaps_at_the_centre():
     params = FabricParams(pattern="plain", gap_scale=(0.6, 0.6))
     with_glow = Renderer(size=64, spp=4).render(params).transmission

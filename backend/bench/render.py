@@ -4,7 +4,9 @@
 example at 512 x 512 and 4 spp, as the fit loop renders it (camera samples and geometry cached,
 all continuous parameters requiring gradients):
 
-- forward_s: median time of a render without gradients;
+- forward_s: median time of a render with gradients enabled, without the backward pass (a fit
+  step's forward; a render without gradients runs eager on both paths, see
+  :mod:`backend.model.render`);
 - backward_s: median time of a render plus the backward pass of a scalar loss (forward + backward);
 - the same two for the eager (uncompiled) renderer, measured in the same run, and their ratio;
 - compile_s: the first compiled call (compilation, cached on disk for later runs);
@@ -48,8 +50,7 @@ def _time(fn, runs: int, device) -> float:
 
 def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dict:
     def forward():
-        with torch.no_grad():
-            renderer.render(fabric)
+        renderer.render(fabric)
 
     def forward_backward():
         pair = renderer.render(fabric)

@@ -13,10 +13,17 @@ chunk is checkpointed (recomputed in the backward pass) instead of keeping its i
 For optimisation, a :class:`Renderer` keeps its camera samples (the fixed jitter) and the
 geometry of the last few discrete states (pattern, tiles, gap scale, twist), so an iteration
 only evaluates the differentiable BSDF. With ``compile=True`` that evaluation is fused by
-``torch.compile`` (about 5x faster on the CPU, once a compile of seconds to a minute is paid; it is
-cached on disk across runs); ``compile=None`` compiles only where a C++ compiler is found, and
-any compile failure falls back to the eager path with a warning. ``WFC_COMPILE=0`` or ``1`` in
-the environment overrides the automatic choice.
+``torch.compile`` when gradients are wanted (forward and backward about 2-3x faster on the CPU,
+once a compile of 25-35 s is paid, a few seconds once it is cached on disk:
+:mod:`.compile_cache`); ``compile=None`` compiles only where a C++ compiler is found, and any
+compile failure falls back to the eager path with a warning. ``WFC_COMPILE=0`` or ``1`` in the
+environment overrides the automatic choice.
+
+Renders without gradients (a fit's starting points, scans and discrete steps, the final
+re-renders) stay eager even then: each working size would cost a second compile, about 25 s
+on a cold cache, and a fit's few dozen such renders save less than that (measured on a
+photo-like 512-px fit: 166 s instead of 199 s on a cold cache, 140 s instead of 137 s on a warm
+one).
 """
 from __future__ import annotations
 
@@ -33,6 +40,7 @@ from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_projected
 from .camera import CameraSamples, SampleChunk
+from .compile_cache import use_persistent_compile_cache
 from .geometry import GeometryKey, sample_geometry
 from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
@@ -85,6 +93,8 @@ class Renderer:
                      if options.glow and rig.glow_strength > 0 else None)
         if compile is None:
             compile = compile_available()
+        if compile:
+            use_persistent_compile_cache()
         self._compiled = torch.compile(self._pixels, dynamic=False) if compile else None
 
     # -- cached stages -----------------------------------------------------------------------
@@ -141,7 +151,7 @@ class Renderer:
 
                 r, t = _Recomputed.apply(evaluate, *fabric.values.values())
             else:
-                r, t = self._evaluate(samples, fabric, glow)
+                r, t = self._evaluate(samples, fabric, glow, fused=needs_grad)
             pieces_r.append(r)
             pieces_t.append(t)
             if progress is not None:
@@ -152,8 +162,10 @@ class Renderer:
     def compiled(self) -> bool:
         return self._compiled is not None
 
-    def _evaluate(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None):
-        if self._compiled is None:
+    def _evaluate(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None,
+                  fused: bool = True):
+        """The chunk's pixels: by the compiled graph when there is one and ``fused``, else eager."""
+        if self._compiled is None or not fused:
             return self._eager(samples, fabric, glow)
         try:
             return self._compiled(samples, fabric, glow)
