@@ -6,7 +6,7 @@ import torch
 from oracles import reference
 
 from backend.model import asggx, sggx
-from backend.model.spongecake import eval_layer, slab_g
+from backend.model.spongecake import eval_layer, one_minus_exp_over, slab_g
 from backend.model.yarn import scale_height
 
 DT = torch.float64
@@ -113,6 +113,26 @@ def test_stable_g_equals_the_literal_formula():
     assert g.item() == pytest.approx(2.0 * math.exp(-2.0 * 1.3))
     g.backward()
     assert torch.isfinite(a.grad).all()
+
+
+def test_phi_has_the_derivative_of_its_formula_down_to_zero():
+    """phi(y) = (1 - exp(-y)) / y carries a hand-written derivative; it must be the formula's,
+    phi'(y) = (exp(-y) - phi(y)) / y, which tends to -1/2 + y/3 at 0 (where 0/0 would be NaN)."""
+    y = torch.tensor([0.0, 1e-12, 1e-6, 9.9e-5, 1.01e-4, 1e-3, 0.1, 1.0, 7.5, 40.0], dtype=DT, requires_grad=True)
+    phi = one_minus_exp_over(y)
+    phi.sum().backward()
+    exact = torch.tensor([1.0 if v == 0 else -math.expm1(-v) / v for v in y.tolist()], dtype=DT)
+    assert torch.allclose(phi.detach(), exact, rtol=1e-15)
+    slope = [-0.5 + v / 3 - v * v / 8 if v < 1e-3 else (math.exp(-v) - -math.expm1(-v) / v) / v for v in y.tolist()]
+    assert torch.allclose(y.grad, torch.tensor(slope, dtype=DT), rtol=1e-6, atol=1e-12)
+    # Through slab_g the gradients are the literal formula's (away from A_i + A_o = 0, where it is 0/0).
+    T = torch.tensor([0.3, 2.0, 4.5], dtype=DT, requires_grad=True)
+    a_in = torch.tensor([0.7, 3.0, 12.0], dtype=DT, requires_grad=True)
+    a_out = torch.tensor([-2.5, 1.1, -0.4], dtype=DT, requires_grad=True)
+    stable = torch.autograd.grad(slab_g(T, a_in, a_out).sum(), (T, a_in, a_out))
+    literal = torch.autograd.grad(reference._g_literal(T, a_in, a_out).sum(), (T, a_in, a_out))
+    for got, want in zip(stable, literal):
+        assert torch.allclose(got, want, rtol=1e-9)
 
 
 def test_projected_forms_equal_the_fiber_frame_forms():

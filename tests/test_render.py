@@ -9,6 +9,7 @@ import pytest
 import torch
 from oracles import reference
 
+from backend.core import priors
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
@@ -193,6 +194,23 @@ def test_compiled_renderer_matches_eager():
     # exp(-T S) of thick layers amplifies that to ~1.5e-4 relative on a few pixels (reflection: 2e-7).
     for eager, fused in zip(*results):
         torch.testing.assert_close(fused, eager, rtol=3e-4, atol=1e-6)
+
+
+@pytest.mark.skipif(not compile_available(), reason="torch.compile needs a C++ compiler, none found")
+def test_the_compiled_graph_can_be_kept_in_the_disk_cache():
+    """AOTAutograd keeps a compiled forward + backward on disk, unless the graph holds something it
+    will not save: the BSDF's ``torch.autograd.Function`` is one until the renderer allows it
+    (:func:`backend.model.compile_cache.allow_cached_custom_gradients`). Bypassed, every process
+    traces the backward anew, about 6 s at each fit's start."""
+    from torch._dynamo.utils import counters
+    counters.clear()
+    renderer = Renderer(size=24, spp=4, compile=True)  # a shape no other test compiles
+    fabric = ParamTensors.from_params(priors.typical("twill0"), requires_grad=OPTIMISED)
+    pair = renderer.render(fabric)
+    (pair.reflection.mean() + pair.transmission.mean()).backward()
+    cache = counters["aot_autograd"]
+    assert cache["autograd_cache_hit"] + cache["autograd_cache_miss"] >= 1, dict(cache)
+    assert cache["autograd_cache_bypass"] == 0, dict(cache)
 
 
 def test_a_compiling_renderer_fuses_only_the_renders_that_need_gradients(monkeypatch, tmp_path):

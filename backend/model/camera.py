@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -43,6 +44,14 @@ class SampleChunk:
     wi: torch.Tensor          # (3, S)
     front: LightSamples
     back: LightSamples
+
+    @cached_property
+    def wide(self) -> tuple[torch.Tensor, ...]:
+        """(wi, front wo, front half, back wo, back half) in float64: every geometry state projects
+        them on each layer's yarn frame in float64 (:mod:`.projections`), and converting once per
+        chunk instead of per layer and state halves that stage's time."""
+        return tuple(v.to(torch.float64) for v in (self.wi, self.front.wo, self.front.half,
+                                                  self.back.wo, self.back.half))
 
 
 class CameraSamples:

@@ -106,10 +106,9 @@ def _split(direction: torch.Tensor, vector: torch.Tensor, dtype) -> Split:
 def _layer(geo: LayerGeometry, chunk: SampleChunk, dtype) -> LayerProjections:
     wide = torch.float64
     fiber, normal = geo.fiber.to(wide), geo.normal.to(wide)
-    wi, front, back = chunk.wi.to(wide), chunk.front, chunk.back
+    wi, front_wo, front_half, back_wo, back_half = chunk.wide
 
-    def light(samples: LightSamples) -> LightSplits:
-        wo, half = samples.wo.to(wide), samples.half.to(wide)
+    def light(wo: torch.Tensor, half: torch.Tensor) -> LightSplits:
         return LightSplits(_split(wo, fiber, dtype), _split(half, fiber, dtype), _split(wo, normal, dtype))
 
     def plane2(v):
@@ -120,7 +119,7 @@ def _layer(geo: LayerGeometry, chunk: SampleChunk, dtype) -> LayerProjections:
         weft=geo.weft, yarn=yarn, thickness_scale=geo.thickness_scale * yarn, albedo_scale=geo.albedo_scale,
         height_offset=geo.height_offset, fiber_plane2=plane2(fiber), fiber_z2=(fiber[2] * fiber[2]).to(dtype),
         normal_plane2=plane2(normal), normal_z2=(normal[2] * normal[2]).to(dtype),
-        wi=_split(wi, fiber, dtype), front=light(front), back=light(back))
+        wi=_split(wi, fiber, dtype), front=light(front_wo, front_half), back=light(back_wo, back_half))
 
 
 def _light(samples: LightSamples, any_yarn: torch.Tensor) -> LightFactors:

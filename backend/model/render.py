@@ -40,7 +40,7 @@ from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_projected
 from .camera import CameraSamples, SampleChunk
-from .compile_cache import use_persistent_compile_cache
+from .compile_cache import allow_cached_custom_gradients, use_persistent_compile_cache
 from .geometry import GeometryKey, sample_geometry
 from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
@@ -95,6 +95,7 @@ class Renderer:
             compile = compile_available()
         if compile:
             use_persistent_compile_cache()
+            allow_cached_custom_gradients()
         self._compiled = torch.compile(self._terms, dynamic=False) if compile else None
 
     # -- cached stages -----------------------------------------------------------------------
