@@ -49,7 +49,7 @@ def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
 
 @lru_cache(maxsize=4)
 def _signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
-    renderer = Renderer(rig, size=512, spp=4, cache_samples=0)
+    renderer = Renderer(rig, size=512, spp=4, geometry_cache=0)  # the camera samples serve every preset
     tiles = SIGNATURE_DENSITY * rig.plane_size / rig.view_size
     out = {}
     for pattern in priors.PATTERNS:
