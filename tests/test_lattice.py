@@ -3,6 +3,7 @@ definitions: the fast paths evaluate every harmonic, tooth and lattice at once."
 import numpy as np
 import pytest
 
+from backend.core.rig import placement_of
 from backend.texture import lattice
 
 
@@ -46,6 +47,24 @@ def test_signature_score_matches_its_reference(rotation, skew):
     assert fast.shape == (5, 7)
     np.testing.assert_allclose(fast, reference_signature_score(maps, signatures, a, b, size, rotation, skew),
                                rtol=1e-12)
+
+
+def test_a_scan_of_angles_scores_exactly_as_one_call_per_angle():
+    """The placement refinement scores one lattice at 31 angles in one call; it must pick the same
+    angle as one signature_score per angle, so the numbers must be the same to the last bit (0 included)."""
+    rng = np.random.default_rng(5)
+    size = 128
+    maps = [rng.random((2 * size, 2 * size)) for _ in range(2)]
+    m, n = np.meshgrid(np.arange(-3, 4), np.arange(0, 4))
+    keep = (n > 0) | (m > 0)
+    signatures = [lattice.Signature(m[keep], n[keep], np.full(int(keep.sum()), 1.0 / int(keep.sum())))] * 2
+    steps = np.arange(-0.3, 0.3 + 1e-9, 0.02)
+    for warp, weft, moves in ((0.0, 0.0, (1, 1)), (1.7, -2.2, (1, 0)), (-4.1, 0.6, (0, 1))):
+        placements = [placement_of(warp + moves[0] * d, weft + moves[1] * d) for d in steps] + [(0.0, 0.0)]
+        for a, b in ((23.7, 31.2), (61.0, 17.5)):  # the second folds harmonics past Nyquist
+            scan = lattice.scores_at_angles(maps, signatures, a, b, size, placements)
+            one_by_one = [float(lattice.signature_score(maps, signatures, a, b, size, *p)) for p in placements]
+            assert scan.tolist() == one_by_one
 
 
 def test_comb_scores_match_their_reference():

@@ -118,8 +118,21 @@ def turned_frequencies(f1, f2, rotation_deg: float, skew_deg: float = 0.0):
     fabric turns its frequencies clockwise in (fx, fy)). Arrays broadcast."""
     if rotation_deg == 0 and skew_deg == 0:
         return f1, f2
+    return _turned(f1, f2, *_turn(rotation_deg, skew_deg))
+
+
+def _turn(rotation_deg: float, skew_deg: float) -> tuple[float, float, float, float]:
+    """(cos theta_1, sin theta_2, -sin theta_1, cos theta_2) of :func:`turned_frequencies`;
+    (1, 0, 0, 1) unturned."""
+    if rotation_deg == 0 and skew_deg == 0:
+        return 1.0, 0.0, 0.0, 1.0
     t1, t2 = (math.radians(angle) for angle in yarn_angles(rotation_deg, skew_deg))
-    return math.cos(t1) * f1 + math.sin(t2) * f2, -math.sin(t1) * f1 + math.cos(t2) * f2
+    return math.cos(t1), math.sin(t2), -math.sin(t1), math.cos(t2)
+
+
+def _turned(f1, f2, cos_1, sin_2, minus_sin_1, cos_2):
+    """:func:`turned_frequencies` from the factors of :func:`_turn` (numbers or arrays that broadcast)."""
+    return cos_1 * f1 + sin_2 * f2, minus_sin_1 * f1 + cos_2 * f2
 
 
 def fabric_frequencies(fx, fy, rotation_deg: float, skew_deg: float = 0.0):
@@ -187,17 +200,33 @@ def signature_score(maps, signatures, a, b, size, rotation_deg: float = 0.0, ske
     maps."""
     shape = np.broadcast(a, b).shape
     a, b = np.broadcast_to(a, shape).ravel(), np.broadcast_to(b, shape).ravel()
+    return _scores(maps, signatures, a, b, size, _turn(rotation_deg, skew_deg)).reshape(shape)
+
+
+def scores_at_angles(maps, signatures, a: float, b: float, size: int, placements) -> np.ndarray:
+    """:func:`signature_score` of one lattice (a, b) at each (rotation, skew) of ``placements``, at
+    once: the same numbers as one call per placement (the same floating-point operations per
+    element), without the Python overhead of hundreds of small calls."""
+    turns = np.array([_turn(rotation, skew) for rotation, skew in placements])  # (P, 4)
+    return _scores(maps, signatures, np.full(len(turns), float(a)), np.full(len(turns), float(b)), size,
+                   tuple(turns.T))
+
+
+def _scores(maps, signatures, a: np.ndarray, b: np.ndarray, size: int, turn) -> np.ndarray:
+    """:func:`signature_score` of lattices (a[k], b[k]) (K,) at the factors ``turn`` of :func:`_turn`
+    (numbers, or arrays (K,) with one placement per lattice)."""
     total = np.zeros(a.shape)
     for q, sig in zip(maps, signatures):
         weights = np.sqrt(sig.weight)
         weights = weights / weights.sum()
         # every harmonic at once (rows), added one row at a time in the signature's order
-        fx, fy = turned_frequencies(sig.m[:, None] * a[None, :], sig.n[:, None] * b[None, :], rotation_deg, skew_deg)
+        # (1, 0, 0, 1) leaves the frequencies exactly as they are (up to the sign of a zero)
+        fx, fy = _turned(sig.m[:, None] * a[None, :], sig.n[:, None] * b[None, :], *turn)
         folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
         looked_up = _lookup(q, _fold(fx, size), _fold(fy, size), size)
         for weight, row_folded, row in zip(weights, folded, looked_up):
             total = total + weight * np.where(row_folded, 0.5, 1.0) * row
-    return total.reshape(shape)
+    return total
 
 
 def polish(maps, signatures, start: Lattice, size: int, square: bool, span: float = 0.006,
@@ -450,8 +479,8 @@ def _refine_placement(maps, signatures, start: Lattice, warp_deg: float, weft_de
     for _ in range(2):
         for moves in ((1, 0), (0, 1)) if sheared else ((1, 1),):
             trial = [(warp_deg + moves[0] * d, weft_deg + moves[1] * d) for d in steps]
-            scores = [float(signature_score(maps, signatures, lattice_now.a, lattice_now.b, size,
-                                            *placement_of(*angles))) for angles in trial]
+            scores = scores_at_angles(maps, signatures, lattice_now.a, lattice_now.b, size,
+                                      [placement_of(*angles) for angles in trial])
             warp_deg, weft_deg = trial[int(np.argmax(scores))]
         rotation, skew = placement_of(warp_deg, weft_deg)
         lattice_now = polish(maps, signatures, lattice_now, size, False, span=0.004, step=0.0002,
