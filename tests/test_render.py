@@ -9,7 +9,6 @@ import pytest
 import torch
 from oracles import reference
 
-from backend.core import priors
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
@@ -177,40 +176,32 @@ def test_jitter_is_stratified():
 
 
 @pytest.mark.skipif(not compile_available(), reason="torch.compile needs a C++ compiler, none found")
-def test_compiled_renderer_matches_eager():
+def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     params = FabricParams.from_interchange(
         "plain_R_0.49,0.49_S_1.5,1.5_T_1.48,1.48_N_0.0_UV_150.6,150.6_Kd_0.077,0.282,0.077,0.147,0.245,0.205"
         "_G_0.88,0.88_Rm_0.37,0.37_Tm_0.8,0.8_W_0.54,0.9_Ks_0.1,0.52,0.26,0.1,0.52,0.26_Psi_0.0,0.0")
+    from torch._dynamo.utils import counters
+    counters.clear()
     results = []
     for compiled in (False, True):
-        renderer = Renderer(size=48, spp=4, compile=compiled)
+        renderer = Renderer(size=48, spp=4, compile=compiled)  # a shape no other test compiles
         fabric = ParamTensors.from_params(params, requires_grad=OPTIMISED)
         pair = renderer.render(fabric)
         (pair.reflection.mean() + pair.transmission.mean()).backward()
         assert renderer.compiled == compiled
         results.append((pair.reflection.detach(), pair.transmission.detach(),
                         torch.cat([fabric.values[n].grad.flatten() for n in OPTIMISED])))
+    # AOTAutograd keeps the compiled forward + backward on disk, unless the graph holds something it
+    # will not save: the BSDF's torch.autograd.Function is one until the renderer allows it
+    # (backend.model.compile_cache.allow_cached_custom_gradients). Bypassed, every process traced
+    # the backward anew, about 6 s at each fit's start.
+    cache = counters["aot_autograd"]
+    assert cache["autograd_cache_hit"] + cache["autograd_cache_miss"] >= 1, dict(cache)
+    assert cache["autograd_cache_bypass"] == 0, dict(cache)
     # Inductor's vectorised exp/sqrt differ from ATen's by a few ulp; the transmission's attenuation
     # exp(-T S) of thick layers amplifies that to ~1.5e-4 relative on a few pixels (reflection: 2e-7).
     for eager, fused in zip(*results):
         torch.testing.assert_close(fused, eager, rtol=3e-4, atol=1e-6)
-
-
-@pytest.mark.skipif(not compile_available(), reason="torch.compile needs a C++ compiler, none found")
-def test_the_compiled_graph_can_be_kept_in_the_disk_cache():
-    """AOTAutograd keeps a compiled forward + backward on disk, unless the graph holds something it
-    will not save: the BSDF's ``torch.autograd.Function`` is one until the renderer allows it
-    (:func:`backend.model.compile_cache.allow_cached_custom_gradients`). Bypassed, every process
-    traces the backward anew, about 6 s at each fit's start."""
-    from torch._dynamo.utils import counters
-    counters.clear()
-    renderer = Renderer(size=24, spp=4, compile=True)  # a shape no other test compiles
-    fabric = ParamTensors.from_params(priors.typical("twill0"), requires_grad=OPTIMISED)
-    pair = renderer.render(fabric)
-    (pair.reflection.mean() + pair.transmission.mean()).backward()
-    cache = counters["aot_autograd"]
-    assert cache["autograd_cache_hit"] + cache["autograd_cache_miss"] >= 1, dict(cache)
-    assert cache["autograd_cache_bypass"] == 0, dict(cache)
 
 
 def test_a_compiling_renderer_fuses_only_the_renders_that_need_gradients(monkeypatch, tmp_path):
