@@ -194,7 +194,7 @@ def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     # AOTAutograd keeps the compiled forward + backward on disk, unless the graph holds something it
     # will not save: the BSDF's torch.autograd.Function is one until the renderer allows it
     # (backend.model.compile_cache.allow_cached_custom_gradients). Bypassed, every process traced
-    # the backward anew, about 6 s at each fit's start.
+    # the backward anew, 4-5 s at each fit's start.
     cache = counters["aot_autograd"]
     assert cache["autograd_cache_hit"] + cache["autograd_cache_miss"] >= 1, dict(cache)
     assert cache["autograd_cache_bypass"] == 0, dict(cache)

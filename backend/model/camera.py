@@ -49,7 +49,8 @@ class SampleChunk:
     def wide(self) -> tuple[torch.Tensor, ...]:
         """(wi, front wo, front half, back wo, back half) in float64: every geometry state projects
         them on each layer's yarn frame in float64 (:mod:`.projections`), and converting once per
-        chunk instead of per layer and state halves that stage's time."""
+        chunk instead of per layer and state takes a third off each new state (0.60 -> 0.38 s at
+        512 px, 4 spp)."""
         return tuple(v.to(torch.float64) for v in (self.wi, self.front.wo, self.front.half,
                                                   self.back.wo, self.back.half))
 

@@ -21,9 +21,10 @@ The compiled backward is kept there too (:func:`allow_cached_custom_gradients`):
 phi(y) = (1 - exp(-y)) / y has a hand-written derivative (a ``torch.autograd.Function``,
 :func:`backend.model.spongecake.one_minus_exp_over`), and AOTAutograd's cache skips any graph
 holding one unless told otherwise, so each process traced the forward and backward graphs anew:
-about 6 s at every fit's start (``bench render``'s first compiled call at 512 px: 7.2 s against
-2.7 s). The same phi as plain tensor operations would be cached by default, but its compiled
-forward + backward ran 40-60 % slower.
+about 4-5 s at every fit's start (the first compiled forward + backward at 512 px, 4 spp, warm
+cache: 6.4-7.9 s against 2.6-3.9 s). The same phi as plain tensor operations would be cached by
+default, but its compiled steps measured slower (by how much is uncertain: step times on the
+2-core development machine vary by up to 45 % from one process to the next).
 """
 from __future__ import annotations
 
@@ -65,7 +66,6 @@ def use_persistent_compile_cache(environ=os.environ, platform: str = sys.platfor
         return ""
     environ[ENV] = str(folder)
     return str(folder)
-
 
 
 def allow_cached_custom_gradients() -> None:
