@@ -22,7 +22,7 @@ phi(y) = (1 - exp(-y)) / y has a hand-written derivative (a ``torch.autograd.Fun
 :func:`backend.model.spongecake.one_minus_exp_over`), and AOTAutograd's cache skips any graph
 holding one unless told otherwise, so each process traced the forward and backward graphs anew:
 about 4-5 s at every fit's start (the first compiled forward + backward at 512 px, 4 spp, warm
-cache: 6.4-7.9 s against 2.6-3.9 s). The same phi as plain tensor operations would be cached by
+cache: 6.5-8.9 s against 2.8-4.2 s). The same phi as plain tensor operations would be cached by
 default, but its compiled steps measured slower (by how much is uncertain: step times on the
 2-core development machine vary by up to 45 % from one process to the next).
 """
