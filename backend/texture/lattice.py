@@ -121,11 +121,14 @@ def turned_frequencies(f1, f2, rotation_deg: float, skew_deg: float = 0.0):
     return _turned(f1, f2, *_turn(rotation_deg, skew_deg))
 
 
+UNTURNED = (1.0, 0.0, 0.0, 1.0)
+
+
 def _turn(rotation_deg: float, skew_deg: float) -> tuple[float, float, float, float]:
     """(cos theta_1, sin theta_2, -sin theta_1, cos theta_2) of :func:`turned_frequencies`;
-    (1, 0, 0, 1) unturned."""
+    :data:`UNTURNED` (this very tuple) for an unturned sample."""
     if rotation_deg == 0 and skew_deg == 0:
-        return 1.0, 0.0, 0.0, 1.0
+        return UNTURNED
     t1, t2 = (math.radians(angle) for angle in yarn_angles(rotation_deg, skew_deg))
     return math.cos(t1), math.sin(t2), -math.sin(t1), math.cos(t2)
 
@@ -220,8 +223,9 @@ def _scores(maps, signatures, a: np.ndarray, b: np.ndarray, size: int, turn) -> 
         weights = np.sqrt(sig.weight)
         weights = weights / weights.sum()
         # every harmonic at once (rows), added one row at a time in the signature's order
-        # (1, 0, 0, 1) leaves the frequencies exactly as they are (up to the sign of a zero)
-        fx, fy = _turned(sig.m[:, None] * a[None, :], sig.n[:, None] * b[None, :], *turn)
+        f1, f2 = sig.m[:, None] * a[None, :], sig.n[:, None] * b[None, :]
+        # an unturned sample skips the products (they would give the same frequencies, up to the sign of a zero)
+        fx, fy = (f1, f2) if turn is UNTURNED else _turned(f1, f2, *turn)
         folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
         looked_up = _lookup(q, _fold(fx, size), _fold(fy, size), size)
         for weight, row_folded, row in zip(weights, folded, looked_up):
