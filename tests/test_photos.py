@@ -6,7 +6,6 @@ skip with the reason under WFC_ALLOW_NO_SHARED=1) and on a fresh render of the f
 """
 from __future__ import annotations
 
-import json
 import os
 import struct
 import subprocess
@@ -19,7 +18,7 @@ import numpy as np
 import pytest
 import rawpy
 import torch
-from conftest import ROOT, SHARED, require_path
+from conftest import ROOT, SHARED, golden_case_names, require_path
 
 from backend.core.params import load_params
 from backend.image import metrics
@@ -624,14 +623,7 @@ def test_real_pairs_pass_the_framing_check(name):
     assert abs(np.log(scale)) < np.log(1.2)  # twill1's photos differ by about 15 %: a warning, not an error
 
 
-def golden_cases() -> list[str]:
-    cases = GOLDEN / "cases.json"
-    if not cases.exists():
-        return ["<golden cases missing>"]
-    return [case["name"] for case in json.loads(cases.read_text())]
-
-
-@pytest.mark.parametrize("name", golden_cases())
+@pytest.mark.parametrize("name", golden_case_names())
 def test_golden_renders_swap_check(name):
     r, t = need(GOLDEN / f"{name}_R.png"), need(GOLDEN / f"{name}_T.png")
     cues_r = order_cues(load_photo(r).image)

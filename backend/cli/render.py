@@ -23,11 +23,28 @@ from ..model.render import render_pair
 from .common import InputError, device, positive_int
 
 
-def _render_and_save(params: FabricParams, out: Path, names: tuple[str, str], rig: CaptureRig,
-                     options: RenderOptions, size: int, spp: int, seed: int, dev) -> None:
+def render_and_save(params: FabricParams, out: Path, names: tuple[str, str], rig: CaptureRig,
+                    options: RenderOptions, size: int, spp: int, seed: int, dev) -> None:
+    """Renders the pair and writes it as 16-bit PNGs ``out/names[0]``, ``out/names[1]``."""
     pair = render_pair(params, rig, size=size, spp=spp, seed=seed, options=options, device=dev)
     write_png(out / names[0], pair.reflection)
     write_png(out / names[1], pair.transmission)
+
+
+def parse_case(case, index: int, path: Path) -> tuple[str, FabricParams, RenderOptions]:
+    """(name, params, options) of entry ``index`` of a cases.json file, or an :class:`InputError` naming it."""
+    if not isinstance(case, dict) or "name" not in case or "params" not in case:
+        raise InputError(f"{path}: case {index} needs 'name' and 'params'")
+    name = str(case["name"])
+    if not name or any(c in name for c in "/\\") or name.startswith("."):
+        raise InputError(f"{path}: case {index}: {name!r} is not a usable file name")
+    try:
+        params = FabricParams.from_interchange(case["params"]) if isinstance(case["params"], str) \
+            else FabricParams.from_dict(case["params"])
+        options = RenderOptions.from_flags(case.get("flags"))
+    except (ParamError, OptionsError, WeaveError) as exc:
+        raise InputError(f"{path}: case {name!r}: {exc}") from None
+    return name, params, options
 
 
 def run_render(args) -> int:
@@ -40,8 +57,8 @@ def run_render(args) -> int:
     options = RenderOptions.from_flags(flags)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    _render_and_save(params, out, ("reflection.png", "transmission.png"), rig, options,
-                     args.size, args.spp, args.seed, device(args.device))
+    render_and_save(params, out, ("reflection.png", "transmission.png"), rig, options,
+                    args.size, args.spp, args.seed, device(args.device))
     (out / "params.json").write_text(params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
                                                     flags=flags, spp=args.spp, size=args.size) + "\n")
     print(f"wrote {out / 'reflection.png'}, {out / 'transmission.png'}, {out / 'params.json'}", file=sys.stderr)
@@ -53,26 +70,13 @@ def run_render_cases(args) -> int:
     cases = read_json(path, InputError)
     if not isinstance(cases, list):
         raise InputError(f"{path}: expected a list of cases (name, params, flags)")
-    prepared = []
-    for index, case in enumerate(cases):
-        if not isinstance(case, dict) or "name" not in case or "params" not in case:
-            raise InputError(f"{path}: case {index} needs 'name' and 'params'")
-        name = str(case["name"])
-        if not name or any(c in name for c in "/\\") or name.startswith("."):
-            raise InputError(f"{path}: case {index}: {name!r} is not a usable file name")
-        try:
-            params = FabricParams.from_interchange(case["params"]) if isinstance(case["params"], str) \
-                else FabricParams.from_dict(case["params"])
-            options = RenderOptions.from_flags(case.get("flags"))
-        except (ParamError, OptionsError, WeaveError) as exc:
-            raise InputError(f"{path}: case {name!r}: {exc}") from None
-        prepared.append((name, params, options))
+    prepared = [parse_case(case, index, path) for index, case in enumerate(cases)]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     dev = device(args.device)
     for index, (name, params, options) in enumerate(prepared, 1):
-        _render_and_save(params, out, (f"{name}_R.png", f"{name}_T.png"), DEFAULT_RIG, options,
-                         args.size, args.spp, args.seed, dev)
+        render_and_save(params, out, (f"{name}_R.png", f"{name}_T.png"), DEFAULT_RIG, options,
+                        args.size, args.spp, args.seed, dev)
         print(f"[{index}/{len(prepared)}] {name}", file=sys.stderr, flush=True)
     return 0
 
