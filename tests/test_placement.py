@@ -94,3 +94,25 @@ def test_a_skew_out_of_range_is_refused_by_name(skew):
     with pytest.raises(RigError, match="sample_skew_deg"):
         CaptureRig(sample_skew_deg=skew)
     assert math.isfinite(CaptureRig(sample_skew_deg=-10.0).sample_skew_deg)
+
+
+def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_asked(monkeypatch):
+    monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())  # this test's own cache
+    rendered = []
+    render = Renderer.render
+    monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
+                        or render(self, params, *args, **kwargs))
+    rig = CaptureRig(sample_rotation_deg=1.25)
+    alone = candidates.signatures(rig, ("twill1",))  # a fit of a given pattern
+    assert rendered == ["twill1"]
+    together = candidates.signatures(CaptureRig(sample_rotation_deg=1.25, sample_skew_deg=3.0), ("plain", "twill1"))
+    assert rendered == ["twill1", "plain"]  # rendered unsheared: the skew's rig shares the entries
+    assert together["twill1"] is alone["twill1"]
+    # ... with the numbers of a render of every pattern by one renderer, whatever was rendered with it
+    monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
+    every = candidates.signatures(rig)
+    assert rendered[2:] == list(priors.PATTERNS) and list(every) == list(priors.PATTERNS)
+    for pattern in ("plain", "twill1"):
+        for mine, theirs in zip(together[pattern], every[pattern]):
+            for field in ("m", "n", "weight"):
+                np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field))

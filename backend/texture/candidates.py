@@ -14,8 +14,8 @@ one that explains the photos best (:mod:`backend.fit.search`).
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, replace
-from functools import lru_cache
 
 import torch
 
@@ -36,29 +36,33 @@ class Candidate:
     score: float
 
 
-def signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
-    """Per preset, the (reflection, transmission) harmonic signatures of its typical parameters,
-    rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little off the
-    unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for the
-    fundamentals at 2 degrees. Rendered unturned, whole fits got the pattern right on 41 of 42
+def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.PATTERNS) -> dict[str, list[lattice.Signature]]:
+    """Per preset of ``patterns``, the (reflection, transmission) harmonic signatures of its typical
+    parameters, rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little
+    off the unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for
+    the fundamentals at 2 degrees. Rendered unturned, whole fits got the pattern right on 41 of 42
     photo-like pairs instead of 40, but a dense twill turned 1.4 degrees with one surviving peak
     (tests/test_fit.py's lone-harmonic twill0) was then placed unturned, its tiles 3 % off: kept at the
-    rig's rotation until that is understood.)"""
-    return _signatures(replace(rig, sample_skew_deg=0.0))
+    rig's rotation until that is understood.) Each is rendered once per process and placement, and
+    only for the patterns asked for: a fit of a given pattern renders one, not five (0.7 s each)."""
+    unsheared = replace(rig, sample_skew_deg=0.0)
+    missing = [pattern for pattern in patterns if (unsheared, pattern) not in _SIGNATURES]
+    if missing:
+        renderer = Renderer(unsheared, size=512, spp=4, geometry_cache=0)  # its camera samples serve each
+        tiles = SIGNATURE_DENSITY * rig.plane_size / rig.view_size
+        for pattern in missing:
+            with torch.no_grad():
+                pair = renderer.render(priors.typical(pattern).replace(tiles=(tiles, tiles)))
+            _SIGNATURES[unsheared, pattern] = [lattice.signature(img.numpy(), SIGNATURE_DENSITY, SIGNATURE_DENSITY)
+                                               for img in (pair.reflection, pair.transmission)]
+    for pattern in patterns:
+        _SIGNATURES.move_to_end((unsheared, pattern))
+    while len(_SIGNATURES) > 4 * len(priors.PATTERNS):  # the last few placements' (a fit tries two)
+        _SIGNATURES.popitem(last=False)
+    return {pattern: _SIGNATURES[unsheared, pattern] for pattern in patterns}
 
 
-@lru_cache(maxsize=4)
-def _signatures(rig: CaptureRig) -> dict[str, list[lattice.Signature]]:
-    renderer = Renderer(rig, size=512, spp=4, geometry_cache=0)  # the camera samples serve every preset
-    tiles = SIGNATURE_DENSITY * rig.plane_size / rig.view_size
-    out = {}
-    for pattern in priors.PATTERNS:
-        params = priors.typical(pattern).replace(tiles=(tiles, tiles))
-        with torch.no_grad():
-            pair = renderer.render(params)
-        out[pattern] = [lattice.signature(img.numpy(), SIGNATURE_DENSITY, SIGNATURE_DENSITY)
-                        for img in (pair.reflection, pair.transmission)]
-    return out
+_SIGNATURES: OrderedDict[tuple[CaptureRig, str], list[lattice.Signature]] = OrderedDict()
 
 
 def tile_range(pattern: str, rig: CaptureRig) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -114,7 +118,7 @@ def _comb_lattices(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[st
     lo, hi = _search_range(rig, patterns)
     rotation, skew = rig.sample_rotation_deg, rig.sample_skew_deg
     combs = lattice.estimates(spectra, (lo, hi), (lo, hi), rotation_deg=rotation, skew_deg=skew) + list(also)
-    sigs = signatures(rig)
+    sigs = signatures(rig, patterns)
     return {pattern: lattice.candidates(spectra, combs, sigs[pattern], *_scaled_ranges(pattern, rig),
                                         top=per_pattern, rotation_deg=rotation, skew_deg=skew)
             for pattern in patterns}
@@ -123,7 +127,7 @@ def _comb_lattices(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[st
 def _with_anchored(spectra: lattice.Spectra, rig: CaptureRig, combs: dict[str, list[lattice.Lattice]],
                    per_pattern: int) -> list[Candidate]:
     """The comb lattices per pattern joined by those read from single peaks, as candidates."""
-    sigs = signatures(rig)
+    sigs = signatures(rig, tuple(combs))
     out = []
     for pattern, found in combs.items():
         found = lattice.with_anchored(spectra, found, sigs[pattern], *_scaled_ranges(pattern, rig),
