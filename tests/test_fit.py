@@ -297,16 +297,7 @@ def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
     # oblique harmonic, one peak gives the lattice. Their yarns are spaced unevenly (the phone's
     # warp), and the spectrum reads mostly the photo's centre: the tiles are allowed 1 % beyond the
     # warp's change of the spacing there (twill0_006: 1.6 % down the image, read 1.1 % off).
-    case = photolike.make_item(tmp_path, seed=31, index=index)
-    centre = DEFAULT_RIG.film_size / 2
-    uneven = max(abs(s) for s in PhoneEffects(**case["phone"]).spacing_change(centre, centre))
-    truth = FabricParams.from_interchange(case["params"])
-    assert truth.pattern == pattern
-    pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
-    spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
-    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)  # as the fit places it
-    assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=0.25)
-    assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01 + uneven)
+    assert_placed_as_made(tmp_path, seed=31, index=index, pattern=pattern, rotation_tolerance_deg=0.25)
 
 
 def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
@@ -314,15 +305,23 @@ def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
     # turned -0.52 degrees; the summed scan's maxima placed it at -2.60 degrees with tiles 5.8 % off.
     # The warp's and the weft's own angles, paired for a shear and refined as one turn at their
     # middle, explain the peakness maps 1.22 times better than that (PAIRED_TURN_GAIN: 1.1).
-    case = photolike.make_item(tmp_path, seed=7, index=11)
+    assert_placed_as_made(tmp_path, seed=7, index=11, pattern="twill0", rotation_tolerance_deg=0.4)
+
+
+def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float) -> None:
+    """Photo-like item ``index`` of set ``seed`` (of ``pattern``), placed as the fit places it: its
+    rotation (no skew) within the tolerance, its pattern's best tiles within 1 % beyond the phone
+    warp's change of the spacing at the photo's centre (where the spectrum mostly reads)."""
+    case = photolike.make_item(tmp_path, seed=seed, index=index)
     centre = DEFAULT_RIG.film_size / 2
     uneven = max(abs(s) for s in PhoneEffects(**case["phone"]).spacing_change(centre, centre))
     truth = FabricParams.from_interchange(case["params"])
+    assert truth.pattern == pattern
     pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
     spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
-    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)  # as the fit places it
-    assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=0.4)
-    assert next(c for c in found if c.pattern == "twill0").tiles == pytest.approx(truth.tiles, rel=0.01 + uneven)
+    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)
+    assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=rotation_tolerance_deg)
+    assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01 + uneven)
 
 
 def test_a_given_sample_rotation_is_kept_and_a_clear_turn_is_found(twill_pair):
