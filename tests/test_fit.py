@@ -304,8 +304,15 @@ def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
     # Photo-like twill0_011 of the benchmark's set (seed 7, 2-3 px per yarn behind 1.9 px of blur) is
     # turned -0.52 degrees; the summed scan's maxima placed it at -2.60 degrees with tiles 5.8 % off.
     # The warp's and the weft's own angles, paired for a shear and refined as one turn at their
-    # middle, explain the peakness maps 1.22 times better than that (PAIRED_TURN_GAIN: 1.1).
+    # middle, explain the peakness maps 1.22 times better than that (RIVAL_TURN_GAIN: 1.1).
     assert_placed_as_made(tmp_path, seed=7, index=11, pattern="twill0", rotation_tolerance_deg=0.4)
+
+
+def test_the_maps_read_a_turn_the_summed_sieves_miss(tmp_path):
+    # Photo-like twill0_016 (seed 7, 2-3 px per yarn, unevenly spaced) is turned +3.88 degrees. Every
+    # maximum of the summed sieve scan missed it (best -5.74, then unturned with tiles 12 % off); the
+    # same scan's lattices scored by the generic harmonics over the 2D maps peak near the turn.
+    assert_placed_as_made(tmp_path, seed=7, index=16, pattern="twill0", rotation_tolerance_deg=0.4)
 
 
 def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float) -> None:
