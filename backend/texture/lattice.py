@@ -428,23 +428,27 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     paired = [_refine_placement(spectra.maps, generic, lat, middle, middle, size, False)
               for _, warp, weft, lat in verified[:REFINED_HYPOTHESES] for middle in (placement_of(warp, weft)[0],)]
     best_paired = max(paired, key=lambda p: p.score, default=None)
-    for rival in (best_paired, best_mapped):
-        if rival is not None and rival.score > RIVAL_TURN_GAIN * best_turned.score and (
-                rival is best_paired or _beats_on_each_photo(spectra, rival, best_turned)):
-            best_turned = rival
+    if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
+        best_turned = best_paired
+    if (best_mapped is not None and best_mapped.score > RIVAL_TURN_GAIN * best_turned.score
+            and _beats_on_each_photo(spectra, best_mapped, [best_turned])):
+        best_turned = best_mapped
     best_sheared = max((_refine_placement(spectra.maps, generic, lat, warp, weft, size, True)
                         for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]), key=lambda p: p.score,
                        default=None)
     return best_turned, best_sheared
 
 
-def _beats_on_each_photo(spectra: Spectra, rival: "Placement", incumbent: "Placement") -> bool:
-    """Whether ``rival`` explains each photo's peakness map alone (generic low harmonics) better than
-    ``incumbent``: a true turn shows in both photos of the same fabric, a chance one in one photo's
-    noise or aliased harmonics (photo-like pairs near the +-5 degree edge of the scan, and a mirror
-    turn of a satin, won over both photos together by 1.1-1.15 times and lost on one photo alone)."""
+def _beats_on_each_photo(spectra: Spectra, placement: "Placement", rivals: list["Placement"],
+                         gain: float = 1.0) -> bool:
+    """Whether ``placement`` explains each photo's peakness map alone (generic low harmonics) ``gain``
+    times better than every one of ``rivals``: a true turn or shear shows in both photos of the same
+    fabric, a chance one in one photo's noise or aliased harmonics (photo-like turns near the +-5
+    degree edge of the scan, and a satin's mirror turn, won over both photos together by 1.1-1.15
+    times and lost on one photo alone)."""
     generic = [_generic_signature()]
-    return all(_map_score(q, generic, rival, spectra.size) > _map_score(q, generic, incumbent, spectra.size)
+    return all(_map_score(q, generic, placement, spectra.size)
+               > gain * max(_map_score(q, generic, rival, spectra.size) for rival in rivals)
                for q in spectra.maps)
 
 
@@ -455,18 +459,13 @@ def _shear_confirmed(spectra: Spectra, sheared: "Placement", turned: "Placement"
     in both photos of the same fabric and needs both angles; a chance one explains one photo's noise
     or aliased harmonics, or owes its score to a better lattice rather than to the shear. The cheap
     comparison with the turned placement goes first: most shears fail it."""
-    generic = [_generic_signature()] * len(spectra.maps)
-
-    def beats(rivals: list["Placement"]) -> bool:
-        return all(_map_score(q, generic[:1], sheared, spectra.size)
-                   > SHEAR_GAIN * max(_map_score(q, generic[:1], rival, spectra.size) for rival in rivals)
-                   for q in spectra.maps)
-
-    if not beats([turned]):
+    if not _beats_on_each_photo(spectra, sheared, [turned], SHEAR_GAIN):
         return False
+    generic = [_generic_signature()] * len(spectra.maps)
     angles = (sheared.warp_deg, sheared.weft_deg, placement_of(sheared.warp_deg, sheared.weft_deg)[0])
-    return beats([_refine_placement(spectra.maps, generic, sheared.lattice, angle, angle, spectra.size, False)
-                  for angle in angles])
+    at_one_angle = [_refine_placement(spectra.maps, generic, sheared.lattice, angle, angle, spectra.size, False)
+                    for angle in angles]
+    return _beats_on_each_photo(spectra, sheared, at_one_angle, SHEAR_GAIN)
 
 
 def _map_score(q: np.ndarray, signatures, placement: "Placement", size: int) -> float:
