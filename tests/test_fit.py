@@ -24,7 +24,6 @@ from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
 from backend.model.param_tensors import ParamTensors
-from backend.model.phone import PhoneEffects
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
 from backend.texture import lattice
@@ -295,8 +294,8 @@ def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
     # keeps one diagonal peak (with side bands from its uneven yarns), satin1_014 a few low oblique
     # ones. The per-axis combs read them as 264 % and 338 % off; named as the pattern's strongest
     # oblique harmonic, one peak gives the lattice. Their yarns are spaced unevenly (the phone's
-    # warp), and the spectrum reads mostly the photo's centre: the tiles are allowed 1 % beyond the
-    # warp's change of the spacing there (twill0_006: 1.6 % down the image, read 1.1 % off).
+    # warp: twill0_006's are 1.6 % denser down the image at its centre, where the spectrum reads;
+    # the lattice read there was 1.1 % off): the tiles are the mean over the whole photo.
     assert_placed_as_made(tmp_path, seed=31, index=index, pattern=pattern, rotation_tolerance_deg=0.25)
 
 
@@ -317,18 +316,16 @@ def test_the_maps_read_a_turn_the_summed_sieves_miss(tmp_path):
 
 def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float) -> None:
     """Photo-like item ``index`` of set ``seed`` (of ``pattern``), placed as the fit places it: its
-    rotation (no skew) within the tolerance, its pattern's best tiles within 1 % beyond the phone
-    warp's change of the spacing at the photo's centre (where the spectrum mostly reads)."""
+    rotation (no skew) within the tolerance, its pattern's best tiles within 1 % of the truth (the
+    phone warp's yarns are spaced 1-3 % off their mean in places, within 0.75 % over the photo)."""
     case = photolike.make_item(tmp_path, seed=seed, index=index)
-    centre = DEFAULT_RIG.film_size / 2
-    uneven = max(abs(s) for s in PhoneEffects(**case["phone"]).spacing_change(centre, centre))
     truth = FabricParams.from_interchange(case["params"])
     assert truth.pattern == pattern
     pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
     spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
     (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)
     assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=rotation_tolerance_deg)
-    assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01 + uneven)
+    assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01)
 
 
 def test_a_given_sample_rotation_is_kept_and_a_clear_turn_is_found(twill_pair):

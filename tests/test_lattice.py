@@ -16,7 +16,7 @@ def reference_signature_score(maps, signatures, a, b, size, rotation_deg, skew_d
         for m, n, weight in zip(sig.m, sig.n, weights):
             fx, fy = lattice.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
             folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
-            fx, fy = np.broadcast_arrays(lattice._fold(fx, size), lattice._fold(fy, size))
+            fx, fy = np.broadcast_arrays(lattice.fold(fx, size), lattice.fold(fy, size))
             looked_up = lattice._lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
             total = total + weight * np.where(folded, 0.5, 1.0) * looked_up
     return total
@@ -26,7 +26,7 @@ def reference_comb_scores(freqs, strengths, periods, size, sigma=0.35, reach=1.6
     """Each peak's strength times its best Gaussian hit over every tooth m * spacing within reach."""
     scores = np.zeros(len(periods))
     for g, period in enumerate(periods):
-        teeth = np.abs(lattice._fold(np.arange(1, int(reach * size / period) + 1) * period, size))
+        teeth = np.abs(lattice.fold(np.arange(1, int(reach * size / period) + 1) * period, size))
         for f, s in zip(freqs, strengths):
             scores[g] += s * np.exp(-0.5 * ((teeth - abs(f)) / sigma) ** 2).max()
     return scores

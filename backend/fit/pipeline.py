@@ -10,7 +10,8 @@
     optimise   the winner's run goes on: Adam on the continuous parameters, every
                ``search_every`` iterations a parabolic step on the discrete ones
                (:mod:`backend.fit.optimise`); tiles come from the lattice, which pins them to a
-               fraction of a percent, and stay fixed
+               fraction of a percent (the mean spacing over the whole photo,
+               :mod:`backend.texture.spacing`), and stay fixed
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
                trial fits) runs at 256 px with the same samples per image, where a step costs about

@@ -23,7 +23,7 @@ from ..core import priors
 from ..core.rig import CaptureRig
 from ..core.weave import PRESETS
 from ..model.render import Renderer
-from . import lattice
+from . import lattice, spacing
 
 SIGNATURE_DENSITY = 20.0  # tiles across the image for the signature renders: every harmonic below Nyquist
 COARSEST_PIXELS_PER_YARN = 10.0  # film pixels per yarn of the coarsest weave the search proposes
@@ -126,13 +126,18 @@ def _comb_lattices(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[st
 
 def _with_anchored(spectra: lattice.Spectra, rig: CaptureRig, combs: dict[str, list[lattice.Lattice]],
                    per_pattern: int) -> list[Candidate]:
-    """The comb lattices per pattern joined by those read from single peaks, as candidates."""
+    """The comb lattices per pattern joined by those read from single peaks, as candidates, each at
+    the mean spacing over the whole photo (:func:`backend.texture.spacing.mean_lattice`; the lattice
+    search reads the photo's centre)."""
     sigs = signatures(rig, tuple(combs))
+    rotation, skew = rig.sample_rotation_deg, rig.sample_skew_deg
     out = []
     for pattern, found in combs.items():
         found = lattice.with_anchored(spectra, found, sigs[pattern], *_scaled_ranges(pattern, rig),
-                                      top=per_pattern, rotation_deg=rig.sample_rotation_deg,
-                                      skew_deg=rig.sample_skew_deg)
+                                      top=per_pattern, rotation_deg=rotation, skew_deg=skew)
+        reflection, transmission = spectra.images
+        found = [spacing.mean_lattice(transmission, reflection, c, tuple(sigs[pattern]), rotation, skew)
+                 for c in found]
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]
     return out
 

@@ -21,6 +21,9 @@ What runs:
    (:func:`signature_score`): which harmonics (m, n) carry the energy depends on the weave (and on
    the BSDF), measured once from a render at a low density where every significant harmonic is
    below Nyquist (:func:`signature`).
+3. :func:`backend.texture.spacing.mean_lattice` (through :mod:`.candidates`): each candidate moved
+   from the spacing at the photo's centre, which the windowed spectrum reads, to the mean over the
+   whole photo, read from the phase of its harmonics.
 No rendering is needed to read a photo's density; only the pattern signatures come from renders.
 """
 from __future__ import annotations
@@ -51,7 +54,8 @@ COARSE_SIZE = 256
 @dataclass
 class Spectra:
     """What the lattice search reads from a photo pair, computed once: each image's strongest spectral
-    peaks (sub-bin positions) and its sharp peakness map; for photos above COARSE_SIZE also the
+    peaks (sub-bin positions) and its sharp peakness map, and the images themselves (float64, for
+    the mean spacing); for photos above COARSE_SIZE also the
     peaks of the pair shrunk to COARSE_SIZE (``coarse``): the sieve works on the strongest peaks,
     and at full size those can be the aliased high harmonics of a dense weave, which line up with a
     wrong comb; shrunk (a box filter in linear light), those harmonics lose their weight and the
@@ -60,6 +64,7 @@ class Spectra:
     size: int
     peaks: list[list["Peak"]]
     maps: list[np.ndarray]
+    images: list[np.ndarray]
     coarse: list[list["Peak"]] | None = None
 
     @classmethod
@@ -68,7 +73,7 @@ class Spectra:
         size = images[0].shape[0]
         coarse = [spectral_peaks(_shrunk(img, COARSE_SIZE)) for img in images] if size > COARSE_SIZE else None
         return cls(size, [spectral_peaks(img) for img in images], [peakness(img, blur=0.0) for img in images],
-                   coarse)
+                   images, coarse)
 
     @property
     def all_peaks(self) -> list["Peak"]:
@@ -179,7 +184,7 @@ def signature(image: np.ndarray, a: float, b: float, order: int = 6, keep: int =
     return Signature(mm[best], nn[best], weight)
 
 
-def _fold(f: np.ndarray, size: int) -> np.ndarray:
+def fold(f: np.ndarray, size: int) -> np.ndarray:
     """Frequency (cycles per image) after sampling with `size` pixels: folded into [-size/2, size/2]."""
     return (f + size / 2) % size - size / 2
 
@@ -227,7 +232,7 @@ def _scores(maps, signatures, a: np.ndarray, b: np.ndarray, size: int, turn) -> 
         # an unturned sample skips the products (they would give the same frequencies, up to the sign of a zero)
         fx, fy = (f1, f2) if turn is UNTURNED else _turned(f1, f2, *turn)
         folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
-        looked_up = _lookup(q, _fold(fx, size), _fold(fy, size), size)
+        looked_up = _lookup(q, fold(fx, size), fold(fy, size), size)
         for weight, row_folded, row in zip(weights, folded, looked_up):
             total = total + weight * np.where(row_folded, 0.5, 1.0) * row
     return total
@@ -250,7 +255,7 @@ def comb_scores(freqs: np.ndarray, strengths: np.ndarray, periods: np.ndarray, s
     """How well each candidate spacing explains the (folded) peak frequencies: sum of strengths of
     peaks lying within ~sigma cycles of a folded multiple m * spacing, |m * spacing| <= reach * size."""
     multiples = np.arange(1, int(reach * size / periods.min()) + 1)[:, None] * periods[None, :]  # (M, G)
-    folded = np.where(multiples <= reach * size, np.abs(_fold(multiples, size)), np.inf)
+    folded = np.where(multiples <= reach * size, np.abs(fold(multiples, size)), np.inf)
     scores = np.zeros(len(periods))
     for f, s in zip(freqs, strengths):  # one peak at a time keeps the arrays (M, G) small
         # the nearest tooth's hit: exp is monotonic, so one exp per spacing instead of M

@@ -1,0 +1,71 @@
+"""The mean yarn spacing read from the phase of the lattice harmonics (backend/texture/spacing.py)."""
+import math
+
+import numpy as np
+import pytest
+
+from backend.texture import spacing
+from backend.texture.lattice import Lattice, Signature, turned_frequencies
+
+SIZE = 512
+LATTICE = (40.0, 55.0)      # cycles per image across the warps and the wefts
+TURN = 3.0                  # degrees
+HARMONICS = Signature(m=np.array([1, 0, 1]), n=np.array([0, 1, 1]), weight=np.array([0.4, 0.4, 0.2]))
+
+
+def woven(a: float, b: float, rotation_deg: float = TURN, change: float = 0.0, glow: float = 0.0,
+          harmonics: Signature = HARMONICS) -> np.ndarray:
+    """A grey (SIZE, SIZE, 3) image of the harmonics of the lattice (a, b), its yarns spaced unevenly
+    across the image: x is displaced by d(x) = A sin(2 pi x / SIZE), one whole period, so the mean
+    spacing is the lattice's, while the local frequency is 1 + ``change`` times it at the centre;
+    plus a narrow bright ``glow`` at the centre (a transmission photo's light)."""
+    amplitude = -change * SIZE / (2 * math.pi)            # d'(SIZE / 2) = change
+    centres = np.arange(SIZE) + 0.5
+    y, x = np.meshgrid(centres, centres, indexing="ij")
+    x = x + amplitude * np.sin(2 * math.pi * x / SIZE)
+    image = np.full((SIZE, SIZE), 0.5)
+    for m, n, w in zip(harmonics.m, harmonics.n, harmonics.weight):
+        fx, fy = turned_frequencies(m * a, n * b, rotation_deg)
+        image += 0.25 * w * np.cos(2 * math.pi * (fx * x + fy * y) / SIZE + 0.7 * m + 0.3 * n)
+    r2 = (y - SIZE / 2) ** 2 + (x - SIZE / 2) ** 2
+    image += glow * np.exp(-r2 / (2 * 12.0 ** 2))
+    return np.repeat(image[..., None], 3, axis=-1)
+
+
+def test_the_whole_photo_gives_the_mean_spacing_where_its_centre_is_off():
+    # The yarns are 2.5 % denser at the centre than on average: a start read there (as the windowed
+    # spectrum reads) moves to the mean, on both axes of a turned sample.
+    photo = woven(*LATTICE, change=0.025)
+    start = Lattice(LATTICE[0] * 1.025, LATTICE[1] * 0.985, 7.0)
+    found = spacing.mean_lattice(photo, photo, start, (HARMONICS, HARMONICS), TURN)
+    assert (found.a, found.b) == pytest.approx(LATTICE, rel=0.002)
+    assert found.score == 7.0
+
+
+def test_an_even_lattice_stays_where_it_is():
+    photo = woven(*LATTICE)
+    found = spacing.mean_lattice(photo, photo, Lattice(*LATTICE, 1.0), (HARMONICS, HARMONICS), TURN)
+    assert (found.a, found.b) == pytest.approx(LATTICE, rel=2e-4)
+
+
+def test_the_light_near_a_low_harmonic_is_kept_out():
+    # A coarse lattice whose strongest harmonic (0, 1) lies 16 cycles per image from DC, beside a
+    # bright glow: the glow's power below the high-pass would pull that harmonic's phase (read as
+    # -10 % on a photo-like satin before the light counted as a neighbour).
+    coarse = (33.0, 16.0)
+    strong_low = Signature(m=np.array([0, 1, 1]), n=np.array([1, 0, 1]), weight=np.array([0.6, 0.2, 0.2]))
+    photo = woven(*coarse, glow=0.4, harmonics=strong_low)
+    found = spacing.mean_lattice(photo, photo, Lattice(*coarse, 1.0), (strong_low, strong_low), TURN)
+    assert (found.a, found.b) == pytest.approx(coarse, rel=0.003)
+
+
+def test_the_reflection_stands_in_where_the_transmission_shows_no_lattice():
+    reflection, blank = woven(*LATTICE, change=0.025), np.full((SIZE, SIZE, 3), 0.4)
+    start = Lattice(LATTICE[0] * 1.025, LATTICE[1], 1.0)
+    from_reflection = spacing.mean_lattice(blank, reflection, start, (HARMONICS, HARMONICS), TURN)
+    assert (from_reflection.a, from_reflection.b) == pytest.approx(LATTICE, rel=0.002)
+    # and the transmission is what is read when it shows the lattice
+    other = woven(LATTICE[0] * 1.01, LATTICE[1] * 1.01)
+    from_transmission = spacing.mean_lattice(other, reflection, start, (HARMONICS, HARMONICS), TURN)
+    assert (from_transmission.a, from_transmission.b) == pytest.approx((LATTICE[0] * 1.01, LATTICE[1] * 1.01),
+                                                                       rel=0.002)
