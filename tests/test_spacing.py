@@ -69,3 +69,13 @@ def test_the_reflection_stands_in_where_the_transmission_shows_no_lattice():
     from_transmission = spacing.mean_lattice(other, reflection, start, (HARMONICS, HARMONICS), TURN)
     assert (from_transmission.a, from_transmission.b) == pytest.approx((LATTICE[0] * 1.01, LATTICE[1] * 1.01),
                                                                        rel=0.002)
+
+
+def test_a_placement_read_a_little_off_does_not_leak_one_axis_into_the_other():
+    # The sample is turned 3 degrees; the placement says 2.2. Read at the angles as given, the
+    # strong diagonal harmonic (1, 1) would mix b's frequency into a's; the yarn vectors' lengths do not.
+    diagonal = Signature(m=np.array([1, 0, 1]), n=np.array([0, 1, 1]), weight=np.array([0.2, 0.2, 0.6]))
+    photo = woven(*LATTICE, change=0.025, harmonics=diagonal)
+    start = Lattice(LATTICE[0] * 1.02, LATTICE[1] * 1.01, 1.0)
+    found = spacing.mean_lattice(photo, photo, start, (diagonal, diagonal), TURN - 0.8)
+    assert (found.a, found.b) == pytest.approx(LATTICE, rel=0.002)

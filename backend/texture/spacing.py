@@ -14,22 +14,29 @@ The mean spacing is in the phase of the harmonics. For a harmonic h = (m, n) of 
     delta_x = N / (2 pi) arg sum_p z_h(p + e_x) conj(z_h(p))   (and delta_y down the image)
 
 where y is the high-passed luminance: the phase of z_h advances by 2 pi (f_true - f_h) . e per pixel
-step e, and the sum averages it over the whole photo, weighted by where the harmonic shows. The
-frequency read, f_h + delta, turned back into the fabric (:func:`.lattice.fabric_frequencies`), is
-(m a', n b'). The harmonics read are the HARMONICS with the most power |Y_h|^2 in the Hann-windowed
-y, among those whose power is SHOWN times the mean frequency bin's; a' = sum w m f1 / sum w m^2 (and
-b' likewise with n), w = |Y_h|^2: a least-squares fit in which a harmonic's error in cycles weighs
-by its power (what the low-passed z holds beyond a harmonic's own line, noise or a neighbour's tail,
-has no steady phase, so the power of the line itself weighs, not the mean of |z_h|^2). The filter
-G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d pixels
+step e, and the sum averages it over the whole photo, weighted by where the harmonic shows: the
+harmonic's frequency is read as g_h = f_h + delta. The harmonics read are the HARMONICS with the most
+power |Y_h|^2 in the Hann-windowed y, among those whose power is SHOWN times the mean frequency bin's.
+Their frequencies g_h = m u + n v are solved, least squares weighted by w = |Y_h|^2, for the yarn
+vectors u = a' (cos theta_1, -sin theta_1) and v = b' (sin theta_2, cos theta_2) (as
+:func:`.lattice.turned_frequencies` turns them); a' = |u| and b' = |v|. The lengths do not depend on
+the placement's angles: turned back at the angles as given, a rotation read 0.6 degrees off leaks one
+axis's frequency into the other's (seed-97 twill1_012: read 1.8 % off where the true turn gives
+0.3 %). Where the harmonics read do not pin both vectors (fewer than two independent (m, n)), each
+axis's harmonics are turned back at the given angles (:func:`.lattice.fabric_frequencies`: (f1, f2))
+and a' = sum w m f1 / sum w m^2, and b' likewise with n. The power of the line itself weighs, not
+the mean of |z_h|^2: what the low-passed z holds beyond a harmonic's own line, noise or a
+neighbour's tail, has no steady phase.
+
+The filter G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d pixels
 puts it four standard deviations of the filter's response away. The neighbours that count carry
 power: the pattern's signature and their mirrors (-f_h included), folded at Nyquist, and the photo's
 light, which the high-pass of N / 64 px leaves up to LIGHT_BAND cycles from DC (a low harmonic beside
 a transmission glow was read 10 % off without it). A harmonic with a neighbour closer than
 MIN_SEPARATION cycles is not read. Two passes: the second demodulates at the first's lattice.
 
-Only the transmission photo is read (the reflection only when the transmission shows no usable
-harmonic on an axis): in reflection a harmonic rides on glints whose place on a yarn follows the
+Only the transmission photo is read (the reflection joins in when the transmission alone does not
+pin both vectors): in reflection a harmonic rides on glints whose place on a yarn follows the
 half vector, which turns across the photo, so its phase drifts by a fraction of a cycle over the
 image (photo-like satins read 2-6 % off in reflection, within 1 % in transmission), while light
 through the gaps shows where the yarns are.
@@ -37,6 +44,7 @@ through the gaps shows where the yarns are.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -49,6 +57,7 @@ HARMONICS = 4            # the strongest usable harmonics of a photo that are re
 MIN_SEPARATION = 5.0     # cycles per image to the nearest other lattice harmonic
 SEPARATION_SIGMAS = 4.0  # the nearest other harmonic, in standard deviations of the filter's response
 PASSES = 2
+SOLVABLE = 1e-3          # det / trace^2 of the harmonics' normal matrix below which they do not pin both axes
 SHOWN = 10.0             # a harmonic is read when its power is this many times the mean frequency bin's
 LIGHT_BAND = 64 / (2 * math.pi)  # cycles per image: the photo's light, as far as the high-pass of N / 64 px leaves it
 
@@ -57,20 +66,48 @@ def mean_lattice(transmission: np.ndarray, reflection: np.ndarray, start: Lattic
                  signatures: tuple[Signature, Signature], rotation_deg: float = 0.0,
                  skew_deg: float = 0.0) -> Lattice:
     """``start`` (a, b) moved to the mean spacing over the whole photo (module docstring), read from
-    the transmission photo (``signatures``: the pattern's (reflection, transmission) signatures; the
-    reflection is read for an axis the transmission shows no usable harmonic on). The score is
+    the transmission photo (``signatures``: the pattern's (reflection, transmission) signatures;
+    the reflection joins in when the transmission alone does not pin both axes). The score is
     ``start``'s."""
     a, b = start.a, start.b
     luma_t, luma_r = _luma(transmission), None
     for _ in range(PASSES):
-        sums = _sums(luma_t, a, b, signatures[1], rotation_deg, skew_deg)
-        if sums[1] == 0.0 or sums[3] == 0.0:
+        read = _read(luma_t, a, b, signatures[1], rotation_deg, skew_deg)
+        if not read.solvable:
             luma_r = _luma(reflection) if luma_r is None else luma_r
-            more = _sums(luma_r, a, b, signatures[0], rotation_deg, skew_deg)
-            sums = (*(sums[:2] if sums[1] > 0.0 else more[:2]), *(sums[2:] if sums[3] > 0.0 else more[2:]))
-        a = sums[0] / sums[1] if sums[1] > 0.0 else a
-        b = sums[2] / sums[3] if sums[3] > 0.0 else b
+            read = read + _read(luma_r, a, b, signatures[0], rotation_deg, skew_deg)
+        a, b = read.lattice(a, b)
     return Lattice(a, b, start.score)
+
+
+@dataclass(frozen=True)
+class _Reading:
+    """The weighted sums of the harmonics read (w their power, g their measured image frequency):
+    ``normal`` sum w [[m m, m n], [n m, n n]], ``moments`` sum w [[m g], [n g]] (2 x 2), and
+    ``projected`` sum w (m f1, m m, n f2, n n) with (f1, f2) = g turned back at the given angles."""
+
+    normal: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    moments: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    projected: np.ndarray = field(default_factory=lambda: np.zeros(4))
+
+    def __add__(self, other: "_Reading") -> "_Reading":
+        return _Reading(self.normal + other.normal, self.moments + other.moments, self.projected + other.projected)
+
+    @property
+    def solvable(self) -> bool:
+        """Whether the harmonics read pin both yarn vectors (two independent (m, n) among them)."""
+        trace = float(np.trace(self.normal))
+        return trace > 0.0 and float(np.linalg.det(self.normal)) > SOLVABLE * trace ** 2
+
+    def lattice(self, a: float, b: float) -> tuple[float, float]:
+        """(a', b'): the lengths of the yarn vectors u, v solved from g = m u + n v; without two
+        independent harmonics, each axis's harmonics turned back at the given angles (a or b as
+        they were where none was read)."""
+        if self.solvable:
+            u, v = np.linalg.solve(self.normal, self.moments)
+            return float(np.hypot(*u)), float(np.hypot(*v))
+        sum_m, m2, sum_n, n2 = self.projected
+        return (sum_m / m2 if m2 > 0.0 else a), (sum_n / n2 if n2 > 0.0 else b)
 
 
 def _luma(image: np.ndarray) -> np.ndarray:
@@ -78,10 +115,10 @@ def _luma(image: np.ndarray) -> np.ndarray:
     return highpass(luminance(np.asarray(image, np.float64)), image.shape[0] / 64)
 
 
-def _sums(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
-          ) -> tuple[float, float, float, float]:
-    """(sum w m f1, sum w m^2, sum w n f2, sum w n^2) over the HARMONICS usable harmonics of
-    ``signature`` at the lattice (a, b) with the most power in the high-passed luminance ``y``."""
+def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
+          ) -> _Reading:
+    """The :class:`_Reading` of the HARMONICS usable harmonics of ``signature`` at the lattice (a, b)
+    with the most power in the high-passed luminance ``y``."""
     size = y.shape[0]
     usable = []
     for m, n in zip(signature.m.tolist(), signature.n.tolist()):
@@ -89,17 +126,21 @@ def _sums(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg:
         if separation >= MIN_SEPARATION:
             usable.append((m, n, *turned_frequencies(m * a, n * b, rotation_deg, skew_deg), separation))
     if not usable:
-        return 0.0, 0.0, 0.0, 0.0
+        return _Reading()
     windowed = y * hann(size, size)
     power = np.array([abs(np.sum(_demodulated(windowed, fx, fy))) ** 2 for _, _, fx, fy, _ in usable])
     shown = power > SHOWN * np.sum(windowed ** 2)   # Parseval: the sum is the mean frequency bin's power
-    out = np.zeros(4)
+    normal, moments, projected = np.zeros((2, 2)), np.zeros((2, 2)), np.zeros(4)
     for k in [k for k in np.argsort(power)[::-1][:HARMONICS] if shown[k]]:
         m, n, fx, fy, separation = usable[k]
         dx, dy = _phase_slope(y, fx, fy, SEPARATION_SIGMAS / (2 * math.pi) * size / separation)
-        f1, f2 = fabric_frequencies(fx + dx, fy + dy, rotation_deg, skew_deg)
-        out += power[k] * np.array([m * f1, m * m, n * f2, n * n])
-    return tuple(float(v) for v in out)
+        g = np.array([fx + dx, fy + dy])
+        f1, f2 = fabric_frequencies(g[0], g[1], rotation_deg, skew_deg)
+        mn = np.array([m, n], dtype=float)
+        normal += power[k] * np.outer(mn, mn)
+        moments += power[k] * np.outer(mn, g)
+        projected += power[k] * np.array([m * f1, m * m, n * f2, n * n])
+    return _Reading(normal, moments, projected)
 
 
 def _separation(m: int, n: int, a: float, b: float, signature: Signature, size: int, rotation_deg: float,
