@@ -7,7 +7,10 @@
    measured once per rig from a render of the preset's typical parameters at a low density);
 3. :func:`placed` does this for the sample's placement read from the spectra: a sheared one is
    kept as it is; a turned one is compared with the unturned sample, and the placement whose best
-   candidate scores higher is kept.
+   candidate scores higher is kept;
+4. each candidate's tiles are then the mean spacing over the whole photo, read from the phase of its
+   harmonics (:func:`backend.texture.spacing.mean_lattice`), not the spacing at the photo's centre
+   that the windowed spectrum reads.
 
 The fit then gives the best few (pattern, tiles) candidates a short optimisation each and keeps the
 one that explains the photos best (:mod:`backend.fit.search`).

@@ -106,7 +106,7 @@ class _Reading:
         if self.solvable:
             u, v = np.linalg.solve(self.normal, self.moments)
             return float(np.hypot(*u)), float(np.hypot(*v))
-        sum_m, m2, sum_n, n2 = self.projected
+        sum_m, m2, sum_n, n2 = (float(v) for v in self.projected)
         return (sum_m / m2 if m2 > 0.0 else a), (sum_n / n2 if n2 > 0.0 else b)
 
 
