@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from backend.image.spectrum import highpassed_luminance
 from backend.texture import spacing
 from backend.texture.lattice import Lattice, Signature, turned_frequencies
 
@@ -32,10 +33,15 @@ def woven(a: float, b: float, rotation_deg: float = TURN, change: float = 0.0, g
     return np.repeat(image[..., None], 3, axis=-1)
 
 
+def highpassed(image: np.ndarray) -> np.ndarray:
+    """What the lattice search keeps of a photo for the mean spacing (``Spectra.highpassed``)."""
+    return highpassed_luminance(image, SIZE / 64)
+
+
 def test_the_whole_photo_gives_the_mean_spacing_where_its_centre_is_off():
     # The yarns are 2.5 % denser at the centre than on average: a start read there (as the windowed
     # spectrum reads) moves to the mean, on both axes of a turned sample.
-    photo = woven(*LATTICE, change=0.025)
+    photo = highpassed(woven(*LATTICE, change=0.025))
     start = Lattice(LATTICE[0] * 1.025, LATTICE[1] * 0.985, 7.0)
     found = spacing.mean_lattice(photo, photo, start, (HARMONICS, HARMONICS), TURN)
     assert (found.a, found.b) == pytest.approx(LATTICE, rel=0.002)
@@ -43,7 +49,7 @@ def test_the_whole_photo_gives_the_mean_spacing_where_its_centre_is_off():
 
 
 def test_an_even_lattice_stays_where_it_is():
-    photo = woven(*LATTICE)
+    photo = highpassed(woven(*LATTICE))
     found = spacing.mean_lattice(photo, photo, Lattice(*LATTICE, 1.0), (HARMONICS, HARMONICS), TURN)
     assert (found.a, found.b) == pytest.approx(LATTICE, rel=2e-4)
 
@@ -54,18 +60,18 @@ def test_the_light_near_a_low_harmonic_is_kept_out():
     # -10 % on a photo-like satin before the light counted as a neighbour).
     coarse = (33.0, 16.0)
     strong_low = Signature(m=np.array([0, 1, 1]), n=np.array([1, 0, 1]), weight=np.array([0.6, 0.2, 0.2]))
-    photo = woven(*coarse, glow=0.4, harmonics=strong_low)
+    photo = highpassed(woven(*coarse, glow=0.4, harmonics=strong_low))
     found = spacing.mean_lattice(photo, photo, Lattice(*coarse, 1.0), (strong_low, strong_low), TURN)
     assert (found.a, found.b) == pytest.approx(coarse, rel=0.003)
 
 
 def test_the_reflection_stands_in_where_the_transmission_shows_no_lattice():
-    reflection, blank = woven(*LATTICE, change=0.025), np.full((SIZE, SIZE, 3), 0.4)
+    reflection, blank = highpassed(woven(*LATTICE, change=0.025)), highpassed(np.full((SIZE, SIZE, 3), 0.4))
     start = Lattice(LATTICE[0] * 1.025, LATTICE[1], 1.0)
     from_reflection = spacing.mean_lattice(blank, reflection, start, (HARMONICS, HARMONICS), TURN)
     assert (from_reflection.a, from_reflection.b) == pytest.approx(LATTICE, rel=0.002)
     # and the transmission is what is read when it shows the lattice
-    other = woven(LATTICE[0] * 1.01, LATTICE[1] * 1.01)
+    other = highpassed(woven(LATTICE[0] * 1.01, LATTICE[1] * 1.01))
     from_transmission = spacing.mean_lattice(other, reflection, start, (HARMONICS, HARMONICS), TURN)
     assert (from_transmission.a, from_transmission.b) == pytest.approx((LATTICE[0] * 1.01, LATTICE[1] * 1.01),
                                                                        rel=0.002)
@@ -75,7 +81,7 @@ def test_a_placement_read_a_little_off_does_not_leak_one_axis_into_the_other():
     # The sample is turned 3 degrees; the placement says 2.2. Read at the angles as given, the
     # strong diagonal harmonic (1, 1) would mix b's frequency into a's; the yarn vectors' lengths do not.
     diagonal = Signature(m=np.array([1, 0, 1]), n=np.array([0, 1, 1]), weight=np.array([0.2, 0.2, 0.6]))
-    photo = woven(*LATTICE, change=0.025, harmonics=diagonal)
+    photo = highpassed(woven(*LATTICE, change=0.025, harmonics=diagonal))
     start = Lattice(LATTICE[0] * 1.02, LATTICE[1] * 1.01, 1.0)
     found = spacing.mean_lattice(photo, photo, start, (diagonal, diagonal), TURN - 0.8)
     assert (found.a, found.b) == pytest.approx(LATTICE, rel=0.002)

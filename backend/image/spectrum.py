@@ -5,7 +5,8 @@ For an (H, W, 3) image, with ``y`` its luminance (:func:`.tone.luminance`, Rec. 
     highpass(y, sigma)  = y - G_sigma * y        (Gaussian blur of sigma pixels, OpenCV's default
                                                   border: reflected without repeating the edge)
     hann(H, W)          = outer(hanning(H), hanning(W))
-    windowed_highpass   = highpass(y, sigma) * hann(H, W)      (float64)
+    highpassed_luminance = highpass(y, sigma)                   (float64)
+    windowed_highpass   = highpassed_luminance * hann(H, W)
     power_spectrum(z)   = |fftshift(fft2(z))|^2                (DC at (H // 2, W // 2))
 
 The high-pass removes the lighting gradient, glow and vignetting (everything much slower than
@@ -37,10 +38,15 @@ def hann(height: int, width: int) -> np.ndarray:
     return np.outer(np.hanning(height), np.hanning(width))
 
 
+def highpassed_luminance(image: np.ndarray, sigma: float) -> np.ndarray:
+    """The high-passed luminance of an (H, W, 3) image, float64."""
+    return highpass(luminance(np.asarray(image, np.float64)), sigma)
+
+
 def windowed_highpass(image: np.ndarray, sigma: float) -> np.ndarray:
     """The high-passed luminance of an (H, W, 3) image, Hann-windowed, float64."""
-    y = luminance(np.asarray(image, np.float64))
-    return highpass(y, sigma) * hann(*y.shape)
+    y = highpassed_luminance(image, sigma)
+    return y * hann(*y.shape)
 
 
 def power_spectrum(windowed: np.ndarray) -> np.ndarray:

@@ -134,11 +134,11 @@ def _with_anchored(spectra: lattice.Spectra, rig: CaptureRig, combs: dict[str, l
     search reads the photo's centre)."""
     sigs = signatures(rig, tuple(combs))
     rotation, skew = rig.sample_rotation_deg, rig.sample_skew_deg
+    reflection, transmission = spectra.highpassed
     out = []
     for pattern, found in combs.items():
         found = lattice.with_anchored(spectra, found, sigs[pattern], *_scaled_ranges(pattern, rig),
                                       top=per_pattern, rotation_deg=rotation, skew_deg=skew)
-        reflection, transmission = spectra.images
         found = [spacing.mean_lattice(transmission, reflection, c, tuple(sigs[pattern]), rotation, skew)
                  for c in found]
         out += [Candidate(pattern, c.tiles(rig.view_size, rig.plane_size), c.score) for c in found]

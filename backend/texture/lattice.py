@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core.rig import placement_of, yarn_angles
 from ..core.weave import PRESETS
-from ..image.spectrum import Peak, peakness, spectral_peaks, windowed_highpass
+from ..image.spectrum import Peak, highpassed_luminance, peakness, spectral_peaks, windowed_highpass
 from ..image.tone import GAMMA, encode, resize_linear
 
 
@@ -54,8 +54,9 @@ COARSE_SIZE = 256
 @dataclass
 class Spectra:
     """What the lattice search reads from a photo pair, computed once: each image's strongest spectral
-    peaks (sub-bin positions) and its sharp peakness map, and the images themselves (float64, for
-    the mean spacing); for photos above COARSE_SIZE also the
+    peaks (sub-bin positions), its sharp peakness map and its high-passed luminance (``highpassed``,
+    the high-pass of the peakness maps without the window, for the mean spacing); for photos above
+    COARSE_SIZE also the
     peaks of the pair shrunk to COARSE_SIZE (``coarse``): the sieve works on the strongest peaks,
     and at full size those can be the aliased high harmonics of a dense weave, which line up with a
     wrong comb; shrunk (a box filter in linear light), those harmonics lose their weight and the
@@ -64,7 +65,7 @@ class Spectra:
     size: int
     peaks: list[list["Peak"]]
     maps: list[np.ndarray]
-    images: list[np.ndarray]
+    highpassed: list[np.ndarray]
     coarse: list[list["Peak"]] | None = None
 
     @classmethod
@@ -73,7 +74,7 @@ class Spectra:
         size = images[0].shape[0]
         coarse = [spectral_peaks(_shrunk(img, COARSE_SIZE)) for img in images] if size > COARSE_SIZE else None
         return cls(size, [spectral_peaks(img) for img in images], [peakness(img, blur=0.0) for img in images],
-                   images, coarse)
+                   [highpassed_luminance(img, size / 64) for img in images], coarse)
 
     @property
     def all_peaks(self) -> list["Peak"]:
@@ -403,20 +404,21 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     unturned = int(np.argmin(np.abs(angles)))  # always a hypothesis: weak textures give weak evidence
     turned += [] if unturned in turned else [unturned]
 
+    # each angle's sieve lattice at its multiples, best first: refined below, and scored over the maps
+    multiples = [_multiples(spectra.maps, generic, Lattice(*scan[k][0], 0.0), a_range, b_range, float(angle),
+                            float(angle), size) for k, angle in enumerate(angles)]
+
     def refined_at(k: int) -> list[Placement]:
         angle = float(angles[k])
-        start = Lattice(*scan[k][0], 0.0)
         return [_refine_placement(spectra.maps, generic, lat, angle, angle, size, False)
-                for lat in _multiples(spectra.maps, generic, start, a_range, b_range, angle, angle,
-                                      size)[:VERIFIED_RATIOS]]
+                for lat in multiples[k][:VERIFIED_RATIOS]]
 
     best_turned = max((p for k in turned for p in refined_at(k)), key=lambda p: p.score)
     # The same scan read through the 2D maps: each angle's sieve lattice at its best multiple, scored
     # by the generic harmonics. Uneven spacing smears the peaks the sieves sum, so the summed score's
     # maxima can all miss the turn while the maps still show it. One wins only by RIVAL_TURN_GAIN, and
     # only where it is better on each photo alone (:func:`_beats_on_each_photo`).
-    by_map = np.array([_multiples(spectra.maps, generic, Lattice(*scan[k][0], 0.0), a_range, b_range,
-                                  float(angle), float(angle), size)[0].score for k, angle in enumerate(angles)])
+    by_map = np.array([lattices[0].score for lattices in multiples])
     mapped = [k for k in _local_maxima(by_map)[:ROTATION_HYPOTHESES] if k not in turned]
     best_mapped = max((p for k in mapped for p in refined_at(k)), key=lambda p: p.score, default=None)
     warps, wefts = _local_maxima(by_warp)[:SHEAR_HYPOTHESES], _local_maxima(by_weft)[:SHEAR_HYPOTHESES]

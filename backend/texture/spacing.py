@@ -49,8 +49,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..image.spectrum import hann, highpass
-from ..image.tone import luminance
+from ..image.spectrum import hann
 from .lattice import Lattice, Signature, fabric_frequencies, fold, turned_frequencies
 
 HARMONICS = 4            # the strongest usable harmonics of a photo that are read
@@ -67,15 +66,15 @@ def mean_lattice(transmission: np.ndarray, reflection: np.ndarray, start: Lattic
                  skew_deg: float = 0.0) -> Lattice:
     """``start`` (a, b) moved to the mean spacing over the whole photo (module docstring), read from
     the transmission photo (``signatures``: the pattern's (reflection, transmission) signatures;
-    the reflection joins in when the transmission alone does not pin both axes). The score is
-    ``start``'s."""
+    the reflection joins in when the transmission alone does not pin both axes). ``transmission``
+    and ``reflection`` are the photos' high-passed luminances y
+    (:func:`backend.image.spectrum.highpassed_luminance` at N / 64 px, as :class:`.lattice.Spectra`
+    keeps them). The score is ``start``'s."""
     a, b = start.a, start.b
-    luma_t, luma_r = _luma(transmission), None
     for _ in range(PASSES):
-        read = _read(luma_t, a, b, signatures[1], rotation_deg, skew_deg)
+        read = _read(transmission, a, b, signatures[1], rotation_deg, skew_deg)
         if not read.solvable:
-            luma_r = _luma(reflection) if luma_r is None else luma_r
-            read = read + _read(luma_r, a, b, signatures[0], rotation_deg, skew_deg)
+            read = read + _read(reflection, a, b, signatures[0], rotation_deg, skew_deg)
         a, b = read.lattice(a, b)
     return Lattice(a, b, start.score)
 
@@ -108,11 +107,6 @@ class _Reading:
             return float(np.hypot(*u)), float(np.hypot(*v))
         sum_m, m2, sum_n, n2 = (float(v) for v in self.projected)
         return (sum_m / m2 if m2 > 0.0 else a), (sum_n / n2 if n2 > 0.0 else b)
-
-
-def _luma(image: np.ndarray) -> np.ndarray:
-    """The high-passed luminance y of a display-space (N, N, 3) photo, float64 (the lattice's high-pass)."""
-    return highpass(luminance(np.asarray(image, np.float64)), image.shape[0] / 64)
 
 
 def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
