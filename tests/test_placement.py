@@ -12,7 +12,7 @@ from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.layers import WeaveLookup
 from backend.model.render import Renderer
-from backend.texture import candidates, lattice
+from backend.texture import candidates, lattice, spacing
 
 
 def test_fabric_frequencies_undo_turned_frequencies_with_a_skew():
@@ -116,3 +116,26 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
         for mine, theirs in zip(together[pattern], every[pattern]):
             for field in ("m", "n", "weight"):
                 np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field))
+
+
+def reading(placement, from_transmission=True):
+    return spacing.MeanSpacing(lattice.Lattice(40.0, 50.0, 1.0), placement, from_transmission)
+
+
+def test_the_turn_is_the_candidates_consensus_of_their_yarn_vectors():
+    placed = (2.0, 0.0)
+    agreeing = [reading((2.61, 0.05)), reading((2.7, -0.1)), reading((2.64, 0.2))]
+    wrong_pattern = reading((3.9, 3.1))      # sheared by degrees: its harmonics are not in the photo
+    unsolved = reading(None)
+    assert candidates.yarn_turn(agreeing + [wrong_pattern, unsolved], placed) == pytest.approx(2.64)
+    # votes that disagree, or none, show no turn (the placement stays as it was read)
+    assert candidates.yarn_turn([reading((2.6, 0.0)), reading((2.2, 0.1))], placed) is None
+    assert candidates.yarn_turn([wrong_pattern, unsolved], placed) is None
+    # a reading further than TURN_REACH_DEG is not a correction of this placement
+    assert candidates.yarn_turn([reading((4.0, 0.0))], placed) is None
+    # the transmission's readings outvote those that needed the reflection
+    glints = [reading((2.3, 0.0), from_transmission=False)] * 3
+    assert candidates.yarn_turn(glints + [reading((2.5, 0.0))], placed) == 2.5
+    assert candidates.yarn_turn(glints, placed) == 2.3
+    # a sheared placement keeps its skew; its votes are those sheared alike
+    assert candidates.yarn_turn([reading((1.2, 3.6)), reading((1.1, 0.0))], (1.0, 3.5)) == 1.2

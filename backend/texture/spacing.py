@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ..core.rig import placement_of
 from ..image.spectrum import hann
 from .lattice import Lattice, Signature, fabric_frequencies, fold, turned_frequencies
 
@@ -61,22 +62,35 @@ SHOWN = 10.0             # a harmonic is read when its power is this many times 
 LIGHT_BAND = 64 / (2 * math.pi)  # cycles per image: the photo's light, as far as the high-pass of N / 64 px leaves it
 
 
+@dataclass(frozen=True)
+class MeanSpacing:
+    """A lattice at the mean spacing (:func:`mean_lattice`) and, where the harmonics read pin both
+    yarn vectors, the placement they show: (rotation, skew) in degrees from the vectors' directions
+    (u at theta_1 = rotation + skew / 2, v at theta_2 = rotation - skew / 2), read from the
+    transmission alone or, where that does not pin both, with the reflection (``from_transmission``)."""
+
+    lattice: Lattice
+    placement: tuple[float, float] | None
+    from_transmission: bool
+
+
 def mean_lattice(transmission: np.ndarray, reflection: np.ndarray, start: Lattice,
                  signatures: tuple[Signature, Signature], rotation_deg: float = 0.0,
-                 skew_deg: float = 0.0) -> Lattice:
+                 skew_deg: float = 0.0) -> MeanSpacing:
     """``start`` (a, b) moved to the mean spacing over the whole photo (module docstring), read from
     the transmission photo (``signatures``: the pattern's (reflection, transmission) signatures;
     the reflection joins in when the transmission alone does not pin both axes). ``transmission``
     and ``reflection`` are the photos' high-passed luminances y
     (:func:`backend.image.spectrum.highpassed_luminance` at N / 64 px, as :class:`.lattice.Spectra`
-    keeps them). The score is ``start``'s."""
+    keeps them). The score is ``start``'s; the placement is the last pass's."""
     a, b = start.a, start.b
     for _ in range(PASSES):
         read = _read(transmission, a, b, signatures[1], rotation_deg, skew_deg)
-        if not read.solvable:
+        from_transmission = read.solvable
+        if not from_transmission:
             read = read + _read(reflection, a, b, signatures[0], rotation_deg, skew_deg)
         a, b = read.lattice(a, b)
-    return Lattice(a, b, start.score)
+    return MeanSpacing(Lattice(a, b, start.score), read.placement(), from_transmission)
 
 
 @dataclass(frozen=True)
@@ -107,6 +121,16 @@ class _Reading:
             return float(np.hypot(*u)), float(np.hypot(*v))
         sum_m, m2, sum_n, n2 = (float(v) for v in self.projected)
         return (sum_m / m2 if m2 > 0.0 else a), (sum_n / n2 if n2 > 0.0 else b)
+
+    def placement(self) -> tuple[float, float] | None:
+        """(rotation, skew), degrees, of the yarn vectors solved from g = m u + n v
+        (u = |u| (cos theta_1, -sin theta_1), v = |v| (sin theta_2, cos theta_2)); None where the
+        harmonics read do not pin both."""
+        if not self.solvable:
+            return None
+        u, v = np.linalg.solve(self.normal, self.moments)
+        theta_1, theta_2 = math.degrees(math.atan2(-u[1], u[0])), math.degrees(math.atan2(v[0], v[1]))
+        return placement_of(theta_1, theta_2)
 
 
 def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
