@@ -6,8 +6,8 @@
    polishes each hypothesis and scores it with the preset's *signature* (its harmonic structure,
    measured once per rig from a render of the preset's typical parameters at a low density);
 3. :func:`placed` does this for the sample's placement read from the spectra: a sheared one is
-   kept as it is; a turned one is compared with the unturned sample, and the placement whose best
-   candidate scores higher is kept;
+   kept as it is; a turned one is compared with the unturned sample, and the placement whose
+   candidates' yarn vectors (5.) agree on a turn, or else whose best candidate scores higher, is kept;
 4. each candidate's tiles are then the mean spacing over the whole photo, read from the phase of its
    harmonics (:func:`backend.texture.spacing.mean_lattice`), not the spacing at the photo's centre
    that the windowed spectrum reads;
@@ -154,7 +154,8 @@ TURN_SPREAD_DEG = 0.3           # ... and the votes move the turn only where the
 TURN_REACH_DEG = 1.5            # ... and only by up to this
 
 
-def yarn_turn(readings: list[spacing.MeanSpacing], placement: tuple[float, float]) -> float | None:
+def yarn_turn(readings: list[spacing.MeanSpacing], placement: tuple[float, float],
+              transmission_only: bool = False) -> float | None:
     """The sample's rotation that the candidates' yarn vectors show (None where they show none).
 
     Each candidate's mean spacing solves its yarn vectors u and v from the harmonics' measured
@@ -174,12 +175,15 @@ def yarn_turn(readings: list[spacing.MeanSpacing], placement: tuple[float, float
     0.02, 1 (in-sample: the thresholds were set on it); seed 97 1.10 / 0.41, 9 -> 1.02 / 0.10, 8
     (3 pairs worse by 0.06-0.22 degrees, each a lone vote or two read with the reflection); the 11
     dev goldens 0.000 -> 0.006 (a turn of 0.01-0.02 degrees read on some); the dev real pairs
-    unchanged (no agreeing votes)."""
+    unchanged (no agreeing votes). Seed 53 1.22 / 0.14, 8 -> 1.17 / 0.05, 7 (2 pairs worse by 0.03
+    and 0.12). (Each figure before :func:`placed` also compared the placements' vectors.)"""
     rotation, skew = placement
     agreeing = [r for r in readings if r.placement is not None
                 and abs(r.placement[1] - skew) <= TURN_SKEW_AGREEMENT_DEG
                 and abs(r.placement[0] - rotation) <= TURN_REACH_DEG]
-    votes = [r.placement[0] for r in agreeing if r.from_transmission] or [r.placement[0] for r in agreeing]
+    votes = [r.placement[0] for r in agreeing if r.from_transmission]
+    if not votes and not transmission_only:
+        votes = [r.placement[0] for r in agreeing]
     if not votes or max(votes) - min(votes) > TURN_SPREAD_DEG:
         return None
     return float(round(statistics.median(votes), 3)) + 0.0  # never -0.0
@@ -189,33 +193,53 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
            per_pattern: int = 1) -> tuple[tuple[float, float], list[Candidate]]:
     """((the sample's rotation, its skew), the candidates for them). A given ``rotation`` is used as it
     is, with the rig's skew; otherwise the placement read from the spectra (:func:`sample_placement`).
+
     A sheared placement has passed its own stricter test there (both photos, both angles) and is
     kept, with the lattice that showed it joining the sieve's: at a skew the sieve, one axis at a
-    time, can miss the pair of spacings the 2D maps confirm (dev real twill1). A turned one is
-    checked against the unturned sample: both get comb lattices, and the unturned one stays unless
-    the turned one's best lattice scores higher. The rotation estimate verifies lattices with
-    generic low harmonics; on a dense satin those can prefer a turn of a tenth of a degree by a hair,
-    and at that turn the sieve misses the weave's own lattice (measured on the dev golden satin1
-    renders: 0.15 and 0.24 degrees). The comparison leaves out the lattices read from single peaks:
-    on an aliased clean render one can explain a pattern's signature better at a wrong turn than the
-    true lattice does unturned (dev golden twill0_s2: -1.98 degrees, tiles 4.6 % off); they join the
-    comb lattices of the placement chosen. The turn is then the candidates' yarn vectors'
-    (:func:`yarn_turn`) where they agree on one."""
+    time, can miss the pair of spacings the 2D maps confirm (dev real twill1).
+
+    A turned one is checked against the unturned sample: both get their candidates, and where the
+    yarn vectors of one's candidates agree on a turn, read from the transmission alone
+    (:func:`yarn_turn`), and the other's do not, that one is kept. The harmonics of the true
+    placement's lattice are where the photo shows them, so their phases pin the vectors; at a
+    placement degrees off, they are demodulated where nothing shows. Otherwise the unturned one
+    stays unless the turned one's best comb lattice scores higher. The rotation estimate verifies
+    lattices with generic low harmonics; on a dense satin those can prefer a turn of a tenth of a
+    degree by a hair, and at that turn the sieve misses the weave's own lattice (measured on the dev
+    golden satin1 renders: 0.15 and 0.24 degrees). The comparison leaves out the lattices read from
+    single peaks: on an aliased clean render one can explain a pattern's signature better at a wrong
+    turn than the true lattice does unturned (dev golden twill0_s2: -1.98 degrees, tiles 4.6 % off);
+    they join the comb lattices of the placement chosen. The yarn vectors decided on photo-like
+    pairs whose estimate was right and whose unturned combs scored higher: 4 of seed 53 (turned
+    2.3-5.0 degrees; placed within 0.15 of it, tiles of the true pattern 108, 27, 13 % off -> 0.11,
+    0.96, 0.27 %, and one wrong lattice for another) and 2 of seed 97 (2.3 and 1.8 degrees; tiles 7.2
+    and 4.6 -> 0.10 and 0.78 %), no pair placed worse; on the dev real satin1 the estimate's 5-degree
+    turn shows vectors only with the reflection's help, and the unturned comb stays.
+
+    The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
     if rotation is not None:
         placement = (rotation, rig.sample_skew_deg)
         return placement, propose(spectra, _placed_rig(rig, placement), patterns, per_pattern)
     estimate = sample_placement(spectra, rig, patterns)
     unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
     if found == unturned:
-        placement, combs = unturned, _comb_lattices(spectra, _placed_rig(rig, unturned), patterns, per_pattern)
+        placement = unturned
+        read = _with_anchored(spectra, _placed_rig(rig, unturned),
+                              _comb_lattices(spectra, _placed_rig(rig, unturned), patterns, per_pattern), per_pattern)
     elif estimate.skew_deg != 0.0:
         placement = found
         combs = _comb_lattices(spectra, _placed_rig(rig, found), patterns, per_pattern, also=(estimate.lattice,))
+        read = _with_anchored(spectra, _placed_rig(rig, found), combs, per_pattern)
     else:
         at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
-        placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
-        combs = at[placement]
-    candidates, readings = _with_anchored(spectra, _placed_rig(rig, placement), combs, per_pattern)
+        reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}
+        shown = [p for p in reads if yarn_turn(reads[p][1], p, transmission_only=True) is not None]
+        if len(shown) == 1:
+            placement = shown[0]
+        else:
+            placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
+        read = reads[placement]
+    candidates, readings = read
     turn = yarn_turn(readings, placement)
     return (placement[0] if turn is None else turn, placement[1]), candidates
 

@@ -23,7 +23,8 @@ What runs:
    below Nyquist (:func:`signature`).
 3. :func:`backend.texture.spacing.mean_lattice` (through :mod:`.candidates`): each candidate moved
    from the spacing at the photo's centre, which the windowed spectrum reads, to the mean over the
-   whole photo, read from the phase of its harmonics.
+   whole photo, read from the phase of its harmonics; the yarn vectors solved there also give the
+   sample's turn where the candidates agree on it (:func:`backend.texture.candidates.yarn_turn`).
 No rendering is needed to read a photo's density; only the pattern signatures come from renders.
 """
 from __future__ import annotations
