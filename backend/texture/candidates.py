@@ -175,8 +175,9 @@ def yarn_turn(readings: list[spacing.MeanSpacing], placement: tuple[float, float
     0.02, 1 (in-sample: the thresholds were set on it); seed 97 1.10 / 0.41, 9 -> 1.02 / 0.10, 8
     (3 pairs worse by 0.06-0.22 degrees, each a lone vote or two read with the reflection); the 11
     dev goldens 0.000 -> 0.006 (a turn of 0.01-0.02 degrees read on some); the dev real pairs
-    unchanged (no agreeing votes). Seed 53 1.22 / 0.14, 8 -> 1.17 / 0.05, 7 (2 pairs worse by 0.03
-    and 0.12). (Each figure before :func:`placed` also compared the placements' vectors.)"""
+    unchanged (no agreeing votes); seed 53 1.22 / 0.14, 8 -> 1.17 / 0.05, 7 (2 pairs worse by 0.03
+    and 0.12). These are before :func:`placed` also let the vectors decide between the turned and
+    the unturned placement."""
     rotation, skew = placement
     agreeing = [r for r in readings if r.placement is not None
                 and abs(r.placement[1] - skew) <= TURN_SKEW_AGREEMENT_DEG
@@ -213,8 +214,10 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     pairs whose estimate was right and whose unturned combs scored higher: 4 of seed 53 (turned
     2.3-5.0 degrees; placed within 0.15 of it, tiles of the true pattern 108, 27, 13 % off -> 0.11,
     0.96, 0.27 %, and one wrong lattice for another) and 2 of seed 97 (2.3 and 1.8 degrees; tiles 7.2
-    and 4.6 -> 0.10 and 0.78 %), no pair placed worse; on the dev real satin1 the estimate's 5-degree
-    turn shows vectors only with the reflection's help, and the unturned comb stays.
+    and 4.6 -> 0.10 and 0.78 %), no pair of those sets placed worse; on seed 7 one pair moved, to a
+    turn 0.06 degrees further off (twill1_017: 0.09 -> 0.15; tiles 0.79 -> 0.74 %); the dev goldens
+    unchanged. On the dev real satin1 the estimate's 5-degree turn shows vectors only with the
+    reflection's help, and the unturned comb stays.
 
     The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
     if rotation is not None:
