@@ -225,14 +225,12 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
         return placement, propose(spectra, _placed_rig(rig, placement), patterns, per_pattern)
     estimate = sample_placement(spectra, rig, patterns)
     unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
-    if found == unturned:
-        placement = unturned
-        read = _with_anchored(spectra, _placed_rig(rig, unturned),
-                              _comb_lattices(spectra, _placed_rig(rig, unturned), patterns, per_pattern), per_pattern)
-    elif estimate.skew_deg != 0.0:
-        placement = found
-        combs = _comb_lattices(spectra, _placed_rig(rig, found), patterns, per_pattern, also=(estimate.lattice,))
-        read = _with_anchored(spectra, _placed_rig(rig, found), combs, per_pattern)
+    if found == unturned or estimate.skew_deg != 0.0:  # unturned, or sheared: kept as it is
+        placement = unturned if found == unturned else found  # never a -0.0 turn
+        placed_rig = _placed_rig(rig, placement)
+        also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
+        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
+                              per_pattern)
     else:
         at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
         reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -112,23 +113,30 @@ class _Reading:
         trace = float(np.trace(self.normal))
         return trace > 0.0 and float(np.linalg.det(self.normal)) > SOLVABLE * trace ** 2
 
+    @cached_property
+    def vectors(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The yarn vectors (u, v) solved from g = m u + n v (cycles per image), None where the
+        harmonics read do not pin both."""
+        if not self.solvable:
+            return None
+        u, v = np.linalg.solve(self.normal, self.moments)
+        return u, v
+
     def lattice(self, a: float, b: float) -> tuple[float, float]:
-        """(a', b'): the lengths of the yarn vectors u, v solved from g = m u + n v; without two
-        independent harmonics, each axis's harmonics turned back at the given angles (a or b as
-        they were where none was read)."""
-        if self.solvable:
-            u, v = np.linalg.solve(self.normal, self.moments)
+        """(a', b'): the lengths of the yarn vectors u, v; without two independent harmonics, each
+        axis's harmonics turned back at the given angles (a or b as they were where none was read)."""
+        if self.vectors is not None:
+            u, v = self.vectors
             return float(np.hypot(*u)), float(np.hypot(*v))
         sum_m, m2, sum_n, n2 = (float(v) for v in self.projected)
         return (sum_m / m2 if m2 > 0.0 else a), (sum_n / n2 if n2 > 0.0 else b)
 
     def placement(self) -> tuple[float, float] | None:
-        """(rotation, skew), degrees, of the yarn vectors solved from g = m u + n v
-        (u = |u| (cos theta_1, -sin theta_1), v = |v| (sin theta_2, cos theta_2)); None where the
-        harmonics read do not pin both."""
-        if not self.solvable:
+        """(rotation, skew), degrees, of the yarn vectors u = |u| (cos theta_1, -sin theta_1),
+        v = |v| (sin theta_2, cos theta_2); None where the harmonics read do not pin both."""
+        if self.vectors is None:
             return None
-        u, v = np.linalg.solve(self.normal, self.moments)
+        u, v = self.vectors
         theta_1, theta_2 = math.degrees(math.atan2(-u[1], u[0])), math.degrees(math.atan2(v[0], v[1]))
         return placement_of(theta_1, theta_2)
 
