@@ -8,6 +8,7 @@ import torch
 
 from backend.core import priors
 from backend.core.rig import CaptureRig, RigError
+from backend.image.spectrum import Peak
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.layers import WeaveLookup
@@ -139,3 +140,22 @@ def test_the_turn_is_the_candidates_consensus_of_their_yarn_vectors():
     assert candidates.yarn_turn(glints, placed) == 2.3
     # a sheared placement keeps its skew; its votes are those sheared alike
     assert candidates.yarn_turn([reading((1.2, 3.6)), reading((1.1, 0.0))], (1.0, 3.5)) == 1.2
+
+
+def test_two_strong_peaks_read_as_low_harmonics_pin_the_turn():
+    # A plain at 2-3 px per yarn can leave only its (1, 1) and (-1, 1) harmonics and an aliased
+    # yarn harmonic standing; taken as two harmonics of one lattice, any two of them give the turn.
+    a, b, turn = 99.0, 97.5, -2.9
+
+    def peak(m, n, strength):
+        fx, fy = lattice.turned_frequencies(m * a, n * b, turn)
+        sign = 1.0 if fy > 0 or (fy == 0 and fx > 0) else -1.0  # the half plane spectral_peaks keeps
+        return Peak(sign * fx, sign * fy, strength)
+
+    aliased = Peak(512 - 2 * a, 6.0, 5.0)
+    spectra = lattice.Spectra(512, [[peak(1, 1, 7.0), aliased, peak(-1, 1, 6.5)], []], [], [])
+    found = lattice._peak_pair_turns(spectra, (10.0, 240.0), (10.0, 240.0))
+    assert any(np.allclose(hypothesis, (a, b, turn), atol=1e-6) for hypothesis in found)
+    assert all(abs(t) <= lattice.ROTATION_SCAN_DEG for _, _, t in found)
+    # the mirror turn is not read: u and v each keep their own angle
+    assert not any(np.allclose(hypothesis, (a, b, -turn), atol=0.05) for hypothesis in found)

@@ -29,6 +29,7 @@ No rendering is needed to read a photo's density; only the pattern signatures co
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -126,6 +127,13 @@ def turned_frequencies(f1, f2, rotation_deg: float, skew_deg: float = 0.0):
     if rotation_deg == 0 and skew_deg == 0:
         return f1, f2
     return _turned(f1, f2, *_turn(rotation_deg, skew_deg))
+
+
+def yarn_vector_angles(u, v) -> tuple[float, float]:
+    """(theta_1, theta_2), degrees: the yarn angles of the image vectors u (the fabric's harmonic
+    (1, 0)) and v (its (0, 1)), as :func:`turned_frequencies` places them:
+    u = |u| (cos theta_1, -sin theta_1), v = |v| (sin theta_2, cos theta_2)."""
+    return math.degrees(math.atan2(-u[1], u[0])), math.degrees(math.atan2(v[0], v[1]))
 
 
 UNTURNED = (1.0, 0.0, 0.0, 1.0)
@@ -422,6 +430,12 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     by_map = np.array([lattices[0].score for lattices in multiples])
     mapped = [k for k in _local_maxima(by_map)[:ROTATION_HYPOTHESES] if k not in turned]
     best_mapped = max((p for k in mapped for p in refined_at(k)), key=lambda p: p.score, default=None)
+    # Pairs of strong peaks read as two low harmonics of one lattice: where the sieves' spacings miss
+    # on one axis (aliased yarn harmonics at 2-3 px per yarn), two peaks still pin the turn.
+    peaked = sorted(_peak_pair_turns(spectra, a_range, b_range),
+                    key=lambda t: -float(signature_score(spectra.maps, generic, t[0], t[1], size, t[2])))
+    best_peaked = max((_refine_placement(spectra.maps, generic, Lattice(a, b, 0.0), turn, turn, size, False)
+                       for a, b, turn in peaked[:REFINED_HYPOTHESES]), key=lambda p: p.score, default=None)
     warps, wefts = _local_maxima(by_warp)[:SHEAR_HYPOTHESES], _local_maxima(by_weft)[:SHEAR_HYPOTHESES]
     verified = []
     for i, j in sorted((i, j) for i in warps for j in wefts if i != j and abs(angles[i] - angles[j]) <= MAX_SKEW_DEG):
@@ -441,10 +455,57 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     if (best_mapped is not None and best_mapped.score > RIVAL_TURN_GAIN * best_turned.score
             and _beats_on_each_photo(spectra, best_mapped, [best_turned])):
         best_turned = best_mapped
+    if best_peaked is not None and best_peaked.score > RIVAL_TURN_GAIN * best_turned.score \
+            and _beats_on_each_photo(spectra, best_peaked, [best_turned]):
+        best_turned = best_peaked
     best_sheared = max((_refine_placement(spectra.maps, generic, lat, warp, weft, size, True)
                         for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]), key=lambda p: p.score,
                        default=None)
     return best_turned, best_sheared
+
+
+PEAK_PAIR_PEAKS = 6
+# the low harmonics (m, n) a strong peak is taken for: |m|, n <= 2 (half plane)
+PEAK_PAIR_HARMONICS = tuple((m, n) for m in range(-2, 3) for n in range(3) if n > 0 or m > 0)
+
+
+def _peak_pair_turns(spectra: Spectra, a_range, b_range) -> list[tuple[float, float, float]]:
+    """Turned placements (a, b, rotation) read from pairs of one photo's PEAK_PAIR_PEAKS strongest
+    peaks p, q (q or -q: a real image's spectrum is symmetric) taken as two harmonics (m1, n1),
+    (m2, n2) of PEAK_PAIR_HARMONICS:
+
+        p = m1 u + n1 v,    q = m2 u + n2 v
+
+    solved for the image vectors u and v of the fabric's harmonics (1, 0) and (0, 1), whose angles
+    are the yarns' (:func:`yarn_vector_angles`) and whose lengths are the lattice (a, b) = (|u|, |v|)
+    (u and v each up to its sign). Kept where both yarn angles lie within the scan's
+    +-ROTATION_SCAN_DEG and MAX_SKEW_DEG of each other, and (a, b) within the ranges; one per
+    (a, b, rotation) rounded to (1, 1, 0.1).
+
+    Dense weaves at 2-3 px per yarn behind a phone's blur can leave a few strong peaks (a plain's
+    (1, 1) and (-1, 1), a yarn harmonic) whose aliased companions pull each axis's sieve to a wrong
+    spacing, and the turn then loses to a wrong one in the maps; the peaks' positions alone still
+    pin it."""
+    found = {}
+    for peaks in spectra.peaks:
+        for p, q in itertools.combinations(peaks[:PEAK_PAIR_PEAKS], 2):
+            for sign in (1.0, -1.0):
+                images = np.array([[p.fx, p.fy], [sign * q.fx, sign * q.fy]])
+                for h1, h2 in itertools.permutations(PEAK_PAIR_HARMONICS, 2):
+                    harmonics = np.array([h1, h2], dtype=float)
+                    if abs(np.linalg.det(harmonics)) < 1e-9:
+                        continue
+                    u, v = np.linalg.solve(harmonics, images)
+                    a, b = math.hypot(*u), math.hypot(*v)
+                    if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
+                        continue
+                    for u_sign, v_sign in itertools.product((1.0, -1.0), repeat=2):
+                        warp, weft = yarn_vector_angles(u_sign * u, v_sign * v)
+                        if (abs(warp) <= ROTATION_SCAN_DEG and abs(weft) <= ROTATION_SCAN_DEG
+                                and abs(warp - weft) <= MAX_SKEW_DEG):
+                            turn = placement_of(warp, weft)[0]
+                            found.setdefault((round(a), round(b), round(turn, 1)), (a, b, turn))
+    return list(found.values())
 
 
 def _beats_on_each_photo(spectra: Spectra, placement: "Placement", rivals: list["Placement"],

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..core.rig import placement_of
 from ..image.spectrum import hann
-from .lattice import Lattice, Signature, fabric_frequencies, fold, turned_frequencies
+from .lattice import Lattice, Signature, fabric_frequencies, fold, turned_frequencies, yarn_vector_angles
 
 HARMONICS = 4            # the strongest usable harmonics of a photo that are read
 MIN_SEPARATION = 5.0     # cycles per image to the nearest other lattice harmonic
@@ -137,8 +137,7 @@ class _Reading:
         if self.vectors is None:
             return None
         u, v = self.vectors
-        theta_1, theta_2 = math.degrees(math.atan2(-u[1], u[0])), math.degrees(math.atan2(v[0], v[1]))
-        return placement_of(theta_1, theta_2)
+        return placement_of(*yarn_vector_angles(u, v))
 
 
 def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
