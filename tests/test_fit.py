@@ -329,6 +329,23 @@ def test_the_yarn_vectors_confirm_a_turn_the_combs_ruled_out(tmp_path):
     assert_placed_as_made(tmp_path, seed=53, index=3, pattern="satin0", rotation_tolerance_deg=0.15)
 
 
+def test_two_strong_peaks_give_a_turn_the_sieves_spacings_miss(tmp_path):
+    # Photo-like plain_005 (seed 97, about 2.3 px per yarn behind 1-2 px of blur) is turned -2.93
+    # degrees. The summed sieve scan peaks at -3.0, but with a spacing 1.5 times off on one axis
+    # (aliased yarn harmonics), so the maps preferred a wrong turn near 0 (tiles 5.3 % off). Its
+    # (1, 1) and (-1, 1) harmonics stand out; read as two harmonics of one lattice they give the turn
+    # (lattice._peak_pair_turns).
+    assert_placed_as_made(tmp_path, seed=97, index=5, pattern="plain", rotation_tolerance_deg=0.15)
+
+
+def test_agreeing_readings_with_the_reflections_help_keep_a_turn(tmp_path):
+    # Photo-like plain_000 (seed 97) is turned 3.02 degrees and read at 2.97 (two strong peaks). No
+    # candidate's transmission harmonics pin its yarn vectors at either placement; with the
+    # reflection's help two do at 2.97 (plain 3.03, satin1 2.91) and none unturned, where the combs
+    # scored higher and the plain's tiles came out 41 % off.
+    assert_placed_as_made(tmp_path, seed=97, index=0, pattern="plain", rotation_tolerance_deg=0.15)
+
+
 def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float) -> None:
     """Photo-like item ``index`` of set ``seed`` (of ``pattern``), placed as the fit places it: its
     rotation (no skew) within the tolerance, its pattern's best tiles within 1 % of the truth (the

@@ -138,6 +138,9 @@ def test_the_turn_is_the_candidates_consensus_of_their_yarn_vectors():
     glints = [reading((2.3, 0.0), from_transmission=False)] * 3
     assert candidates.yarn_turn(glints + [reading((2.5, 0.0))], placed) == 2.5
     assert candidates.yarn_turn(glints, placed) == 2.3
+    assert candidates.yarn_turn(glints, placed, reflection_votes=None) is None
+    assert candidates.yarn_turn(glints[:1], placed, reflection_votes=2) is None
+    assert candidates.yarn_turn(glints[:2], placed, reflection_votes=2) == 2.3
     # a sheared placement keeps its skew; its votes are those sheared alike
     assert candidates.yarn_turn([reading((1.2, 3.6)), reading((1.1, 0.0))], (1.0, 3.5)) == 1.2
 

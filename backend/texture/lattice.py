@@ -370,6 +370,16 @@ def estimate_placement(spectra: Spectra, a_range: tuple[float, float], b_range: 
        degrees), seed 53 11 -> 8 (1.84 -> 1.22), seed 97 11 -> 9 (1.46 -> 1.10); no pair worse; the
        golden and dev real placements unchanged. Without the per-photo test, wrong turns near the
        scan's edge and a satin's mirror turn won on seeds 7 and 97 (1.10-1.15 times over both photos).
+       Pairs of strong peaks read as two low harmonics of one lattice (:func:`_peak_pair_turns`)
+       seed more turned hypotheses, under the same two tests. At 2-3 px per yarn the aliased yarn
+       harmonics can pull one axis's sieve to a wrong spacing at the true turn (photo-like seed-97
+       plain_005, turned -2.93 degrees: 154 cycles per image where the weave has 99), and the maps
+       then prefer a wrong turn; two peaks' positions still pin it. Rotation off by over 0.5
+       degrees (``bench placement``, with :func:`backend.texture.candidates.placed`'s check): seed
+       97 6 -> 3 of 20 pairs (mean 0.82 -> 0.40 degrees; tiles off by over 1 % 7 -> 4), seed 53 3
+       -> 2 (0.37 -> 0.27; 7 -> 6), seed 7 1 -> 1 (in-sample for the gates above; no pair moved by
+       over 0.04 degrees); no pair of the three sets worse by over 0.07 degrees; the golden
+       placements within 0.01 degrees, the dev real ones unchanged.
     2. Verification: a sieve pins each axis's spacing only up to sub- and super-multiples, so each
        hypothesis's spacings times the small ROTATION_RATIOS per axis are scored against the whole 2D
        peakness maps with every low harmonic (:func:`_generic_signature`) folded exactly as the pixel
