@@ -462,12 +462,10 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     best_paired = max(paired, key=lambda p: p.score, default=None)
     if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
         best_turned = best_paired
-    if (best_mapped is not None and best_mapped.score > RIVAL_TURN_GAIN * best_turned.score
-            and _beats_on_each_photo(spectra, best_mapped, [best_turned])):
-        best_turned = best_mapped
-    if best_peaked is not None and best_peaked.score > RIVAL_TURN_GAIN * best_turned.score \
-            and _beats_on_each_photo(spectra, best_peaked, [best_turned]):
-        best_turned = best_peaked
+    for rival in (best_mapped, best_peaked):  # in turn, each against the turn so far
+        if (rival is not None and rival.score > RIVAL_TURN_GAIN * best_turned.score
+                and _beats_on_each_photo(spectra, rival, [best_turned])):
+            best_turned = rival
     best_sheared = max((_refine_placement(spectra.maps, generic, lat, warp, weft, size, True)
                         for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]), key=lambda p: p.score,
                        default=None)
@@ -477,6 +475,9 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
 PEAK_PAIR_PEAKS = 6
 # the low harmonics (m, n) a strong peak is taken for: |m|, n <= 2 (half plane)
 PEAK_PAIR_HARMONICS = tuple((m, n) for m in range(-2, 3) for n in range(3) if n > 0 or m > 0)
+# every ordered pair of them that pins u and v (independent harmonics), as (pairs, 2, 2) rows (m, n)
+PEAK_PAIR_BASES = np.array([(h1, h2) for h1, h2 in itertools.permutations(PEAK_PAIR_HARMONICS, 2)
+                            if h1[0] * h2[1] != h1[1] * h2[0]], dtype=float)
 
 
 def _peak_pair_turns(spectra: Spectra, a_range, b_range) -> list[tuple[float, float, float]]:
@@ -501,11 +502,8 @@ def _peak_pair_turns(spectra: Spectra, a_range, b_range) -> list[tuple[float, fl
         for p, q in itertools.combinations(peaks[:PEAK_PAIR_PEAKS], 2):
             for sign in (1.0, -1.0):
                 images = np.array([[p.fx, p.fy], [sign * q.fx, sign * q.fy]])
-                for h1, h2 in itertools.permutations(PEAK_PAIR_HARMONICS, 2):
-                    harmonics = np.array([h1, h2], dtype=float)
-                    if abs(np.linalg.det(harmonics)) < 1e-9:
-                        continue
-                    u, v = np.linalg.solve(harmonics, images)
+                solved = np.linalg.solve(PEAK_PAIR_BASES, np.broadcast_to(images, PEAK_PAIR_BASES.shape))
+                for u, v in solved:
                     a, b = math.hypot(*u), math.hypot(*v)
                     if not (a_range[0] <= a <= a_range[1] and b_range[0] <= b <= b_range[1]):
                         continue
