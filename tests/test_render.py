@@ -12,6 +12,7 @@ from oracles import reference
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.model import imaging
 from backend.model.bsdf import eval_pair
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
@@ -314,3 +315,21 @@ def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
     wide = torch.rand(20, 36, 2, dtype=torch.float64)
     for sigma in (0.4, 2.5, 9.0):  # 9 px: the radius is clipped to the image (19 px)
         assert np.allclose(gaussian_blur(wide, sigma).numpy(), numpy_blur(wide.numpy(), sigma))
+
+
+def test_the_convolution_path_of_the_blur_is_the_matrix_products():
+    """Colour images with a short kernel take the depthwise convolution (imaging.CONV_TAPS_PER_PIXEL):
+    the same mirrored-border sums and gradient as the matrix products and the add-on's preview."""
+    generator = torch.Generator().manual_seed(3)
+    image = torch.rand(60, 64, 3, dtype=torch.float64, generator=generator)
+    for sigma in (0.3, 0.6):  # 3 and 5 taps: within 10 % of the 60-px side
+        assert 2 * imaging.blur_radius(sigma, 59) + 1 <= imaging.CONV_TAPS_PER_PIXEL * 60
+        convolved = imaging._convolved(image, sigma, imaging.blur_radius(sigma, 59))
+        assert torch.allclose(gaussian_blur(image, sigma), convolved, rtol=0, atol=0)  # this path was taken
+        assert np.allclose(convolved.numpy(), numpy_blur(image.numpy(), sigma))
+        planes = image.permute(2, 0, 1)
+        rows = imaging.blur_matrix(60, sigma, 59, torch.float64)
+        cols = imaging.blur_matrix(64, sigma, 59, torch.float64)
+        assert torch.allclose(convolved, (rows @ planes @ cols.T).permute(1, 2, 0))
+    small = torch.rand(30, 30, 2, dtype=torch.float64, generator=generator, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 0.3), (small,))
