@@ -60,6 +60,18 @@ def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
     radius = blur_radius(sigma, limit)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
         return _convolved(image, sigma, radius)
+    return gaussian_blur_products(image, sigma)
+
+
+def gaussian_blur_products(image: torch.Tensor, sigma: float) -> torch.Tensor:
+    """:func:`gaussian_blur` always by the matrix products ``B_H @ plane @ B_W^T``: the photo-like
+    benchmark's phone (:mod:`.phone`) blurs this way, so that its images stay bit-identical to those
+    of earlier versions (the convolution's rounding moves a few of their JPEG pixels by up to 3
+    levels, and a placement on the edge of a decision with them)."""
+    if sigma <= 1e-3:
+        return image
+    height, width = image.shape[0], image.shape[1]
+    limit = min(height, width) - 1
     rows = blur_matrix(height, sigma, limit, image.dtype, image.device)
     cols = rows if width == height else blur_matrix(width, sigma, limit, image.dtype, image.device)
     planes = image.permute(2, 0, 1)

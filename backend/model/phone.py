@@ -40,7 +40,7 @@ import torch.nn.functional as F
 
 from ..core.rig import CaptureRig
 from .camera import CameraSamples
-from .imaging import display_transform, gaussian_blur
+from .imaging import display_transform, gaussian_blur_products
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ class PhoneEffects:
         film = rig.film_size / n  # film pixels per image pixel
         image = self._warped(radiance, film)
         image = image * self._falloff(n).to(image)[..., None]
-        image = gaussian_blur(image, self.blur_px / film)
+        image = gaussian_blur_products(image, self.blur_px / film)  # bit-identical sets across versions
         image = image * self.gains(photo).to(image)
         generator = torch.Generator().manual_seed(self.seed * 2 + photo)
         std = torch.sqrt(self.noise_gain * image.clamp_min(0) + self.read_noise ** 2) / film
