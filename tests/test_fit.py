@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import ROOT
+from oracles import reference
 
 from backend.bench import photolike
 from backend.core.params import FabricParams
@@ -67,6 +68,25 @@ def test_harmonic_descriptor_ignores_where_the_weave_sits(twill_pair):
     assert ratio == pytest.approx(1.0, abs=0.05)
     terms = descriptor_terms(shifted, base)
     assert terms["aligned"] < 0.25 * descriptor_terms(describe(image.flip(0), probe), base)["aligned"] + 0.05
+
+
+@pytest.mark.parametrize("size,rotation,skew", [(512, 0.0, 0.0), (512, 0.2, 3.65), (97, -2.0, 1.0)])
+def test_the_lattice_probe_is_the_literal_regional_fourier_sum(size, rotation, skew):
+    """The probe's matrix products equal the windowed sums written out per region and frequency
+    (tests.oracles.reference), and so does its noise floor; gradients pass through."""
+    generator = torch.Generator().manual_seed(5)
+    image = (torch.rand(size, size, 3, generator=generator, dtype=torch.float64) ** 2 + 0.05).requires_grad_(True)
+    probe = LatticeProbe(size, 118.3 * size / 512, 56.4 * size / 512, dtype=torch.float64,
+                         rotation_deg=rotation, skew_deg=skew)
+    coefficients, floor = probe(image)
+    literal = reference.lattice_coefficients(image.detach(), probe)
+    count = len(probe.harmonics)
+    assert torch.allclose(coefficients.detach(), literal[:, :count], rtol=0, atol=1e-12)
+    expected_floor = literal[:, count:].abs().median(dim=1, keepdim=True).values.clamp_min(1e-3)
+    assert torch.allclose(floor.detach(), expected_floor, rtol=0, atol=1e-12)
+    small = torch.rand(33, 33, 3, generator=generator, dtype=torch.float64).requires_grad_(True)
+    tiny = LatticeProbe(33, 3.1, 4.2, dtype=torch.float64, rotation_deg=1.0, skew_deg=0.5)
+    assert torch.autograd.gradcheck(lambda x: torch.view_as_real(tiny(x)[0]), (small,))
 
 
 def test_the_loss_is_lowest_at_the_true_parameters(twill_pair):

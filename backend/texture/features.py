@@ -38,7 +38,7 @@ import torch.nn.functional as F
 
 from ..image.metrics import SPECTRUM_DC_HALF, SPECTRUM_HIGHPASS_PX, SPECTRUM_KEEP, SPECTRUM_POWER_BLUR
 from ..image.tone import LUMA
-from ..model.imaging import gaussian_blur
+from ..model.imaging import blur_matrix, gaussian_blur
 from .lattice import turned_frequencies
 
 QUANTILES = 24
@@ -82,45 +82,69 @@ class LatticeProbe:
     a, b: tiles across and down the fabric (cycles per image); ``rotation_deg``, ``skew_deg``: the
     sample's turn and shear in the holder, so harmonic (m, n) sits at the image frequency
     :func:`backend.texture.lattice.turned_frequencies` (m a, n b). The frequency is still one 2D
-    plane wave, so the transform stays separable: the probe precomputes the windowed complex
-    exponentials of each region along x and y; calling it is two small matrix products per region.
+    plane wave, so the transform stays separable: with the Hann-windowed exponentials
+    e_y[k, y] of region row i and e_x[k, x] of region column j (zero outside their band),
+
+        coefficient[i, j, k, c] = sum_y sum_x e_y[k, y] image[y, x, c] e_x[k, x]
+
+    is one real matrix product per row band (the real and imaginary rows of e_y stacked) and one
+    batched product over k for every (i, j) at once, in real arithmetic: measured forward +
+    backward on a (512, 512, 3) image with the linearising power before it, 2 cores, 29 ms against
+    53 ms for a complex einsum per region. The literal sums, region by region and frequency by
+    frequency, are :func:`tests.oracles.reference.lattice_coefficients`, which it is tested against.
     """
 
     def __init__(self, size: int, a: float, b: float, device="cpu", dtype=torch.float32,
                  regions: int = REGIONS, order: int = ORDER, rotation_deg: float = 0.0,
                  skew_deg: float = 0.0):
         self.size, self.a, self.b, self.regions = size, a, b, regions
+        self.rotation_deg, self.skew_deg = rotation_deg, skew_deg
         self.harmonics = harmonic_indices(order)
         # Lattice harmonics, then the same count of off-lattice probes for the noise floor.
         ms = torch.tensor([m for m, _ in self.harmonics] + [m + 0.5 for m, _ in self.harmonics], dtype=torch.float64)
         ns = torch.tensor([n for _, n in self.harmonics] + [n + 0.5 for _, n in self.harmonics], dtype=torch.float64)
         fx, fy = turned_frequencies(ms * a, ns * b, rotation_deg, skew_deg)
         self.bounds = [round(k * size / regions) for k in range(regions + 1)]
-        self.ex, self.ey = [], []
+        probes = len(ms)
+        self.ey = []  # per region row: (2 probes, band height), real parts then imaginary parts
+        ex = torch.zeros(2, regions, probes, size, dtype=torch.float64)  # (re/im, region column, probe, x)
+        band = torch.zeros(regions, size, dtype=torch.float64)           # 1 inside region column j
         for k in range(regions):
             lo, hi = self.bounds[k], self.bounds[k + 1]
             coords = torch.arange(lo, hi, dtype=torch.float64)
             window = torch.hann_window(hi - lo + 2, periodic=False, dtype=torch.float64)[1:-1]
             window = window / window.sum()
-            # e^{-2 pi i f x / size} with the window folded in: (harmonics, region width)
-            self.ex.append((torch.exp(-2j * math.pi * torch.outer(fx, coords) / size) * window).to(device))
-            self.ey.append((torch.exp(-2j * math.pi * torch.outer(fy, coords) / size) * window).to(device))
+            # e^{-2 pi i f x / size} with the window folded in: (probes, band width)
+            ey = torch.exp(-2j * math.pi * torch.outer(fy, coords) / size) * window
+            self.ey.append(torch.cat((ey.real, ey.imag)).to(device=device, dtype=dtype))
+            ex_k = torch.exp(-2j * math.pi * torch.outer(fx, coords) / size) * window
+            ex[0, k, :, lo:hi], ex[1, k, :, lo:hi] = ex_k.real, ex_k.imag
+            band[k, lo:hi] = 1.0
+        # (probes, x, re/im x region column): the right-hand side of the batched product
+        self.ex = ex.permute(2, 3, 0, 1).reshape(probes, size, 2 * regions).to(device=device, dtype=dtype)
+        areas = torch.tensor([[(self.bounds[i + 1] - self.bounds[i]) * (self.bounds[j + 1] - self.bounds[j])
+                               for j in range(regions)] for i in range(regions)], dtype=torch.float64)
+        self.column_means = (band / areas[..., None]).to(device=device, dtype=dtype)  # (i, j, x)
         self.dtype = dtype
 
     def __call__(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(coefficients / region mean (regions^2, harmonics, 3), complex; noise floor (regions^2, 1, 3))."""
-        out = []
-        for i in range(self.regions):
-            for j in range(self.regions):
-                patch = image[self.bounds[i]:self.bounds[i + 1], self.bounds[j]:self.bounds[j + 1]]
-                patch = patch.to(torch.complex64 if self.dtype == torch.float32 else torch.complex128)
-                ey = self.ey[i].to(patch.dtype)
-                ex = self.ex[j].to(patch.dtype)
-                # sum_y sum_x ey[k, y] ex[k, x] patch[y, x, c]
-                coeff = torch.einsum("ky,yxc,kx->kc", ey, patch, ex)
-                mean = patch.real.mean(dim=(0, 1)).clamp_min(1e-4)
-                out.append(coeff / mean)
-        stacked = torch.stack(out)
+        r, n, channels = self.regions, self.size, image.shape[2]
+        probes = self.ex.shape[0]
+        image = image.to(self.dtype)
+        rows, sums = [], []
+        heights = [self.bounds[i + 1] - self.bounds[i] for i in range(r)]
+        for i, band in enumerate(image.split(heights, dim=0)):  # split: its backward is one concatenation
+            rows.append((self.ey[i] @ band.reshape(band.shape[0], n * channels)).view(2, probes, n, channels))
+            sums.append(band.sum(dim=0))                                             # (x, c)
+        # (probes, re/im x region row x channel, x) @ (probes, x, re/im x region column)
+        left = torch.stack(rows, dim=1).permute(2, 0, 1, 4, 3).reshape(probes, 2 * r * channels, n)
+        products = torch.bmm(left, self.ex).view(probes, 2, r, channels, 2, r)
+        real = products[:, 0, :, :, 0] - products[:, 1, :, :, 1]                      # (probes, i, c, j)
+        imag = products[:, 0, :, :, 1] + products[:, 1, :, :, 0]
+        coeff = torch.complex(real, imag).permute(1, 3, 0, 2).reshape(r * r, probes, channels)
+        means = torch.einsum("ixc,ijx->ijc", torch.stack(sums), self.column_means).reshape(r * r, 1, channels)
+        stacked = coeff / means.clamp_min(1e-4)
         count = len(self.harmonics)
         # A channel that is black (an albedo of 0) has no noise either: keep a floor of 0.1 %.
         floor = stacked[:, count:].abs().median(dim=1, keepdim=True).values.clamp_min(MIN_FLOOR)
@@ -160,10 +184,12 @@ def log_spectrum(image: torch.Tensor, keep: float = SPECTRUM_KEEP) -> torch.Tens
     y = luminance(image)[..., None]
     y = (y - gaussian_blur(y, SPECTRUM_HIGHPASS_PX * n / METRIC_SIZE))[..., 0]
     window = torch.hann_window(n, periodic=False, dtype=y.dtype, device=y.device)
-    power = torch.fft.fftshift(torch.fft.fft2(y * window[:, None] * window[None, :])).abs().square()
-    power = gaussian_blur(power[..., None], SPECTRUM_POWER_BLUR)[..., 0]
+    spectrum = torch.fft.fftshift(torch.fft.fft2(y * window[:, None] * window[None, :]))
+    power = torch.view_as_real(spectrum).square().sum(-1)
     half = int(n * keep / 2)
-    band = power[n // 2 - half: n // 2 + half, n // 2 - half: n // 2 + half]
+    # The power's blur (gaussian_blur's matrix products, B P B^T) at the kept bins only: B's rows of the band.
+    rows = blur_matrix(n, SPECTRUM_POWER_BLUR, n - 1, power.dtype, power.device)[n // 2 - half: n // 2 + half]
+    band = rows @ power @ rows.T
     mask = torch.ones_like(band, dtype=torch.bool)
     d = SPECTRUM_DC_HALF
     mask[half - d: half + d + 1, half - d: half + d + 1] = False

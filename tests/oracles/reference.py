@@ -308,3 +308,30 @@ def render_points(params: FabricParams | dict, x, y, rig, options: RenderOptions
         lights.append((rotate_back @ _normalize(to_light), rig.intensity(which) / dist2))
     (r, t), no_yarn = radiance(tensors, weave, layers, wi, lights, options)
     return r, t, no_yarn
+
+
+def lattice_coefficients(image: torch.Tensor, probe) -> torch.Tensor:
+    """The Hann-windowed Fourier coefficients of :class:`backend.texture.features.LatticeProbe`'s
+    regions, literally: per region (i, j) and probe frequency (fx, fy),
+    sum over the region of w(y) w(x) e^{-2 pi i (fx x + fy y) / size} image[y, x, c], divided by
+    the region's mean. (regions^2, lattice harmonics and off-lattice probes, channels), complex128."""
+    from backend.texture.lattice import turned_frequencies
+
+    harmonics = probe.harmonics
+    ms = torch.tensor([m for m, _ in harmonics] + [m + 0.5 for m, _ in harmonics], dtype=torch.float64)
+    ns = torch.tensor([n for _, n in harmonics] + [n + 0.5 for _, n in harmonics], dtype=torch.float64)
+    fx, fy = turned_frequencies(ms * probe.a, ns * probe.b, probe.rotation_deg, probe.skew_deg)
+    image = image.to(torch.float64)
+    out = []
+    for i in range(probe.regions):
+        for j in range(probe.regions):
+            y0, y1, x0, x1 = probe.bounds[i], probe.bounds[i + 1], probe.bounds[j], probe.bounds[j + 1]
+            wy = torch.hann_window(y1 - y0 + 2, periodic=False, dtype=torch.float64)[1:-1]
+            wx = torch.hann_window(x1 - x0 + 2, periodic=False, dtype=torch.float64)[1:-1]
+            ys, xs = torch.arange(y0, y1, dtype=torch.float64), torch.arange(x0, x1, dtype=torch.float64)
+            phase = fy[:, None, None] * ys[None, :, None] + fx[:, None, None] * xs[None, None, :]
+            kernel = torch.exp(-2j * math.pi * phase / probe.size) * (wy[:, None] * wx[None, :]) / (wy.sum() * wx.sum())
+            patch = image[y0:y1, x0:x1]
+            coeff = (kernel[..., None] * patch[None]).sum(dim=(1, 2))
+            out.append(coeff / patch.mean(dim=(0, 1)).clamp_min(1e-4))
+    return torch.stack(out)
