@@ -1,5 +1,6 @@
 """How the sample lies in the holder: rotation and skew (shear) in the renderer's geometry, in the
 lattice's frequency maps, and as the fit reads them from a photo pair."""
+import json
 import math
 
 import numpy as np
@@ -7,7 +8,7 @@ import pytest
 import torch
 
 from backend.core import priors
-from backend.core.rig import CaptureRig, RigError
+from backend.core.rig import DEFAULT_RIG, CaptureRig, RigError
 from backend.image.spectrum import Peak
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
@@ -117,6 +118,34 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
         for mine, theirs in zip(together[pattern], every[pattern]):
             for field in ("m", "n", "weight"):
                 np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field))
+
+
+def test_the_default_rigs_signatures_ship_with_the_backend_and_are_its_renders(monkeypatch, tmp_path):
+    """Every fit's placement compares the default rig's unturned signatures: they are read from
+    backend/data/signatures.json, not rendered, and they are what the renderer makes of them now
+    (a change to the renderer or the presets that moves them needs the file written again:
+    candidates.write_shipped_signatures)."""
+    monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
+    rendered = []
+    render = Renderer.render
+    monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
+                        or render(self, params, *args, **kwargs))
+    shipped = candidates.signatures(DEFAULT_RIG)
+    assert rendered == [] and list(shipped) == list(priors.PATTERNS)
+    fresh = candidates.rendered_signatures(DEFAULT_RIG, priors.PATTERNS)
+    for pattern in priors.PATTERNS:
+        for mine, theirs in zip(shipped[pattern], fresh[DEFAULT_RIG, pattern]):
+            ours = {(int(m), int(n)): w for m, n, w in zip(mine.m, mine.n, mine.weight)}
+            now = {(int(m), int(n)): w for m, n, w in zip(theirs.m, theirs.n, theirs.weight)}
+            for harmonic in ours.keys() | now.keys():  # the weakest may trade places within rounding
+                assert ours.get(harmonic, 0.0) == pytest.approx(now.get(harmonic, 0.0), rel=1e-4, abs=1e-4), \
+                    (pattern, harmonic)
+    # no file, or one for another density: rendered as before
+    assert candidates.shipped_signatures(tmp_path / "missing.json") == {}
+    other = json.loads(candidates.SHIPPED_SIGNATURES.read_text())
+    other["density"] = 2 * other["density"]
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    assert candidates.shipped_signatures(tmp_path / "other.json") == {}
 
 
 def reading(placement, from_transmission=True):
