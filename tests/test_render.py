@@ -307,6 +307,30 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
     assert torch.equal(gaussian_blur(sharp.reflection, 0.0), sharp.reflection)
 
 
+def test_a_blur_scan_renders_the_radiance_once(monkeypatch):
+    """Without gradients the last radiance is reused for the same parameter values (a camera-blur scan
+    blurs one render), with the numbers of a fresh render; other values, or gradients, render anew."""
+    params = FabricParams(pattern="twill0", tiles=(120.0, 120.0))
+    blurs = (0.0, 1.0, 2.0)
+    with torch.no_grad():
+        fresh = [Renderer(DEFAULT_RIG, 64, 4).blurred(params, camera_blur_px=blur) for blur in blurs]
+    renderer = Renderer(DEFAULT_RIG, 64, 4)
+    calls = []
+    radiance = Renderer.radiance
+    monkeypatch.setattr(Renderer, "radiance", lambda self, *args, **kwargs: calls.append(1)
+                        or radiance(self, *args, **kwargs))
+    with torch.no_grad():
+        scan = [renderer.blurred(params, camera_blur_px=blur) for blur in blurs]
+        assert len(calls) == 1
+        for (reflection, transmission), (expected_r, expected_t) in zip(scan, fresh):
+            assert torch.equal(reflection, expected_r) and torch.equal(transmission, expected_t)
+        renderer.blurred(params.replace(roughness=(0.3, 0.3)), camera_blur_px=1.0)
+        assert len(calls) == 2
+    fabric = ParamTensors.from_params(params.replace(roughness=(0.3, 0.3)), requires_grad=["roughness"])
+    reflection, _ = renderer.blurred(fabric, camera_blur_px=1.0)
+    assert len(calls) == 3 and reflection.requires_grad
+
+
 def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
     image = torch.rand(24, 24, 3, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 1.3), (image,))

@@ -88,6 +88,7 @@ class Renderer:
         self._geometry: OrderedDict = OrderedDict()
         self._geometry_slots = geometry_cache if self._keep else 0
         self._lookups: dict = {}
+        self._last_radiance: tuple | None = None  # (parameter values, radiance) of the last render without gradients
         self.vignette = self.camera.pixel_falloff(rig.vignette_sigma_px) if options.vignette else None
         self.glow = (self.camera.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
                      if options.glow and rig.glow_strength > 0 else None)
@@ -232,10 +233,22 @@ class Renderer:
         """The linear radiance images of ``fabric`` after the camera blur (film pixels; None: the rig's)."""
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
-        r, t = self.radiance(fabric, progress)
+        r, t = self._radiance_once(fabric, progress)
         blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
         sigma = blur * self.size / self.rig.film_size
         return gaussian_blur(r, sigma), gaussian_blur(t, sigma)
+
+    def _radiance_once(self, fabric: ParamTensors, progress=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`radiance`; without gradients, the last result is reused for the same parameter values:
+        the fit's camera-blur scans (:func:`backend.fit.search.best_blur`, the discrete search's blur
+        step) render one parameter set at up to seven blurs, and the blur comes after the radiance."""
+        if not self._keep or (torch.is_grad_enabled() and any(v.requires_grad for v in fabric.values.values())):
+            return self.radiance(fabric, progress)
+        key = (fabric.pattern, fabric.weave, tuple((name, value.detach().cpu().flatten().tolist())
+                                                   for name, value in fabric.values.items()))
+        if self._last_radiance is None or self._last_radiance[0] != key:
+            self._last_radiance = (key, self.radiance(fabric, progress))
+        return self._last_radiance[1]
 
     def display(self, reflection: torch.Tensor, transmission: torch.Tensor,
                 light: PhotoLight | None = None) -> RenderedPair:
