@@ -112,6 +112,51 @@ def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
     assert min(losses) < losses[0]
 
 
+class ScriptedRun:
+    """A run whose best loss after each step (and after each discrete search) is given."""
+
+    def __init__(self, best_after_step, search_gain=0.0):
+        self.best_after_step, self.search_gain = list(best_after_step), search_gain
+        self.best_loss, self.steps, self.searches = float("inf"), 0, []
+
+    def restart_from_best(self):
+        pass
+
+    def step(self):
+        self.best_loss = min(self.best_loss, self.best_after_step[self.steps])
+        self.steps += 1
+        return self.best_loss
+
+    def discrete_search(self, round_index):
+        self.searches.append(self.steps)
+        self.best_loss -= self.search_gain
+
+
+def test_the_optimisation_ends_once_the_best_loss_stops_moving():
+    from backend.fit.pipeline import _optimise
+    settings = FitSettings(iterations=100, search_every=50, patience=20)
+    reports = []
+
+    def optimise(run, settings=settings):
+        reports.clear()
+        return _optimise(run, settings, lambda run: None, lambda *report: reports.append(report))
+
+    # the best at step 38, never beaten: the search at 50 has its turn, then 20 steps past 38 it ends
+    flat = ScriptedRun([10.0 - 0.1 * min(i, 37) for i in range(100)])
+    assert optimise(flat) == 58 and flat.steps == 58 and flat.searches == [50]
+    assert reports[-1][:3] == ("optimise", 100, 100)  # the progress bar completes
+    # before the search: a plateau of 30 steps does not end it; the search's gain starts a new count
+    gained = ScriptedRun([10.0 - 0.1 * min(i, 9) for i in range(100)], search_gain=0.5)
+    assert optimise(gained) == 70 and gained.searches == [50]
+    # still improving at the end: every step runs
+    improving = ScriptedRun([10.0 - 0.01 * i for i in range(100)])
+    assert optimise(improving) == 100 and [r[1] for r in reports] == list(range(1, 101))
+    # patience 0, or no search where one is due: every step runs
+    assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, search_every=50, patience=0)) == 100
+    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
+    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=50, patience=20)) == 21
+
+
 def test_fit_estimates_the_camera_blur(twill_pair):
     # A phone photo is softer than a sharp render: the fit finds the blur (or keeps it when told).
     soft = render_pair(TWILL, CaptureRig(camera_blur_px=1.0), size=512, spp=8, seed=3)

@@ -185,7 +185,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds, "light_falloff": result.light.to_dict(),
-                     "settings": {"pattern": settings.pattern, "iterations": result.iterations,
+                     "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
     (out / "params.json").write_text(result.params.to_json(**extra) + "\n")

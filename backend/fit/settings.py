@@ -34,6 +34,8 @@ class FitSettings:
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
     search_every: int = 50           # iterations between discrete searches (each about 20 renders of new geometry)
+    patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
+                                     # a discrete search has had its turn (0: it runs every iteration)
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
@@ -61,3 +63,4 @@ class FitResult:
     size: int = 0                    # the working size, samples per pixel and iterations the fit used
     spp: int = 0
     iterations: int = 0
+    steps: int = 0                   # of those iterations, the steps it ran (fewer where it converged)
