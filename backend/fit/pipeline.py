@@ -169,8 +169,8 @@ def converged(settings: FitSettings, done: int, improved_at: int, searches: int)
     ``settings.patience`` steps (it last moved after step ``improved_at``), and where a discrete
     search is due in the run, at least one (``searches``) has had its turn.
 
-    Where the best loss was last reached in whole fits at 512 px (100 steps; /work/scratch/s45 of
-    stop 45): real satin1 at step 38, never beaten in the 62 steps after it, the discrete search at
+    Where the best loss was last reached in whole fits at 512 px (100 steps, traced per step):
+    real satin1 at step 38, never beaten in the 62 steps after it, the discrete search at
     50 included; photo-like twill1_017 (seed 97) 53, plain_000 (seed 7) 62, satin1_019 (seed 97)
     75; real twill1 87, twill2 80, photo-like twill0_001 (seed 7) 91, satin0_003 (seed 53) 98,
     twill1_002 (seed 53) 100. With a patience of 20 the first four end at 58, 73, 82 and 95 with the
