@@ -12,7 +12,8 @@ product's; wall time includes starting Python and importing torch) on
 - real pairs (``<name>_R.*``/``_T.*``; no truth);
 and, for every pair, FLIP, 16 x 16 colour L1 and spectrum correlation of the re-renders against the
 photos (the definitions of the team's ``photo_metrics.py``), the camera blur and rotation the fit
-found, which parameters ended at a bound, wall time and peak memory. Prints one line per pair and a
+found, which parameters ended at a bound, wall time, peak memory and the optimisation's steps run
+of its iterations (fewer where it converged). Prints one line per pair and a
 summary per kind of pair with the targets of the fit issue.
 """
 from __future__ import annotations
@@ -75,7 +76,8 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
     saved = json.loads((out / "params.json").read_text())
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
             "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
-            "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", [])}
+            "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", []),
+            "steps": saved["fit"]["settings"].get("steps"), "iterations": saved["fit"]["settings"].get("iterations")}
 
 
 RESOLVED_PX_PER_YARN = 2.0  # the sampling limit: finer yarns alias, and a phone's optics blur them away
@@ -142,7 +144,7 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                 row.update(pattern=fitted.pattern, tiles=[round(x, 1) for x in fitted.tiles],
                            peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
                            rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
-                           at_bounds=result["at_bounds"])
+                           at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"])
                 for tag in ("reflection", "transmission"):
                     for key, value in result["metrics"][tag].items():
                         row[f"{key}_{tag[0].upper()}"] = round(value, 4)
@@ -174,7 +176,7 @@ def _format(row: dict) -> str:
             f"  FLIP {row['flip_R']:.3f}/{row['flip_T']:.3f}  colour {row['colour_l1_R']:.4f}/{row['colour_l1_T']:.4f}"
             f"  spectrum {row['spectrum_corr_R']:.3f}/{row['spectrum_corr_T']:.3f}"
             f"  blur {row['camera_blur_px']:.2f}  rot {row['rotation_deg']:+.2f}  skew {row['skew_deg']:+.2f}"
-            f"  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB")
+            f"  {row['wall_s']:5.1f} s  {row['peak_mb']:.0f} MB  {row['steps']}/{row['iterations']} steps")
     if "roughness_mae" in row:
         text += (f"  pattern {'ok' if row['pattern_ok'] else 'WRONG'}{'' if row['family_ok'] else ' (family WRONG)'}"
                  f"  roughness {row['roughness_mae']:.3f}  thickness {row['thickness_mae']:.3f}"
