@@ -74,10 +74,11 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
         return {"error": final.get("message", "no result"), "wall_s": wall}
     metrics = json.loads((out / "metrics.json").read_text())
     saved = json.loads((out / "params.json").read_text())
+    run = saved["fit"]["settings"]
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
             "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
             "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", []),
-            "steps": saved["fit"]["settings"].get("steps"), "iterations": saved["fit"]["settings"].get("iterations")}
+            "steps": run.get("steps"), "iterations": run.get("iterations")}
 
 
 RESOLVED_PX_PER_YARN = 2.0  # the sampling limit: finer yarns alias, and a phone's optics blur them away

@@ -29,6 +29,7 @@ from ..core.priors import PATTERNS
 from ..core.protocol import STOP_REQUEST, Reporter
 from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
 from ..fit.folder import FolderFitOptions, fit_reporting
+from ..fit.settings import FitSettings
 from ..init.network import INIT_CHOICES
 
 
@@ -108,7 +109,8 @@ def add_fit_options(p) -> None:
     p.add_argument("--pattern", default=FolderFitOptions.pattern, choices=("auto",) + PATTERNS)
     p.add_argument("--iterations", type=int, default=FolderFitOptions.iterations,
                    help="Adam steps of the winner's optimisation at most (default: 150 at 256 px, 100 at a larger "
-                        "working size); it ends sooner once its best loss has not moved for 20 steps")
+                        f"working size); it ends sooner once its best loss has not moved for {FitSettings.patience} "
+                        "steps")
     p.add_argument("--size", type=_working_size, default=FolderFitOptions.size, metavar="N",
                    help="working size of the loss in pixels, 32 up to the photos' working size (the rig's film "
                         "size, 512); default: 256, or 512 where the yarns are too dense for 256 (the search still runs "
