@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from addon_support import extension_zip_for_tests, python_without_torch, require_bpy, validate_extension  # noqa: E402
 
 from backend.core.params import FabricParams  # noqa: E402
-from backend.core.priors import PATTERNS  # noqa: E402
+from backend.core.priors import FIT_PATTERNS  # noqa: E402
 from backend.core.rig import DEFAULT_RIG  # noqa: E402
 from backend.image.png import write_png as write_png16  # noqa: E402
 from backend.model.render import render_pair  # noqa: E402
@@ -229,7 +229,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         assert not hasattr(bpy.types, "VIEW3D_PT_woven_fabric")
         print("REGISTRATION OK")
     """, FABRIC_TEST_PHOTO=photos / "linen_R.png", FABRIC_TEST_RIG=json.dumps(DEFAULT_RIG.to_dict()),
-        FABRIC_TEST_PATTERNS=json.dumps(["auto", *PATTERNS]))
+        FABRIC_TEST_PATTERNS=json.dumps(["auto", *FIT_PATTERNS]))
     assert "REGISTRATION OK" in output
 
 

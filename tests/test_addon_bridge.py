@@ -77,7 +77,7 @@ def test_the_addon_reads_the_backends_own_declarations():
     for suffix in (*backend.core.formats.PHOTO_SUFFIXES, ".txt"):
         for case in (suffix, suffix.upper()):
             assert declarations.is_raw(case) == backend.core.formats.is_raw(case), case
-    assert declarations.fit_patterns() == ("auto", *backend.core.priors.PATTERNS)
+    assert declarations.fit_patterns() == ("auto", *backend.core.priors.FIT_PATTERNS)
     assert declarations.preset_names() == tuple(backend.core.weave.PRESETS)
     assert [s.name for s in declarations.parameters()] == [s.name for s in backend.core.params.PARAMETERS]
     assert declarations.default_params() == backend.core.params.FabricParams().to_dict()

@@ -68,6 +68,27 @@ def test_the_network_recognises_a_rendered_twill(small_pair):
     assert hook(custom) is None and hook.pattern_probabilities(candidates[:1] + [custom]) is None
 
 
+def test_a_mirrored_candidate_is_read_in_the_photos_mirrored():
+    """The network knows the paper's five: a mirrored preset's candidate is the preset it mirrors,
+    read in the photos mirrored left-right. So a twill1 render's mirror image is a twill1m (at about
+    6 px per yarn; in small_pair's 96 px, 0.3 px per yarn, aliasing leaves the diagonal ambiguous)."""
+    tiles = (12.0, 18.0)
+    pair = render_pair(priors.typical("twill1").replace(tiles=tiles), DEFAULT_RIG, size=256, spp=1, seed=0)
+    shot = (pair.reflection.numpy(), pair.transmission.numpy())
+    candidates = [Candidate(p, tiles, 0.0) for p in ("twill1", "twill1m")]
+    as_shot = init_net.NetworkStart(*shot, DEFAULT_RIG)
+    flipped = init_net.NetworkStart(*(np.ascontiguousarray(image[:, ::-1]) for image in shot), DEFAULT_RIG)
+    assert as_shot.pattern_probabilities(candidates)[0] > 0.99
+    assert flipped.pattern_probabilities(candidates)[1] > 0.99
+    guess = flipped(Candidate("twill1m", tiles, 0.0))
+    assert guess.pattern == "twill1m"
+    assert guess.replace(pattern="twill1").to_interchange() == as_shot(Candidate("twill1", tiles, 0.0)).to_interchange()
+    # A turned sample turns the other way in the mirrored photos, so does its rig's lamp offset.
+    turned = DEFAULT_RIG.__class__(sample_rotation_deg=2.0, sample_skew_deg=0.5, front_light=(1.0, 8.0, 8.0))
+    assert (turned.mirrored().sample_rotation_deg, turned.mirrored().sample_skew_deg) == (-2.0, -0.5)
+    assert turned.mirrored().front_light == (-1.0, 8.0, 8.0) and turned.mirrored().mirrored() == turned
+
+
 def test_target_vector_round_trip():
     params = priors.sample("satin0", random.Random(5))
     again = init_net.params_from_vector(init_net.target_vector(params), "satin0", params.tiles)

@@ -113,7 +113,7 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
     # ... with the numbers of a render of every pattern by one renderer, whatever was rendered with it
     monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
     every = candidates.signatures(rig)
-    assert rendered[2:] == list(priors.PATTERNS) and list(every) == list(priors.PATTERNS)
+    assert rendered[2:] == list(priors.FIT_PATTERNS) and list(every) == list(priors.FIT_PATTERNS)
     for pattern in ("plain", "twill1"):
         for mine, theirs in zip(together[pattern], every[pattern]):
             for field in ("m", "n", "weight"):
@@ -131,9 +131,9 @@ def test_the_default_rigs_signatures_ship_with_the_backend_and_are_its_renders(m
     monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
                         or render(self, params, *args, **kwargs))
     shipped = candidates.signatures(DEFAULT_RIG)
-    assert rendered == [] and list(shipped) == list(priors.PATTERNS)
-    fresh = candidates.rendered_signatures(DEFAULT_RIG, priors.PATTERNS)
-    for pattern in priors.PATTERNS:
+    assert rendered == [] and list(shipped) == list(priors.FIT_PATTERNS)
+    fresh = candidates.rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
+    for pattern in priors.FIT_PATTERNS:
         for mine, theirs in zip(shipped[pattern], fresh[DEFAULT_RIG, pattern]):
             ours = {(int(m), int(n)): w for m, n, w in zip(mine.m, mine.n, mine.weight)}
             now = {(int(m), int(n)): w for m, n, w in zip(theirs.m, theirs.n, theirs.weight)}

@@ -6,7 +6,19 @@ import pytest
 import torch
 from oracles import reference
 
-from backend.core.weave import BACK, FRONT, PRESETS, WARP, WEFT, Weave, WeaveError, weave_from_matrix
+from backend.core.weave import (
+    BACK,
+    FRONT,
+    MIRRORED_OF,
+    PAPER_PRESETS,
+    PRESETS,
+    WARP,
+    WEFT,
+    Weave,
+    WeaveError,
+    mirrored,
+    weave_from_matrix,
+)
 from backend.model.layers import GAP, WeaveLookup
 
 
@@ -19,7 +31,33 @@ def shapes(weave, yarn, layer):
 
 def test_tile_sizes_match_the_spec():
     sizes = {name: (w.tile_width, w.tile_height) for name, w in PRESETS.items()}
-    assert sizes == {"plain": (2, 2), "twill0": (4, 8), "twill1": (8, 4), "satin0": (10, 5), "satin1": (5, 10)}
+    assert sizes == {"plain": (2, 2), "twill0": (4, 8), "twill1": (8, 4), "satin0": (10, 5), "satin1": (5, 10),
+                     "twill0m": (4, 8), "twill1m": (8, 4), "satin0m": (10, 5), "satin1m": (5, 10)}
+    assert list(PRESETS)[:5] == list(PAPER_PRESETS)  # the shader's pattern index of the paper's five stays
+
+
+@pytest.mark.parametrize("name", list(MIRRORED_OF))
+def test_a_mirrored_preset_is_the_left_right_mirror_image_of_its_paper_preset(name):
+    """At (X, Y) the mirrored weave has what its paper preset has at (tile_width - X, Y): the same yarn
+    and tension, a warp's across-coordinate and a weft's along-coordinate negated."""
+    base, mirror = PRESETS[MIRRORED_OF[name]], PRESETS[name]
+    rng = random.Random(3)
+    pts = [(rng.uniform(0, base.tile_width), rng.uniform(0, base.tile_height)) for _ in range(500)]
+    X = torch.tensor([p[0] for p in pts], dtype=torch.float64)
+    Y = torch.tensor([p[1] for p in pts], dtype=torch.float64)
+    gap_scale = (0.8, 0.9)
+    expected = WeaveLookup(base, dtype=torch.float64).layers(base.tile_width - X, Y, gap_scale)
+    got = WeaveLookup(mirror, dtype=torch.float64).layers(X, Y, gap_scale)
+    for want, have in zip(expected, got):
+        assert torch.equal(want.yarn, have.yarn)
+        yarn = want.yarn[want.yarn != GAP]
+        sign = torch.where(yarn == WARP, 1.0, -1.0).to(torch.float64)
+        assert torch.allclose(have.u[have.yarn != GAP], sign * want.u[want.yarn != GAP], atol=1e-9)
+        assert torch.allclose(have.v[have.yarn != GAP], -sign * want.v[want.yarn != GAP], atol=1e-9)
+        assert torch.allclose(have.mu, want.mu, atol=1e-9)
+    # Mirrored twice is the preset itself; a plain weave has no other handedness.
+    assert mirrored(mirror, base.name) == base
+    assert "plain" not in MIRRORED_OF.values()
 
 
 def test_segment_figures_of_the_spec():

@@ -1,9 +1,14 @@
 """Photo-like synthetic pairs with ground truth: ``python -m backend photolike --out DIR --count N``.
 
-Item ``k`` of a set with seed ``s``: the weave preset ``PATTERNS[k mod 5]``, drawn, framed, turned in
-the holder and photographed by a phone at :data:`backend.init.photo_like.PHONE_SCALE` times the film's
-resolution (:func:`backend.init.photo_like.photograph`), from a generator seeded by (s, k), so a set
-is the same files whatever else runs.
+Item ``k`` of a set with seed ``s``: the weave preset ``PATTERNS[k mod 5]``, mirrored left-right
+(``twill0m``, ... :data:`backend.core.weave.MIRRORED_OF`) in every other run of five (k // 5 odd;
+a plain weave has no mirror image), drawn, framed, turned in the holder and photographed by a phone
+at :data:`backend.init.photo_like.PHONE_SCALE` times the film's resolution
+(:func:`backend.init.photo_like.photograph`), from a generator seeded by (s, k), so a set is the
+same files whatever else runs. A mirrored item draws what its unmirrored twin would: only the
+diagonal of its weave differs. Real fabrics come in both handednesses (a twill seen from its back,
+a left-hand twill), and a fit that knew only the paper's five would put the other one's weave where
+no photo shows it.
 
 Files: ``DIR/<name>_R.png``, ``DIR/<name>_T.png`` (8-bit) and ``DIR/cases.json``, a list of
 ``{"name", "params" (interchange string), "flags": {}, "rig" (with the true rotation and camera
@@ -20,6 +25,7 @@ from pathlib import Path
 
 from ..core import priors
 from ..core.rig import DEFAULT_RIG, CaptureRig
+from ..core.weave import MIRROR_SUFFIX, PRESETS
 from ..image.png import write_png
 from ..init.photo_like import photograph
 
@@ -28,9 +34,17 @@ def item_rng(seed: int, index: int) -> random.Random:
     return random.Random(zlib.crc32(f"photolike/{seed}/{index}".encode()))
 
 
-def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG) -> dict:
-    """Renders item ``index`` into ``out``; returns its cases.json entry."""
+def item_pattern(index: int) -> str:
+    """The weave preset of item ``index`` (the module docstring)."""
     pattern = priors.PATTERNS[index % len(priors.PATTERNS)]
+    mirror = f"{pattern}{MIRROR_SUFFIX}"
+    return mirror if (index // len(priors.PATTERNS)) % 2 and mirror in PRESETS else pattern
+
+
+def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None) -> dict:
+    """Renders item ``index`` into ``out``; returns its cases.json entry. ``pattern`` replaces the
+    item's preset (:func:`item_pattern`) with the same draws: a mirrored item's unmirrored twin."""
+    pattern = pattern or item_pattern(index)
     shot = photograph(pattern, item_rng(seed, index), rig)
     name = f"{pattern}_{index:03d}"
     write_png(out / f"{name}_R.png", shot.reflection, bits=8)

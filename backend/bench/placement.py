@@ -18,7 +18,7 @@ import json
 import statistics
 import time
 
-from ..core.priors import PATTERNS
+from ..core.priors import FIT_PATTERNS
 from ..core.rig import DEFAULT_RIG
 from ..image.photos import load_pair
 from ..texture.candidates import placed
@@ -33,7 +33,7 @@ def place(job: dict) -> dict:
     started = time.perf_counter()
     photos = load_pair(job["reflection"], job["transmission"], size=DEFAULT_RIG.film_size)
     spectra = Spectra.of([photos.reflection, photos.transmission])
-    (rotation, skew), found = placed(spectra, DEFAULT_RIG, PATTERNS, None)
+    (rotation, skew), found = placed(spectra, DEFAULT_RIG, FIT_PATTERNS, None)
     truth, rig = job["truth"], job["rig"]
     own = [c for c in found if c.pattern == truth.pattern]  # best first within a pattern
     return {"kind": job["kind"], "name": job["name"], "rotation_deg": rotation, "skew_deg": skew,

@@ -1,6 +1,6 @@
 """``python -m backend fit``: photos in, parameters, re-renders, report and metrics out.
 
-    fit REFLECTION TRANSMISSION --out DIR [--pattern auto|plain|twill0|twill1|satin0|satin1]
+    fit REFLECTION TRANSMISSION --out DIR [--pattern auto|plain|twill0|twill1|satin0|satin1|twill0m|...|satin1m]
         [--iterations N] [--size N] [--device cpu|cuda] [--json-progress] [--rig RIG.json]
         [--crop X Y W H] [--flat-field PATH] [--strict] [--seed S] [--init network|prior]
         [--vgg-weights PATH] [--camera-blur auto|PX] [--sample-rotation auto|DEG] [--output-spp N] [--overwrite]
@@ -25,7 +25,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ..core.priors import PATTERNS
+from ..core.priors import FIT_PATTERNS
 from ..core.protocol import STOP_REQUEST, Reporter
 from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
 from ..fit.folder import FolderFitOptions, fit_reporting
@@ -106,7 +106,9 @@ BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "
 
 def add_fit_options(p) -> None:
     """Adds the options of :data:`BATCH_FIT_OPTIONS` (the fit and the batch command share them)."""
-    p.add_argument("--pattern", default=FolderFitOptions.pattern, choices=("auto",) + PATTERNS)
+    p.add_argument("--pattern", default=FolderFitOptions.pattern, choices=("auto",) + FIT_PATTERNS,
+                   help="the weave: auto (chosen from the photos, default), one of the paper's five, or the "
+                        "mirror image of a twill or satin (its name + m: the diagonal running the other way)")
     p.add_argument("--iterations", type=int, default=FolderFitOptions.iterations,
                    help="Adam steps of the winner's optimisation at most (default: 150 at 256 px, 100 at a larger "
                         f"working size); it ends sooner once its best loss has not moved for {FitSettings.patience} "

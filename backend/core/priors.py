@@ -17,12 +17,16 @@ the centre of each distribution (the starting point of a fit without the network
 
 The fit's Gaussian priors (spec section 5, item 3): height_scale (mu, s) plain (1, 1), twill (1, 0.5),
 satin (0.1, 0.5); gap_scale plain (0.75, 0.1), twill and satin (0.9, 0.05).
+
+A mirrored preset (``twill0m``, ... :data:`backend.core.weave.MIRRORED_OF`) has every prior of the
+preset it mirrors.
 """
 from __future__ import annotations
 
 import random
 
 from .params import FabricParams
+from .weave import MIRRORED_OF, paper_preset
 
 BASE_TILES = {"plain": (173.0, 173.0), "twill0": (122.0, 80.0), "twill1": (80.0, 122.0),
               "satin0": (80.0, 160.0), "satin1": (160.0, 80.0)}
@@ -41,13 +45,13 @@ def family(pattern: str) -> str:
 
 def swapped(pattern: str) -> bool:
     """Patterns whose warp and weft prior values are swapped relative to satin0/twill1."""
-    return pattern in ("satin1", "twill0")
+    return paper_preset(pattern) in ("satin1", "twill0")
 
 
 def tile_range(pattern: str, margin: float = 1.15) -> tuple[tuple[float, float], tuple[float, float]]:
     """(tu range, tv range) the prior can produce, widened by ``margin`` on both sides."""
     lo, hi = TILE_SCALE[family(pattern)]
-    tu, tv = BASE_TILES.get(pattern, (120.0, 120.0))
+    tu, tv = BASE_TILES.get(paper_preset(pattern), (120.0, 120.0))
     return ((tu * lo * 0.9 / margin, tu * hi * 1.1 * margin), (tv * lo * 0.9 / margin, tv * hi * 1.1 * margin))
 
 
@@ -79,7 +83,7 @@ def sample(pattern: str, rng: random.Random) -> FabricParams:
 
     roughness = pair("sqrt_roughness", lambda x: x * x)
     thickness = pair("thickness")
-    base = BASE_TILES[pattern]
+    base = BASE_TILES[paper_preset(pattern)]
     scale = rng.uniform(*TILE_SCALE[fam])
     tu = base[0] * scale * rng.uniform(0.9, 1.1)
     tv = tu if same else base[1] * scale * rng.uniform(0.9, 1.1)
@@ -111,7 +115,7 @@ def typical(pattern: str) -> FabricParams:
     thickness = centre("thickness")
     fam = family(pattern)
     scale = sum(TILE_SCALE[fam]) / 2
-    base = BASE_TILES[pattern]
+    base = BASE_TILES[paper_preset(pattern)]
     twist = -30.0 if fam == "twill" else 0.0
     return FabricParams(
         pattern=pattern, tiles=(base[0] * scale, base[1] * scale), roughness=roughness, thickness=thickness,
@@ -129,3 +133,7 @@ def prior_nll(pattern: str, height_scale, gap_scale):
 
 
 PATTERNS = tuple(BASE_TILES)
+"""The paper's five patterns: those of its dataset and of the initialisation network."""
+FIT_PATTERNS = PATTERNS + tuple(MIRRORED_OF)
+"""The patterns a fit chooses among: the paper's five and their mirror images, each mirrored
+pattern with the priors of the one it mirrors (a mirror changes no yarn's shape or density)."""

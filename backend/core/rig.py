@@ -143,6 +143,16 @@ class CaptureRig:
         dx, dy, z = self.front_light if which == "front" else self.back_light
         return cx + dx, cy + dy, z
 
+    def mirrored(self) -> "CaptureRig":
+        """The rig as its photos mirrored left-right show it: the lights' x offsets, the sample's
+        rotation and skew negated (a yarn at angle a from its axis appears at -a)."""
+        def flipped(light):
+            return (-light[0], light[1], light[2])
+
+        return dataclasses.replace(self, front_light=flipped(self.front_light), back_light=flipped(self.back_light),
+                                   sample_rotation_deg=-self.sample_rotation_deg + 0.0,
+                                   sample_skew_deg=-self.sample_skew_deg + 0.0)
+
     def intensity(self, which: str) -> float:
         return self.front_intensity if which == "front" else self.back_intensity
 

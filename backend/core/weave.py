@@ -20,6 +20,7 @@ and evaluates the layers per sample point.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -239,7 +240,15 @@ def _rows(text: str) -> tuple[tuple[int, ...], ...]:
     return tuple(tuple(int(c) for c in row) for row in text.split("/"))
 
 
-PRESETS: dict[str, Weave] = {
+def mirrored(weave: Weave, name: str) -> Weave:
+    """The left-right mirror image of ``weave`` (x -> tile_width - x): its columns in reverse order,
+    each warp band moved to ``pitch - width - offset`` into its pitch. Its twill or satin diagonal
+    runs the other way; nothing else changes (a plain weave mirrored is itself, one column on)."""
+    return dataclasses.replace(weave, name=name, matrix=tuple(row[::-1] for row in weave.matrix),
+                               warp_offset=weave.warp_pitch - weave.warp_width - weave.warp_offset)
+
+
+PAPER_PRESETS: dict[str, Weave] = {
     "plain": Weave("plain", _rows("01/10"), umax_deg=(22.0, 16.0), s_min=1.0),
     "twill0": Weave("twill0", _rows("0111/1011/1101/1110"), weft_width=2.0, weft_pitch=2.0,
                     umax_deg=(24.0, 24.0), s_min=0.5),
@@ -252,6 +261,28 @@ PRESETS: dict[str, Weave] = {
     "satin1": Weave("satin1", _rows("01111/11101/10111/11110/11011"), weft_pitch=2.0, weft_offset=0.0,
                     umax_deg=(35.0, 60.0), s_min=0.5),
 }
+"""The paper's five weaves (spec section 3). Their diagonals, read from the points where the
+sparser yarn comes up: twill0's step one column right per row going down the tile, twill1's one
+column left, both satins' three columns right (two left). So a warp-faced twill with twill1's
+diagonal, a weft-faced one with twill0's, or a satin with the other step (the fabric seen from its
+other side, or woven so) is none of them: their mirror images (:data:`PRESETS`) are."""
+
+MIRROR_SUFFIX = "m"
+MIRRORED_OF: dict[str, str] = {f"{name}{MIRROR_SUFFIX}": name for name in PAPER_PRESETS if name != "plain"}
+"""Mirrored preset -> the paper's preset it mirrors (twill0m is twill0 mirrored left-right)."""
+
+PRESETS: dict[str, Weave] = {**PAPER_PRESETS,
+                             **{name: mirrored(PAPER_PRESETS[base], name) for name, base in MIRRORED_OF.items()}}
+"""Every preset, in the shader's pattern-index order: the paper's five, then their mirror images."""
+
+
+def paper_preset(pattern: str) -> str:
+    """The paper's preset that ``pattern`` is, or mirrors (other names are returned as they are)."""
+    return MIRRORED_OF.get(pattern, pattern)
+
+
+def is_mirrored(pattern: str) -> bool:
+    return pattern in MIRRORED_OF
 
 
 def umax_radians(weave: Weave) -> tuple[float, float]:

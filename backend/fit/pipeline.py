@@ -71,7 +71,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings: dict[str, float] = {}
     torch.manual_seed(settings.seed)
     progress = progress or (lambda *args: None)
-    patterns = priors.PATTERNS if settings.pattern == "auto" else (settings.pattern,)
+    patterns = priors.FIT_PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
     spectra = Spectra.of([reflection, transmission])
     (rotation, skew), found = placed(spectra, rig, patterns, settings.sample_rotation)

@@ -58,6 +58,7 @@ import torch.nn.functional as F
 from ..core import priors
 from ..core.params import SPECS, FabricParams, unflatten
 from ..core.rig import CaptureRig
+from ..core.weave import is_mirrored, paper_preset
 from ..model.imaging import downsample_linear
 from ..texture.features import LatticeProbe, luminance_quantiles
 from ..texture.lattice import lattice_of
@@ -285,18 +286,41 @@ class NetworkStart:
         self.model = model or load_model()
         self.rig = rig
         self.pair = WorkingPair.from_images(reflection, transmission, rig.gamma)
+        self._mirrored: tuple[WorkingPair, CaptureRig] | None = None
+
+    def _view(self, pattern: str) -> tuple[WorkingPair, CaptureRig, str] | None:
+        """(photos, rig, pattern) as the network sees a candidate of ``pattern``: a paper preset as it
+        is; a mirrored one (:data:`backend.core.weave.MIRRORED_OF`) as the preset it mirrors in the
+        photos mirrored left-right, under the mirrored rig (the network was trained on the paper's
+        five); None for a weave the network does not know."""
+        if pattern in PATTERNS:
+            return self.pair, self.rig, pattern
+        if not is_mirrored(pattern):
+            return None
+        if self._mirrored is None:
+            self._mirrored = (WorkingPair(self.pair.reflection.flip(1), self.pair.transmission.flip(1)),
+                              self.rig.mirrored())
+        return (*self._mirrored, paper_preset(pattern))
 
     def __call__(self, candidate) -> FabricParams | None:
         """Custom weaves (not one of the presets the network knows) get None (the fit's prior start)."""
-        if candidate.pattern not in PATTERNS:
+        view = self._view(candidate.pattern)
+        if view is None:
             return None
-        return self.model.guess(self.pair, candidate.pattern, candidate.tiles, self.rig)
+        pair, rig, pattern = view
+        guess = self.model.guess(pair, pattern, candidate.tiles, rig)
+        return guess.replace(pattern=candidate.pattern)
 
     def pattern_probabilities(self, candidates: Sequence) -> list[float] | None:
-        """One probability per candidate; None when a candidate is not a preset (no opinion)."""
-        if not candidates or any(c.pattern not in PATTERNS for c in candidates):
+        """One probability per candidate (a softmax over their plausibility logits); None when a
+        candidate is not a preset (no opinion)."""
+        views = [self._view(c.pattern) for c in candidates]
+        if not candidates or any(v is None for v in views):
             return None
-        return [p for _, p in self.model.guesses(self.pair, candidates, self.rig)]
+        features = torch.stack([candidate_features(pair, pattern, c.tiles, rig)
+                                for c, (pair, rig, pattern) in zip(candidates, views)])
+        _, logits = self.model.predict(features)
+        return torch.softmax(logits, 0).tolist()
 
 
 INIT_CHOICES = ("network", "prior")

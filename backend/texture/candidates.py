@@ -31,7 +31,7 @@ import torch
 
 from ..core import priors
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from ..core.weave import PRESETS
+from ..core.weave import PRESETS, is_mirrored
 from ..model.render import Renderer
 from . import lattice, spacing
 
@@ -46,7 +46,7 @@ class Candidate:
     score: float
 
 
-def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.PATTERNS) -> dict[str, list[lattice.Signature]]:
+def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.FIT_PATTERNS) -> dict[str, list[lattice.Signature]]:
     """Per preset of ``patterns``, the (reflection, transmission) harmonic signatures of its typical
     parameters, rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little
     off the unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for
@@ -66,7 +66,7 @@ def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.PATTERNS) -> 
         _SIGNATURES.update(rendered_signatures(unsheared, missing))
     for pattern in patterns:
         _SIGNATURES.move_to_end((unsheared, pattern))
-    while len(_SIGNATURES) > 4 * len(priors.PATTERNS):  # the last few placements' (a fit tries two)
+    while len(_SIGNATURES) > 4 * len(priors.FIT_PATTERNS):  # the last few placements' (a fit tries two)
         _SIGNATURES.popitem(last=False)
     return {pattern: _SIGNATURES[unsheared, pattern] for pattern in patterns}
 
@@ -94,10 +94,10 @@ def write_shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> Path:
     change to the renderer, the presets' typical parameters or :func:`lattice.signature`:
     ``python -c "from backend.texture.candidates import write_shipped_signatures as w; w()"``;
     tests/test_placement.py checks the file against fresh renders)."""
-    rendered = rendered_signatures(DEFAULT_RIG, priors.PATTERNS)
+    rendered = rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
     table = {"rig": DEFAULT_RIG.to_dict(), "density": SIGNATURE_DENSITY,
              "patterns": {pattern: [{"m": s.m.tolist(), "n": s.n.tolist(), "weight": s.weight.tolist()}
-                                    for s in rendered[DEFAULT_RIG, pattern]] for pattern in priors.PATTERNS}}
+                                    for s in rendered[DEFAULT_RIG, pattern]] for pattern in priors.FIT_PATTERNS}}
     path.write_text(json.dumps(table) + "\n")
     return path
 
@@ -113,7 +113,7 @@ def shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> dict[tuple[CaptureRig
     try:
         table = json.loads(path.read_text())
         rig = CaptureRig.from_dict(table["rig"])
-        if table["density"] != SIGNATURE_DENSITY or set(table["patterns"]) != set(priors.PATTERNS):
+        if table["density"] != SIGNATURE_DENSITY or set(table["patterns"]) != set(priors.FIT_PATTERNS):
             return {}
         return {(rig, pattern): [lattice.Signature(np.asarray(s["m"]), np.asarray(s["n"]),
                                                    np.asarray(s["weight"], dtype=np.float64)) for s in pair]
@@ -146,7 +146,7 @@ def _search_range(rig: CaptureRig, patterns: tuple[str, ...]) -> tuple[float, fl
 
 
 def sample_placement(spectra: lattice.Spectra, rig: CaptureRig,
-                     patterns: tuple[str, ...] = priors.PATTERNS) -> lattice.Placement:
+                     patterns: tuple[str, ...] = priors.FIT_PATTERNS) -> lattice.Placement:
     """The sample's rotation and skew in the holder, read from both photos' spectra, with the
     lattice that shows them (:func:`backend.texture.lattice.estimate_placement`)."""
     span = _search_range(rig, patterns)
@@ -278,20 +278,27 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     estimate's 5-degree turn shows one such reading (plain, 4.2 degrees, with wrong lattices at
     that turn), and the unturned comb stays.
 
-    The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
+    The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one.
+
+    The placement is decided by the paper's presets among ``patterns``; the mirrored ones
+    (:data:`backend.core.weave.MIRRORED_OF`) then get their candidates at it, after the others. (So
+    a photo of either handedness is placed as before mirrored presets existed: their readings of an
+    unmirrored weave would only add votes from harmonics that are not there.)"""
+    paper = tuple(p for p in patterns if not is_mirrored(p)) or patterns
+    mirrors = tuple(p for p in patterns if p not in paper)
     if rotation is not None:
         placement = (rotation, rig.sample_skew_deg)
-        return placement, propose(spectra, _placed_rig(rig, placement), patterns, per_pattern)
+        return placement, propose(spectra, _placed_rig(rig, placement), paper + mirrors, per_pattern)
     estimate = sample_placement(spectra, rig, patterns)
     unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
+    also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
     if found == unturned or estimate.skew_deg != 0.0:  # unturned, or sheared: kept as it is
         placement = unturned if found == unturned else found  # never a -0.0 turn
         placed_rig = _placed_rig(rig, placement)
-        also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
-        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
+        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, paper, per_pattern, also),
                               per_pattern)
     else:
-        at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
+        at = {p: _comb_lattices(spectra, _placed_rig(rig, p), paper, per_pattern) for p in (unturned, found)}
         reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}
         shown = [p for p in reads if yarn_turn(reads[p][1], p, reflection_votes=None) is not None]
         if not shown:
@@ -302,6 +309,10 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
             placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
         read = reads[placement]
     candidates, readings = read
+    if mirrors:
+        placed_rig = _placed_rig(rig, placement)
+        candidates = candidates + _with_anchored(
+            spectra, placed_rig, _comb_lattices(spectra, placed_rig, mirrors, per_pattern, also), per_pattern)[0]
     turn = yarn_turn(readings, placement)
     return (placement[0] if turn is None else turn, placement[1]), candidates
 

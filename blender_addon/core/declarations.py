@@ -6,7 +6,7 @@ without torch), so the panel, the batch, the node group and the shader cannot dr
 - the fabric parameters (``core.params``: names, ranges, labels, defaults): the node group's
   sockets and the OSL inputs;
 - the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index) and the
-  patterns the fit command accepts (``core.priors.PATTERNS``, with ``auto`` first);
+  patterns the fit command accepts (``core.priors.FIT_PATTERNS``, with ``auto`` first);
 - the capture rig (``core.rig.CaptureRig``; its field defaults are the spec's rig);
 - the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
   (``core.pairs.find_pairs``);
@@ -44,7 +44,7 @@ def preset_names() -> tuple[str, ...]:
 
 def fit_patterns() -> tuple[str, ...]:
     """What the fit command's ``--pattern`` accepts: ``auto``, then the backend's patterns."""
-    return (AUTO_PATTERN, *backend_module("core.priors").PATTERNS)
+    return (AUTO_PATTERN, *backend_module("core.priors").FIT_PATTERNS)
 
 
 def rig():

@@ -14,12 +14,14 @@ from ..core import declarations, rig_settings
 
 
 def _pattern_item(name: str) -> tuple[str, str, str]:
-    """(identifier, label, tooltip) of a weave pattern: twill1 -> "Twill 1", "Twill weave, variant 1"."""
+    """(identifier, label, tooltip) of a weave pattern: twill1 -> "Twill 1", "Twill weave, variant 1";
+    twill1m -> "Twill 1 mirrored", "..., mirrored left-right (its diagonal runs the other way)"."""
     if name == declarations.AUTO_PATTERN:
         return name, "Automatic", "Let the fit choose the weave"
-    family, variant = re.fullmatch(r"(.*?)(\d*)", name).groups()
-    label = f"{family.capitalize()} {variant}".strip()
-    return name, label, f"{family.capitalize()} weave" + (f", variant {variant}" if variant else "")
+    family, variant, mirror = re.fullmatch(r"(.*?)(\d*)(m?)", name).groups()
+    label = f"{family.capitalize()} {variant}".strip() + (" mirrored" if mirror else "")
+    tooltip = f"{family.capitalize()} weave" + (f", variant {variant}" if variant else "")
+    return name, label, tooltip + (", mirrored left-right (its diagonal runs the other way)" if mirror else "")
 
 
 PATTERN_ITEMS = tuple(_pattern_item(name) for name in declarations.fit_patterns())
