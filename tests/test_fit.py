@@ -14,7 +14,7 @@ from oracles import reference
 
 from backend.bench import photolike
 from backend.core.params import FabricParams
-from backend.core.priors import PATTERNS, typical
+from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
@@ -346,7 +346,7 @@ def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
     truth = FabricParams.from_interchange(next(c for c in golden_cases if c["name"] == name)["params"])
     pair = load_pair(golden_dir / f"{name}_R.png", golden_dir / f"{name}_T.png", size=512)
     placement, found = search.placed(lattice.Spectra.of([pair.reflection, pair.transmission]), DEFAULT_RIG,
-                                     PATTERNS, None)
+                                     FIT_PATTERNS, None)
     satin = next(c for c in found if c.pattern == "satin1")
     # unturned, the satins' yarn vectors reading a hundredth of a degree at most (candidates.yarn_turn)
     assert placement == pytest.approx((0.0, 0.0), abs=0.02)
@@ -388,6 +388,12 @@ def test_the_yarn_vectors_correct_a_turn_read_from_the_centre(tmp_path):
     assert_placed_as_made(tmp_path, seed=7, index=8, pattern="satin0", rotation_tolerance_deg=0.15, unmirrored=True)
 
 
+def test_a_mirrored_twill_is_placed_with_its_own_lattice(tmp_path):
+    # Photo-like twill0m_006 (seed 7, 3.4 px per yarn behind 1.1 px of blur) is twill0 mirrored
+    # left-right, turned 2.21 degrees: its twill0m candidate has the true tiles.
+    assert_placed_as_made(tmp_path, seed=7, index=6, pattern="twill0m", rotation_tolerance_deg=0.15)
+
+
 def test_the_yarn_vectors_confirm_a_turn_the_combs_ruled_out(tmp_path):
     # Photo-like satin0_003 (seed 53) is turned -2.31 degrees; the placement read -1.60, and the
     # unturned sample's combs scored higher (its best satin0 tiles then 108 % off). At -1.60 the
@@ -424,7 +430,7 @@ def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotatio
     assert truth.pattern == pattern
     pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
     spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
-    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, PATTERNS, None)
+    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, FIT_PATTERNS, None)
     assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=rotation_tolerance_deg)
     assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01)
 

@@ -39,7 +39,9 @@ feature version and sizes, so a file that does not match this code is refused ra
 
 Use in the fit: :class:`NetworkStart` is the ``initial_for`` hook of :func:`backend.fit.pipeline.fit`, and its
 ``pattern_probabilities`` the fit's ``pattern_probabilities`` hook: candidates the network gives
-less than ``FitSettings.min_pattern_probability`` get no trial fit.
+less than ``FitSettings.min_pattern_probability`` get no trial fit. The network knows the paper's five
+weaves; a candidate of a mirrored preset (``twill0m``, ...) is read as the preset it mirrors in the
+photos mirrored left-right, under the mirrored rig (:meth:`NetworkStart._view`).
 """
 from __future__ import annotations
 

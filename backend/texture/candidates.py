@@ -31,7 +31,7 @@ import torch
 
 from ..core import priors
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from ..core.weave import PRESETS, is_mirrored
+from ..core.weave import PRESETS
 from ..model.render import Renderer
 from . import lattice, spacing
 
@@ -278,27 +278,20 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     estimate's 5-degree turn shows one such reading (plain, 4.2 degrees, with wrong lattices at
     that turn), and the unturned comb stays.
 
-    The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one.
-
-    The placement is decided by the paper's presets among ``patterns``; the mirrored ones
-    (:data:`backend.core.weave.MIRRORED_OF`) then get their candidates at it, after the others. (So
-    a photo of either handedness is placed as before mirrored presets existed: their readings of an
-    unmirrored weave would only add votes from harmonics that are not there.)"""
-    paper = tuple(p for p in patterns if not is_mirrored(p)) or patterns
-    mirrors = tuple(p for p in patterns if p not in paper)
+    The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
     if rotation is not None:
         placement = (rotation, rig.sample_skew_deg)
-        return placement, propose(spectra, _placed_rig(rig, placement), paper + mirrors, per_pattern)
+        return placement, propose(spectra, _placed_rig(rig, placement), patterns, per_pattern)
     estimate = sample_placement(spectra, rig, patterns)
     unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
-    also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
     if found == unturned or estimate.skew_deg != 0.0:  # unturned, or sheared: kept as it is
         placement = unturned if found == unturned else found  # never a -0.0 turn
         placed_rig = _placed_rig(rig, placement)
-        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, paper, per_pattern, also),
+        also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
+        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
                               per_pattern)
     else:
-        at = {p: _comb_lattices(spectra, _placed_rig(rig, p), paper, per_pattern) for p in (unturned, found)}
+        at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
         reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}
         shown = [p for p in reads if yarn_turn(reads[p][1], p, reflection_votes=None) is not None]
         if not shown:
@@ -309,10 +302,6 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
             placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
         read = reads[placement]
     candidates, readings = read
-    if mirrors:
-        placed_rig = _placed_rig(rig, placement)
-        candidates = candidates + _with_anchored(
-            spectra, placed_rig, _comb_lattices(spectra, placed_rig, mirrors, per_pattern, also), per_pattern)[0]
     turn = yarn_turn(readings, placement)
     return (placement[0] if turn is None else turn, placement[1]), candidates
 
