@@ -176,6 +176,8 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         assert all(close(rig_values()[n], v) for n, v in expected_rig.items()), rig_values()
         weaves = [item.identifier for item in settings.bl_rna.properties["pattern"].enum_items]
         assert weaves == json.loads(os.environ["FABRIC_TEST_PATTERNS"]) and settings.pattern == "auto", weaves
+        labels = {item.identifier: item.name for item in settings.bl_rna.properties["pattern"].enum_items}
+        assert (labels["twill1"], labels["twill0m"], labels["plain"]) == ("Twill 1", "Twill 0 mirrored", "Plain")
         assert registered_commands["fabric_fit"] is ext.ui.batch.main
         assert importlib.import_module(ext.__name__ + ".batch").main is ext.ui.batch.main
         backend = ext.ui.preferences.selected_backend(detect=False)

@@ -21,6 +21,13 @@ from backend.model.render import Renderer
 SMALL = CaptureRig(film_size=64)  # every effect is in film pixels: a small film keeps the test fast
 
 
+def test_every_other_run_of_five_items_is_mirrored():
+    patterns = [photolike.item_pattern(k) for k in range(20)]
+    assert patterns[:10] == ["plain", "twill0", "twill1", "satin0", "satin1",
+                             "plain", "twill0m", "twill1m", "satin0m", "satin1m"]
+    assert patterns[10:] == patterns[:10]
+
+
 def test_a_photo_like_set_is_a_function_of_its_seed(tmp_path):
     first = [photolike.make_item(tmp_path / "a", seed=4, index=k, rig=SMALL) for k in (0, 3)]
     again = [photolike.make_item(tmp_path / "b", seed=4, index=k, rig=SMALL) for k in (0, 3)]

@@ -98,14 +98,14 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
     for name, r_path, t_path, truth in golden_cases(folder):
         reflection, transmission = _load(r_path, t_path)
         candidates = propose(Spectra.of([reflection, transmission]), DEFAULT_RIG, priors.PATTERNS, per_pattern=1)
-        pair = init_net.WorkingPair.from_images(reflection, transmission, DEFAULT_RIG.gamma)
-        guesses = model.guesses(pair, candidates, DEFAULT_RIG)
-        best = max(range(len(candidates)), key=lambda k: guesses[k][1])
+        start = init_net.NetworkStart(reflection, transmission, DEFAULT_RIG, model)
+        probabilities = start.pattern_probabilities(candidates)
+        best = max(range(len(candidates)), key=lambda k: probabilities[k])
         row = {"case": name, "pattern": truth.pattern, "predicted_pattern": candidates[best].pattern,
-               "probability": round(guesses[best][1], 3)}
+               "probability": round(probabilities[best], 3)}
         true_k = next((k for k, c in enumerate(candidates) if c.pattern == truth.pattern), None)
         if true_k is not None:
-            errors = parameter_errors(guesses[true_k][0], truth)
+            errors = parameter_errors(start(candidates[true_k]), truth)
             prior = parameter_errors(_prior_start(truth.pattern, candidates[true_k].tiles), truth)
             net_rows.append(errors)
             prior_rows.append(prior)

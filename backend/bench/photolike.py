@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ..core import priors
 from ..core.rig import DEFAULT_RIG, CaptureRig
-from ..core.weave import MIRROR_SUFFIX, PRESETS
+from ..core.weave import MIRROR_OF
 from ..image.png import write_png
 from ..init.photo_like import photograph
 
@@ -37,8 +37,7 @@ def item_rng(seed: int, index: int) -> random.Random:
 def item_pattern(index: int) -> str:
     """The weave preset of item ``index`` (the module docstring)."""
     pattern = priors.PATTERNS[index % len(priors.PATTERNS)]
-    mirror = f"{pattern}{MIRROR_SUFFIX}"
-    return mirror if (index // len(priors.PATTERNS)) % 2 and mirror in PRESETS else pattern
+    return MIRROR_OF.get(pattern, pattern) if (index // len(priors.PATTERNS)) % 2 else pattern
 
 
 def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None) -> dict:

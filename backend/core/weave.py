@@ -270,6 +270,8 @@ other side, or woven so) is none of them: their mirror images (:data:`PRESETS`) 
 MIRROR_SUFFIX = "m"
 MIRRORED_OF: dict[str, str] = {f"{name}{MIRROR_SUFFIX}": name for name in PAPER_PRESETS if name != "plain"}
 """Mirrored preset -> the paper's preset it mirrors (twill0m is twill0 mirrored left-right)."""
+MIRROR_OF: dict[str, str] = {base: name for name, base in MIRRORED_OF.items()}
+"""The paper's preset -> its mirror image (plain has none: mirrored, it is itself)."""
 
 PRESETS: dict[str, Weave] = {**PAPER_PRESETS,
                              **{name: mirrored(PAPER_PRESETS[base], name) for name, base in MIRRORED_OF.items()}}

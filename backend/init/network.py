@@ -261,14 +261,6 @@ class InitModel:
         with torch.no_grad():
             return self.net(features)
 
-    def guesses(self, pair: WorkingPair, candidates: Sequence, rig: CaptureRig) -> list[tuple[FabricParams, float]]:
-        """(starting parameters, pattern probability) for each (pattern, tiles) candidate."""
-        features = torch.stack([candidate_features(pair, c.pattern, c.tiles, rig) for c in candidates])
-        targets, logits = self.predict(features)
-        probabilities = torch.softmax(logits, 0)
-        return [(params_from_vector(t.tolist(), c.pattern, tuple(c.tiles)), float(p))
-                for c, t, p in zip(candidates, targets, probabilities)]
-
     def guess(self, pair: WorkingPair, pattern: str, tiles: Sequence[float], rig: CaptureRig) -> FabricParams:
         targets, _ = self.predict(candidate_features(pair, pattern, tiles, rig)[None])
         return params_from_vector(targets[0].tolist(), pattern, tuple(tiles))

@@ -5,7 +5,8 @@ without torch), so the panel, the batch, the node group and the shader cannot dr
 
 - the fabric parameters (``core.params``: names, ranges, labels, defaults): the node group's
   sockets and the OSL inputs;
-- the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index) and the
+- the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index), which
+  of them mirror which (``core.weave.MIRRORED_OF``) and the
   patterns the fit command accepts (``core.priors.FIT_PATTERNS``, with ``auto`` first);
 - the capture rig (``core.rig.CaptureRig``; its field defaults are the spec's rig);
 - the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
@@ -40,6 +41,11 @@ def weave_presets() -> dict:
 def preset_names() -> tuple[str, ...]:
     """The preset weaves' names in the backend's order (= the shader's ``pattern`` index)."""
     return tuple(weave_presets())
+
+
+def mirrored_of() -> dict[str, str]:
+    """Mirrored preset -> the paper's preset it mirrors (``twill0m`` -> ``twill0``)."""
+    return backend_module("core.weave").MIRRORED_OF
 
 
 def fit_patterns() -> tuple[str, ...]:

@@ -12,13 +12,16 @@ import bpy
 
 from ..core import declarations, rig_settings
 
+MIRRORED = declarations.mirrored_of()  # mirrored preset -> the paper's preset it mirrors
+
 
 def _pattern_item(name: str) -> tuple[str, str, str]:
     """(identifier, label, tooltip) of a weave pattern: twill1 -> "Twill 1", "Twill weave, variant 1";
     twill1m -> "Twill 1 mirrored", "..., mirrored left-right (its diagonal runs the other way)"."""
     if name == declarations.AUTO_PATTERN:
         return name, "Automatic", "Let the fit choose the weave"
-    family, variant, mirror = re.fullmatch(r"(.*?)(\d*)(m?)", name).groups()
+    mirror = name in MIRRORED
+    family, variant = re.fullmatch(r"(.*?)(\d*)", MIRRORED.get(name, name)).groups()
     label = f"{family.capitalize()} {variant}".strip() + (" mirrored" if mirror else "")
     tooltip = f"{family.capitalize()} weave" + (f", variant {variant}" if variant else "")
     return name, label, tooltip + (", mirrored left-right (its diagonal runs the other way)" if mirror else "")
