@@ -190,14 +190,16 @@ def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):
 
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
-    image), the winner's optimisation at the working size (64 px); the best parameters are from it."""
+    image), the winner's optimisation at the working size (64 px), from the winner's start (its trial
+    only chose it); the best parameters are from it."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
-    seen = []
+    seen, steps = [], []  # steps: the parameters of each Adam step
     terms = Objective.terms
 
     def recording(self, fabric, camera_blur_px=None):
         seen.append((self.target.size, self.renderer.spp, torch.is_grad_enabled()))
+        steps.append(fabric.to_params().to_interchange() if torch.is_grad_enabled() else None)
         return terms(self, fabric, camera_blur_px)
 
     monkeypatch.setattr(Objective, "terms", recording)
@@ -211,8 +213,11 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert {(size, spp) for size, spp, _ in search_calls} == {(32, 8)}
     assert sum(grad for *_, grad in search_calls) == 4  # two trials of two steps
     assert optimise_calls == [(64, 2, True)] * 3
-    assert [i for i, _ in result.history] == [0, 1, 2, 3, 4]  # the winner's trial steps come first
-    assert result.loss == min(loss for i, loss in result.history if i >= 2)  # losses at 64 px only
+    trial_steps = [p for p in steps[:-3] if p is not None]
+    winner_start = next(p for p in trial_steps[::2] if p.startswith(result.params.pattern + "_"))
+    assert steps[-3] == winner_start and steps[-2] != winner_start  # from the start, then on
+    assert [i for i, _ in result.history] == [0, 1, 2]  # steps at 64 px only
+    assert result.loss == min(loss for _, loss in result.history)
     # nothing to refine at the base size or below: one size throughout
     seen.clear()
     fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),

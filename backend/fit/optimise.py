@@ -61,13 +61,6 @@ class Run:
         if self.history:
             self._start_from(self.best)
 
-    def switch_objective(self, objective: Objective) -> None:
-        """Goes on at another objective (the working size, after a search at a coarser one) from the
-        best parameters seen; the best is tracked anew, since losses at two sizes do not compare."""
-        self.objective = objective
-        self.restart_from_best()
-        self.best_loss, self.best_terms = math.inf, {}
-
     def _schedule(self):
         progress = self.step_count / max(self.total, 1)
         factor = 0.5 ** sum(progress >= p for p in LR_MILESTONES)

@@ -7,7 +7,8 @@
                renders all use it
     search     candidates from the spectra, starting points, camera blur, short trial fits,
                the pattern chosen by comparing them (:mod:`backend.fit.search`)
-    optimise   the winner's run goes on: Adam on the continuous parameters, every
+    optimise   the winner's run goes on (at the working size, from its start: see coarse to
+               fine): Adam on the continuous parameters, every
                ``search_every`` iterations a parabolic step on the discrete ones
                (:mod:`backend.fit.optimise`), ending early once the best loss stops moving
                (:func:`converged`); tiles come from the lattice, which pins them to a
@@ -16,8 +17,9 @@
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
                trial fits) runs at 256 px with the same samples per image, where a step costs about
-               half as much, and only the winner's optimisation at the working size (after a
-               fresh camera-blur scan there) (100 iterations
+               half as much, and only the winner's optimisation at the working size, from the
+               winner's start (not from its trial: the trial steps only chose the pattern) and
+               after a fresh camera-blur scan there (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
                reflection need the optimisation at 512 px; the choice of pattern does not)
     result     the best parameters seen, their loss and terms, the camera blur, the photos' light
@@ -103,15 +105,20 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         starts = search.reranked(starts, objective, blur)
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
                                lambda i, n, selection: progress("search", i, n, selection, None))
-    run = min(trials, key=lambda t: (t.selection, trials.index(t))).run
+    winner = min(trials, key=lambda t: (t.selection, trials.index(t)))
+    run = winner.run
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
     if coarse is not settings:
-        fine = _objective(reflection, transmission, rig, settings)
-        run.switch_objective(fine)
+        # The winner starts again from its start at the working size, as a lone candidate does: the
+        # trial steps at the base size chose the pattern, but where a yarn gets about a pixel there the
+        # loss reads an aliased weave, and going on from them could end worse (measured: golden
+        # example_twill1, FLIP T .081 alone, .122 after a trial beside its rival twill0m).
+        run = Run(winner.start.params, _objective(reflection, transmission, rig, settings), settings, run.total,
+                  blur, blur_floor)
         if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
-            run.camera_blur_px = search.best_blur(run.best, fine, blur_floor, also=run.camera_blur_px)
+            run.camera_blur_px = search.best_blur(run.best, run.objective, blur_floor, also=blur)
     steps = _optimise(run, settings, check_stop, progress)
     timings["optimise_s"] = time.perf_counter() - loop_started
     with torch.no_grad():
@@ -141,7 +148,7 @@ def _coarse(settings: FitSettings) -> FitSettings:
 
 
 def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress) -> int:
-    """The winner's run goes on from its best trial parameters for ``settings.iterations`` steps, or
+    """The winner's run goes on from its best parameters so far for ``settings.iterations`` steps, or
     fewer where it has converged (:func:`converged`); returns the steps it ran."""
     run.restart_from_best()
     loop_started = time.perf_counter()

@@ -50,6 +50,7 @@ class Start:
 
 @dataclass
 class Trial:
+    start: Start
     run: Run
     summary: dict           # what params.json's fit.candidates records for it
     selection: float        # trial loss + spectrum mismatch: the lowest wins
@@ -186,7 +187,9 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
                on_trial: Callable[[int, int, float], None]) -> list[Trial]:
     """A short fit for each of the best ``settings.trials`` starts (none when only one is left).
 
-    The runs' learning-rate schedules span the trial and the final iterations: the winner goes on.
+    The runs' learning-rate schedules span the trial and the final iterations: at a working size of
+    BASE_SIZE or below the winner goes on (above it, the fit starts the winner again at the working
+    size from ``Trial.start``).
     """
     shortlisted = starts[: max(1, settings.trials)]
     compare = len(shortlisted) > 1
@@ -202,7 +205,8 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
         selection = trial_loss + settings.spectrum_weight * (1.0 - similarity)
         on_trial(index + 1, len(shortlisted), selection)
         cand = start.candidate
-        trials.append(Trial(run, {"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
-                                  "start_loss": start.loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
-                                  "selection": selection, "probability": rated.get(id(cand))}, selection))
+        trials.append(Trial(start, run, {"pattern": cand.pattern, "tiles": list(cand.tiles),
+                                         "lattice_score": cand.score, "start_loss": start.loss,
+                                         "trial_loss": trial_loss, "spectrum_corr": similarity,
+                                         "selection": selection, "probability": rated.get(id(cand))}, selection))
     return trials
