@@ -16,13 +16,16 @@ the centre of each distribution (the starting point of a fit without the network
 - twist -30 degrees for twills, 0 otherwise; noise 0.
 
 The fit's Gaussian priors (spec section 5, item 3): height_scale (mu, s) plain (1, 1), twill (1, 0.5),
-satin (0.1, 0.5); gap_scale plain (0.75, 0.1), twill and satin (0.9, 0.05).
+satin (0.1, 0.5); gap_scale plain (0.75, 0.1), twill and satin (0.9, 0.05). Beyond the spec, the
+multiple-scattering roughness keeps to the dataset's ratio of the single-scattering one
+(:data:`MULTIPLE_ROUGHNESS_RATIO`): a half-Gaussian on log(alpha_m / alpha) outside it.
 
 A mirrored preset (``twill0m``, ... :data:`backend.core.weave.MIRRORED_OF`) has every prior of the
 preset it mirrors.
 """
 from __future__ import annotations
 
+import math
 import random
 
 from .params import FabricParams
@@ -33,6 +36,8 @@ BASE_TILES = {"plain": (173.0, 173.0), "twill0": (122.0, 80.0), "twill1": (80.0,
 TILE_SCALE = {"plain": (0.7, 1.3), "twill": (0.7, 1.8), "satin": (0.7, 1.5)}
 HEIGHT_PRIOR = {"plain": (1.0, 1.0), "twill": (1.0, 0.5), "satin": (0.1, 0.5)}
 GAP_PRIOR = {"plain": (0.75, 0.1), "twill": (0.9, 0.05), "satin": (0.9, 0.05)}
+MULTIPLE_ROUGHNESS_RATIO = (0.5, 1.5)  # alpha_m / alpha of the dataset (``sample``)
+MULTIPLE_ROUGHNESS_SPREAD = 0.25       # s of the half-Gaussian on log(alpha_m / alpha) beyond that range
 
 
 def family(pattern: str) -> str:
@@ -125,11 +130,24 @@ def typical(pattern: str) -> FabricParams:
         diffuse_normal_weight=0.5, noise=0.0)
 
 
-def prior_nll(pattern: str, height_scale, gap_scale):
-    """The fit's prior: mean over warp/weft of (x - mu)^2 / (2 s^2) for height and gap scale (tensors)."""
+def prior_nll(pattern: str, height_scale, gap_scale, roughness, roughness_multiple):
+    """The fit's prior (tensors of warp/weft values): the mean over warp/weft of
+
+        (x - mu)^2 / (2 s^2)                                   for height and gap scale,
+        (distance of log(alpha_m / alpha) from log(MULTIPLE_ROUGHNESS_RATIO))^2 / (2 s^2)
+                                                               with s = MULTIPLE_ROUGHNESS_SPREAD.
+
+    The ratio term is 0 over the dataset's range. Without it a fit of a real photo can drive one
+    yarn's multiple-scattering lobe to the bound 0.01 under a rough single-scattering one (dev real
+    twill2: alpha_m .01 under alpha .76), a razor-thin lobe that draws a streak across the back-lit
+    render, through the light, that the photo does not have."""
     fam = family(pattern)
     (mh, sh), (mg, sg) = HEIGHT_PRIOR[fam], GAP_PRIOR[fam]
-    return (((height_scale - mh) ** 2).mean() / (2 * sh * sh) + ((gap_scale - mg) ** 2).mean() / (2 * sg * sg))
+    lo, hi = (math.log(r) for r in MULTIPLE_ROUGHNESS_RATIO)
+    log_ratio = roughness_multiple.log() - roughness.log()
+    outside = (lo - log_ratio).clamp_min(0) + (log_ratio - hi).clamp_min(0)
+    return (((height_scale - mh) ** 2).mean() / (2 * sh * sh) + ((gap_scale - mg) ** 2).mean() / (2 * sg * sg)
+            + (outside ** 2).mean() / (2 * MULTIPLE_ROUGHNESS_SPREAD ** 2))
 
 
 PATTERNS = tuple(BASE_TILES)

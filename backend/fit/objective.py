@@ -2,14 +2,15 @@
 
     loss = sum over R, T of [ w_c L1(colour16) + w_h L1(log harmonic magnitudes)
                               + w_a aligned complex harmonics + w_q L1(quantiles) ]
-           + w_p * prior(height_scale, gap_scale)
+           + w_p * prior(height_scale, gap_scale, roughness_multiple / roughness)
 
 of a render made as the photos show the fabric: with the camera blur, and under each photo's light
 falloff, solved in closed form for that render (:mod:`backend.model.photo_light`; ``fit_light``)
 
-(see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL,
-:func:`backend.core.priors.prior_nll`), plus, when the user supplies VGG-19 weights, the paper's
-Gram loss (:mod:`backend.fit.gram`).
+(see :mod:`backend.texture.features`; the prior is the spec's Gaussian NLL, and a half-Gaussian
+keeping each yarn's multiple-scattering roughness within the dataset's 0.5-1.5 times its
+single-scattering roughness: :func:`backend.core.priors.prior_nll`), plus, when the user supplies
+VGG-19 weights, the paper's Gram loss (:mod:`backend.fit.gram`).
 Photos are compared at a working size (256 by default) after an area downsample in linear light,
 which is exactly what the renderer's box filter does, so a 256-pixel render with 16 samples per
 pixel sees the same thing as the photo; 16 samples keep sharp highlights unbiased where 4 do not.
@@ -123,7 +124,8 @@ class Objective:
                 photo_grams = self._photo_grams[0 if tag == "R" else 1]
                 working = downsample_linear(image, size, self.rig.gamma)
                 out[f"gram_{tag}"] = self.gram_weight * gram_loss(self.gram(working), photo_grams)
-        out["prior"] = self.prior_weight * prior_nll(fabric.pattern, fabric.height_scale, fabric.gap_scale)
+        out["prior"] = self.prior_weight * prior_nll(fabric.pattern, fabric.height_scale, fabric.gap_scale,
+                                                        fabric.roughness, fabric.roughness_multiple)
         out["loss"] = sum(out.values())
         return out
 
