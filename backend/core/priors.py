@@ -36,7 +36,7 @@ BASE_TILES = {"plain": (173.0, 173.0), "twill0": (122.0, 80.0), "twill1": (80.0,
 TILE_SCALE = {"plain": (0.7, 1.3), "twill": (0.7, 1.8), "satin": (0.7, 1.5)}
 HEIGHT_PRIOR = {"plain": (1.0, 1.0), "twill": (1.0, 0.5), "satin": (0.1, 0.5)}
 GAP_PRIOR = {"plain": (0.75, 0.1), "twill": (0.9, 0.05), "satin": (0.9, 0.05)}
-MULTIPLE_ROUGHNESS_RATIO = (0.5, 1.5)  # alpha_m / alpha of the dataset (``sample``)
+MULTIPLE_ROUGHNESS_RATIO = (0.5, 1.5)  # alpha_m / alpha: the dataset draws it uniformly from this range (``sample``)
 MULTIPLE_ROUGHNESS_SPREAD = 0.25       # s of the half-Gaussian on log(alpha_m / alpha) beyond that range
 
 
@@ -100,7 +100,7 @@ def sample(pattern: str, rng: random.Random) -> FabricParams:
     twist = -30.0 if fam == "twill" else 0.0
     return FabricParams.clamped_from(
         pattern=pattern, tiles=(tu, tv), roughness=roughness, thickness=thickness,
-        roughness_multiple=tuple(r * rng.uniform(0.5, 1.5) for r in roughness),
+        roughness_multiple=tuple(r * rng.uniform(*MULTIPLE_ROUGHNESS_RATIO) for r in roughness),
         thickness_multiple=tuple(t * rng.uniform(0.5, 1.5) for t in thickness),
         height_scale=pair("height_scale"), gap_scale=pair("gap_scale"), twist_deg=(twist, twist),
         specular_albedo=specular, multiple_weight=rng.uniform(0.01, 2.0),
