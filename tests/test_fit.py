@@ -20,7 +20,7 @@ from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.pipeline import fit
-from backend.fit.search import samples_per_pixel, working_size
+from backend.fit.search import COVERAGE_MARGIN, Trial, chosen, samples_per_pixel, working_size
 from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
@@ -459,6 +459,21 @@ def test_dense_weaves_get_the_photos_full_resolution():
     assert working_size(dense, 512, DEFAULT_RIG) == 512
     assert working_size(dense, 256, DEFAULT_RIG) == 256          # never above the photos' own size
     assert samples_per_pixel(256) == 16 and samples_per_pixel(512) == 4
+
+
+def test_the_lowest_selection_wins_among_the_lattices_that_make_the_photos_peaks():
+    def trial(selection, coverage):
+        return Trial(None, None, {}, selection, coverage)
+
+    # real twill2 (stop 49): twill1 on a lattice three times too fine down the image ended its trial
+    # lowest, yet made 0.13 of the photos' peak strength; twill0 on the photos' own lattice 0.93
+    too_fine, own, other = trial(3.78, 0.13), trial(4.66, 0.93), trial(4.90, 0.95)
+    assert chosen([too_fine, own, other]) is own
+    assert chosen([too_fine]) is too_fine                       # a lone trial is never ruled out
+    near = trial(3.78, 0.95 - COVERAGE_MARGIN)
+    assert chosen([near, own, other]) is near                   # within the margin the selection decides
+    first, second = trial(2.0, 0.9), trial(2.0, 0.9)
+    assert chosen([first, second]) is first                     # ties go to the earlier trial, as before
 
 
 def test_the_loss_spectrum_is_the_metric(twill_pair):

@@ -3,7 +3,10 @@ definitions: the fast paths evaluate every harmonic, tooth and lattice at once."
 import numpy as np
 import pytest
 
-from backend.core.rig import placement_of
+from backend.core.priors import typical
+from backend.core.rig import DEFAULT_RIG, CaptureRig, placement_of
+from backend.image.spectrum import Peak
+from backend.model.render import render_pair
 from backend.texture import lattice
 
 
@@ -75,3 +78,62 @@ def test_comb_scores_match_their_reference():
     fast = lattice.comb_scores(freqs, strengths, periods, size, reach=2.5)
     np.testing.assert_allclose(fast, reference_comb_scores(freqs, strengths, periods, size, reach=2.5), rtol=1e-12)
     assert fast.max() > 0.5 * strengths.max()   # something lines up: the check is not all zeros
+
+
+def reference_peak_coverage(spectra, a, b, rotation_deg, skew_deg):
+    """One peak and one harmonic (m, n) at a time: the strength of the peaks (or their mirror images)
+    within the tolerance of a turned harmonic folded by the sampling, over the strength of all."""
+    size, reach = spectra.size, lattice.COVERAGE_REACH * spectra.size / 2
+    peaks = [p for image in spectra.peaks for p in image[: lattice.COVERAGE_PEAKS]]
+    explained = 0.0
+    for p in peaks:
+        tolerance = lattice.COVERAGE_TOLERANCE[0] + lattice.COVERAGE_TOLERANCE[1] * np.hypot(p.fx, p.fy)
+        hit = False
+        for m in range(-int(reach / a) - 1, int(reach / a) + 2):
+            for n in range(-int(reach / b) - 1, int(reach / b) + 2):
+                fx, fy = lattice.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
+                if abs(fx) > reach or abs(fy) > reach:
+                    continue
+                fx, fy = lattice.fold(fx, size), lattice.fold(fy, size)
+                hit |= min(np.hypot(fx - p.fx, fy - p.fy), np.hypot(fx + p.fx, fy + p.fy)) <= tolerance
+        explained += p.strength * hit
+    return explained / sum(p.strength for p in peaks)
+
+
+@pytest.mark.parametrize("rotation, skew", [(0.0, 0.0), (2.5, 0.0), (-1.0, 3.5)])
+def test_peak_coverage_matches_its_reference(rotation, skew):
+    rng = np.random.default_rng(11)
+    size = 512
+    a, b = 37.3, 52.9
+    # half the peaks on (turned, folded) harmonics, nudged within the tolerance; half anywhere
+    m, n = rng.integers(-9, 10, 10), rng.integers(-7, 8, 10)
+    fx, fy = lattice.turned_frequencies(m * a, n * b, rotation, skew)
+    fx, fy = lattice.fold(fx, size) + rng.normal(0, 1, 10), lattice.fold(fy, size) + rng.normal(0, 1, 10)
+    on = [Peak(float(x), float(y), float(s)) for x, y, s in zip(fx, fy, rng.uniform(3, 8, 10))]
+    off = [Peak(float(x), float(y), float(s)) for x, y, s in
+           zip(rng.uniform(-250, 250, 10), rng.uniform(0, 250, 10), rng.uniform(3, 8, 10))]
+    spectra = lattice.Spectra(size, [on[:5] + off[:5], on[5:] + off[5:]], [], [])
+    fast = lattice.peak_coverage(spectra, a, b, rotation, skew)
+    assert fast == pytest.approx(reference_peak_coverage(spectra, a, b, rotation, skew), abs=1e-12)
+    assert 0.4 < fast < 1.0
+
+
+@pytest.fixture(scope="module")
+def turned_satin():
+    params = typical("satin0").replace(tiles=(60.0, 30.0))
+    pair = render_pair(params, CaptureRig(sample_rotation_deg=2.5), size=512, spp=4, seed=1)
+    spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+    return spectra, lattice.lattice_of(params.tiles, DEFAULT_RIG)
+
+
+def test_the_true_lattice_makes_the_photos_peaks_and_one_too_fine_does_not(turned_satin):
+    spectra, (a, b) = turned_satin
+    true = lattice.peak_coverage(spectra, a, b, 2.5)
+    assert true > 0.95
+    # three or one and a half times too fine on an axis: the harmonics between its own are missed
+    for finer in ((a, 3 * b), (3 * a, b), (1.5 * a, b)):
+        assert lattice.peak_coverage(spectra, *finer, 2.5) < true - 0.5
+    # read unturned, the same lattice misses the higher harmonics
+    assert lattice.peak_coverage(spectra, a, b) < true - 0.3
+    # one-sided: a lattice twice too coarse has every harmonic of the true one
+    assert lattice.peak_coverage(spectra, a / 2, b / 2, 2.5) == true

@@ -6,7 +6,8 @@
                (:func:`backend.texture.candidates.placed`): the lattice, the loss's probes and the
                renders all use it
     search     candidates from the spectra, starting points, camera blur, short trial fits,
-               the pattern chosen by comparing them (:mod:`backend.fit.search`)
+               the pattern chosen by comparing them, among those whose lattice makes the photos'
+               peaks (:mod:`backend.fit.search`)
     optimise   the winner's run goes on (at the working size, from its start: see coarse to
                fine): Adam on the continuous parameters, every
                ``search_every`` iterations a parabolic step on the discrete ones
@@ -47,7 +48,7 @@ from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
 from ..texture.candidates import Candidate, placed
-from ..texture.lattice import Spectra
+from ..texture.lattice import Spectra, lattice_of, peak_coverage
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
@@ -104,8 +105,9 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     if blur_floor is not None and len(starts) > 1:  # the starting losses change with the blur
         starts = search.reranked(starts, objective, blur)
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
-                               lambda i, n, selection: progress("search", i, n, selection, None))
-    winner = min(trials, key=lambda t: (t.selection, trials.index(t)))
+                               lambda i, n, selection: progress("search", i, n, selection, None),
+                               lambda cand: peak_coverage(spectra, *lattice_of(cand.tiles, rig), rotation, skew))
+    winner = search.chosen(trials)
     run = winner.run
     timings["search_s"] = time.perf_counter() - started
 

@@ -167,6 +167,46 @@ def fabric_frequencies(fx, fy, rotation_deg: float, skew_deg: float = 0.0):
     return (math.cos(t2) * fx - math.sin(t2) * fy) / d, (math.sin(t1) * fx + math.cos(t1) * fy) / d
 
 
+COVERAGE_PEAKS = 8             # the strongest peaks of each photo that :func:`peak_coverage` weighs
+COVERAGE_TOLERANCE = (3.0, 0.02)  # a peak is on a harmonic within 3 cycles per image + 2 % of its frequency
+COVERAGE_REACH = 1.6           # harmonics up to 1.6 times the Nyquist frequency fold into the image
+
+
+def peak_coverage(spectra: Spectra, a: float, b: float, rotation_deg: float = 0.0, skew_deg: float = 0.0) -> float:
+    """The share of the photos' peak strength that the tile lattice (a, b) (tiles across and down the
+    image; the sample turned and sheared as given) can make: over the COVERAGE_PEAKS strongest peaks
+    of each photo, the strength of those within COVERAGE_TOLERANCE of a harmonic
+    ``turned_frequencies(m a, n b)``, folded by the sampling (:func:`fold`: a dense weave's high
+    harmonics alias), divided by the strength of all of them.
+
+    A weave repeats on its tile, so every peak of its photos (but noise) is a harmonic of its lattice:
+    a lattice three times too fine on one axis misses the harmonics between its own. It is one-sided:
+    a lattice too coarse has harmonics everywhere and explains everything, so the measure can rule a
+    lattice out, never in. Measured on the 20 photo-like pairs of seed 7 and the 11 dev goldens (at
+    the true placement): the true lattice 0.64-1, the fit's trials on a wrong lattice 0.28-0.40; real
+    twill2 (at the fit's placement): twill1 on a lattice three times too fine down the image
+    (tiles 119.5 x 161.5) 0.13, twill0 on the photos' own (126.5 x 53.7) 0.93."""
+    size = spectra.size
+    peaks = [p for image_peaks in spectra.peaks for p in image_peaks[:COVERAGE_PEAKS]]
+    total = sum(p.strength for p in peaks)
+    if total <= 0:
+        return 1.0
+    reach = COVERAGE_REACH * size / 2
+    m = np.arange(-math.ceil(reach / a), math.ceil(reach / a) + 1)
+    n = np.arange(-math.ceil(reach / b), math.ceil(reach / b) + 1)
+    fx, fy = turned_frequencies(m[:, None] * a, n[None, :] * b, rotation_deg, skew_deg)
+    fx, fy = np.broadcast_to(fx, (m.size, n.size)).ravel(), np.broadcast_to(fy, (m.size, n.size)).ravel()
+    near = (np.abs(fx) <= reach) & (np.abs(fy) <= reach)
+    fx, fy = fold(fx[near], size), fold(fy[near], size)
+    explained = 0.0
+    for p in peaks:
+        # a real image's spectrum is symmetric: the peak at -f is the same peak
+        distance = min(np.min(np.hypot(fx - p.fx, fy - p.fy)), np.min(np.hypot(fx + p.fx, fy + p.fy)))
+        if distance <= COVERAGE_TOLERANCE[0] + COVERAGE_TOLERANCE[1] * math.hypot(p.fx, p.fy):
+            explained += p.strength
+    return explained / total
+
+
 def harmonic_spectrum(image: np.ndarray, a: float, b: float, m: np.ndarray, n: np.ndarray) -> np.ndarray:
     """|DFT|^2 of the windowed, high-passed luminance at the frequencies (m a, n b), cycles per image
     (exact: the separable DFT at those frequencies, not the FFT grid)."""
