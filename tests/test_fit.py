@@ -20,7 +20,7 @@ from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.pipeline import fit
-from backend.fit.search import COVERAGE_MARGIN, Trial, chosen, samples_per_pixel, working_size
+from backend.fit.search import COVERAGE_MARGIN, Trial, chosen, rated_candidates, samples_per_pixel, working_size
 from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
@@ -186,6 +186,36 @@ def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):
     assert sorted(c["pattern"] for c in result.candidates if "trial_loss" not in c) == \
         sorted(set(FIT_PATTERNS) - {"satin0"})
     assert result.params.pattern == "satin0"  # the network's word decides: no trial to overrule it
+
+
+def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
+    # photo-like twill1m_007 of seed 7: the network kept twill1 alone, on tiles 33 % off (coverage
+    # 0.38); the twills on the true lattice (0.91) had probabilities under 0.01
+    wrong = search.Candidate("twill1", (48.4, 94.68), 1.2)
+    true_lattice = search.Candidate("twill0", (48.21, 71.36), 2.4)
+    near = search.Candidate("twill0m", (60.0, 80.0), 2.0)
+    other_family = search.Candidate("satin1m", (16.2, 14.28), 1.6)
+    found = [wrong, true_lattice, near, other_family]
+    probability = {id(wrong): 0.989, id(true_lattice): 0.009, id(near): 0.002, id(other_family): 0.0}
+    coverage = {id(wrong): 0.384, id(true_lattice): 0.909, id(near): 0.384 + COVERAGE_MARGIN, id(other_family): 1.0}
+
+    def rated(probabilities_of=probability.get):
+        return rated_candidates(found, lambda cands: [probabilities_of(id(c)) for c in cands], 0.02,
+                                lambda c: coverage[id(c)])
+
+    kept, by_id, ruled_out = rated()
+    assert kept == [wrong, true_lattice]                         # in the proposal's order
+    assert by_id[id(true_lattice)] == 0.009
+    # no more than the margin above the kept twill: ruled out; a lattice too coarse explains every
+    # peak, so a satin's coverage does not bring the satins back
+    assert [(c["pattern"], c["peak_coverage"], c["probability"]) for c in ruled_out] == \
+        [("twill0m", 0.384 + COVERAGE_MARGIN, 0.002), ("satin1m", 1.0, 0.0)]
+    coverage[id(wrong)] = 0.7                                    # the kept lattice makes the peaks: the network decides
+    kept, _, ruled_out = rated()
+    assert kept == [wrong] and len(ruled_out) == 3
+    coverage[id(wrong)] = 0.384
+    kept, _, _ = rated({id(wrong): 0.5, id(true_lattice): 0.0, id(near): 0.0, id(other_family): 0.5}.get)
+    assert kept == [wrong, other_family]                         # a kept lattice makes the peaks: nothing joins
 
 
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):

@@ -85,8 +85,11 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         if should_stop is not None and should_stop():
             raise FitCancelled(run.best if run is not None else None)
 
+    def coverage_of(cand: Candidate) -> float:
+        return peak_coverage(spectra, *lattice_of(cand.tiles, rig), rotation, skew)
+
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
-                                                      settings.min_pattern_probability)
+                                                      settings.min_pattern_probability, coverage_of)
     timings["lattice_s"] = time.perf_counter() - started
     size = settings.size or search.working_size(found, np.asarray(reflection).shape[0], rig)
     settings = dataclasses.replace(settings, size=size, spp=settings.spp or search.samples_per_pixel(size),
@@ -105,8 +108,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     if blur_floor is not None and len(starts) > 1:  # the starting losses change with the blur
         starts = search.reranked(starts, objective, blur)
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
-                               lambda i, n, selection: progress("search", i, n, selection, None),
-                               lambda cand: peak_coverage(spectra, *lattice_of(cand.tiles, rig), rotation, skew))
+                               lambda i, n, selection: progress("search", i, n, selection, None), coverage_of)
     winner = search.chosen(trials)
     run = winner.run
     timings["search_s"] = time.perf_counter() - started

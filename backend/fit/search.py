@@ -2,7 +2,9 @@
 
 1. Candidates: one (pattern, tiles) per preset from the photos' spectra
    (:func:`backend.texture.candidates.propose`); an initialisation network may rate them, and those
-   it gives less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`).
+   it gives less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`), unless
+   they are of a family it keeps and their lattice makes far more of the photos' peaks than every
+   kept candidate's.
 2. Starting points (:func:`starting_points`): the network's guess for a candidate, or the
    pattern's typical parameters with the albedos scaled to the photos' mean colour
    (:func:`colour_matched`) and the best of a few gap scales (:func:`best_gap`); ranked by loss.
@@ -41,6 +43,7 @@ BASE_SIZE, BASE_SPP = 256, 16
 BASE_ITERATIONS, FINE_ITERATIONS = 150, 100
 MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
+COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
 
 
 @dataclass
@@ -80,19 +83,38 @@ def iterations_for(size: int) -> int:
     return BASE_ITERATIONS if size <= BASE_SIZE else FINE_ITERATIONS
 
 
-def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float
+def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float,
+                     coverage_of: Callable[[Candidate], float]
                      ) -> tuple[list[Candidate], dict[int, float], list[dict]]:
-    """(kept candidates, probability by id(candidate), summaries of those ruled out)."""
+    """(kept candidates, probability by id(candidate), summaries of those ruled out).
+
+    The network rules out the candidates it gives less than ``threshold``, but not one of a weave
+    family it keeps (plain, twill, satin) whose lattice makes more than COVERAGE_MARGIN more of the
+    photos' peak strength (``coverage_of``, :func:`backend.texture.lattice.peak_coverage`) than every
+    kept candidate: :func:`chosen` would rule all the kept ones out once trialled beside it. The
+    network reads the harmonics at each candidate's lattice, and can keep a family on a wrong lattice
+    alone (photo-like twill1m_007 of seed 7: twill1 on tiles 33 % off, coverage 0.38; the twills on
+    the true lattice 0.91, probabilities under 0.01). Its family stands: the coverage is one-sided
+    (a lattice too coarse explains every peak), so it cannot bring in another family (real twill1: a
+    satin0 lattice too coarse, 0.94, beside the kept twills' 0.60, would have won)."""
     if pattern_probabilities is None or len(found) <= 1:
         return found, {}, []
     probabilities = pattern_probabilities(found)
     if probabilities is None:
         return found, {}, []
     rated = {id(c): p for c, p in zip(found, probabilities)}
-    kept = [c for c, p in zip(found, probabilities) if p >= threshold]
-    ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score, "probability": p}
-                 for c, p in zip(found, probabilities) if p < threshold]
-    return kept or [found[int(np.argmax(probabilities))]], rated, ruled_out
+    coverage = {id(c): coverage_of(c) for c in found}
+    kept = [c for c, p in zip(found, probabilities) if p >= threshold] or [found[int(np.argmax(probabilities))]]
+    families = {priors.family(c.pattern) for c in kept}
+    bar = max(coverage[id(c)] for c in kept) + COVERAGE_MARGIN
+
+    def keeps(c: Candidate) -> bool:
+        return any(c is k for k in kept) or priors.family(c.pattern) in families and coverage[id(c)] > bar
+
+    ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score,
+                  "peak_coverage": coverage[id(c)], "probability": rated[id(c)]}
+                 for c in found if not keeps(c)]
+    return [c for c in found if keeps(c)], rated, ruled_out
 
 
 def colour_matched(params: FabricParams, objective: Objective, camera_blur_px: float) -> FabricParams:
@@ -219,8 +241,6 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
                                          "probability": rated.get(id(cand))}, selection, coverage))
     return trials
 
-
-COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's
 
 
 def chosen(trials: list[Trial]) -> Trial:
