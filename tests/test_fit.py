@@ -20,7 +20,15 @@ from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.pipeline import fit
-from backend.fit.search import COVERAGE_MARGIN, Trial, chosen, rated_candidates, samples_per_pixel, working_size
+from backend.fit.search import (
+    COVERAGE_MARGIN,
+    Trial,
+    chosen,
+    family_lattices,
+    rated_candidates,
+    samples_per_pixel,
+    working_size,
+)
 from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
@@ -180,42 +188,52 @@ def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):
         return [0.96 if c.pattern == "satin0" else 0.01 for c in candidates]
 
     result = fit(*twill_pair, settings=settings, pattern_probabilities=probabilities)
-    assert sorted(rated) == sorted(FIT_PATTERNS)
+    assert set(rated) == set(FIT_PATTERNS)                      # each on every lattice of its family
     tried = [c for c in result.candidates if "trial_loss" in c]
-    assert [c["pattern"] for c in tried] == ["satin0"] and tried[0]["probability"] == 0.96
-    assert sorted(c["pattern"] for c in result.candidates if "trial_loss" not in c) == \
-        sorted(set(FIT_PATTERNS) - {"satin0"})
+    assert {c["pattern"] for c in tried} == {"satin0"} and {c["probability"] for c in tried} == {0.96}
+    assert {c["pattern"] for c in result.candidates if "trial_loss" not in c} == set(FIT_PATTERNS) - {"satin0"}
     assert result.params.pattern == "satin0"  # the network's word decides: no trial to overrule it
+
+
+def test_each_pattern_is_rated_on_every_lattice_of_its_family():
+    twill0 = search.Candidate("twill0", (200.0, 50.0), 3.0)     # twill1's tiles go up to 182 across: not there
+    twill1 = search.Candidate("twill1", (40.0, 56.0), 2.0)
+    satin0 = search.Candidate("satin0", (30.0, 20.0), 1.0)
+    twill1m = search.Candidate("twill1m", (40.2, 55.8), 1.5)    # within 1 % of twill1's lattice: the same one
+    shared = family_lattices([twill0, twill1, satin0, twill1m], DEFAULT_RIG)
+    assert [(c.pattern, c.tiles) for c in shared] == [
+        ("twill0", (200.0, 50.0)), ("twill0", (40.0, 56.0)),
+        ("twill1", (40.0, 56.0)),
+        ("satin0", (30.0, 20.0)),
+        ("twill1m", (40.2, 55.8))]
+    assert shared[0] is twill0 and shared[1].score == twill1.score  # a borrowed lattice keeps its score
 
 
 def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
     # photo-like twill1m_007 of seed 7: the network kept twill1 alone, on tiles 33 % off (coverage
     # 0.38); the twills on the true lattice (0.91) had probabilities under 0.01
-    wrong = search.Candidate("twill1", (48.4, 94.68), 1.2)
-    true_lattice = search.Candidate("twill0", (48.21, 71.36), 2.4)
-    near = search.Candidate("twill0m", (60.0, 80.0), 2.0)
-    other_family = search.Candidate("satin1m", (16.2, 14.28), 1.6)
-    found = [wrong, true_lattice, near, other_family]
-    probability = {id(wrong): 0.989, id(true_lattice): 0.009, id(near): 0.002, id(other_family): 0.0}
-    coverage = {id(wrong): 0.384, id(true_lattice): 0.909, id(near): 0.384 + COVERAGE_MARGIN, id(other_family): 1.0}
+    wrong, true, near, satin = (48.4, 94.68), (48.21, 71.36), (60.0, 80.0), (16.2, 14.28)
+    found = [search.Candidate("twill1", wrong, 1.2), search.Candidate("twill0", true, 2.4),
+             search.Candidate("twill0m", near, 2.0), search.Candidate("satin1m", satin, 1.6)]
+    coverage = {wrong: 0.384, true: 0.909, near: 0.384 + COVERAGE_MARGIN, satin: 1.0}
 
-    def rated(probabilities_of=probability.get):
-        return rated_candidates(found, lambda cands: [probabilities_of(id(c)) for c in cands], 0.02,
-                                lambda c: coverage[id(c)])
+    def rated(probability):
+        kept, by_id, ruled_out = rated_candidates(
+            found, lambda cands: [probability.get((c.pattern, c.tiles), 0.0) for c in cands], 0.02,
+            lambda c: coverage[c.tiles], DEFAULT_RIG)
+        assert len(by_id) == len(kept) + len(ruled_out) == 10   # every twill on the 3 twill lattices, the satin
+        return [(c.pattern, c.tiles) for c in kept], ruled_out
 
-    kept, by_id, ruled_out = rated()
-    assert kept == [wrong, true_lattice]                         # in the proposal's order
-    assert by_id[id(true_lattice)] == 0.009
-    # no more than the margin above the kept twill: ruled out; a lattice too coarse explains every
-    # peak, so a satin's coverage does not bring the satins back
-    assert [(c["pattern"], c["peak_coverage"], c["probability"]) for c in ruled_out] == \
-        [("twill0m", 0.384 + COVERAGE_MARGIN, 0.002), ("satin1m", 1.0, 0.0)]
-    coverage[id(wrong)] = 0.7                                    # the kept lattice makes the peaks: the network decides
-    kept, _, ruled_out = rated()
-    assert kept == [wrong] and len(ruled_out) == 3
-    coverage[id(wrong)] = 0.384
-    kept, _, _ = rated({id(wrong): 0.5, id(true_lattice): 0.0, id(near): 0.0, id(other_family): 0.5}.get)
-    assert kept == [wrong, other_family]                         # a kept lattice makes the peaks: nothing joins
+    kept, ruled_out = rated({("twill1", wrong): 0.989, ("twill0", true): 0.009})
+    # the twills on the true lattice join; no more than the margin above the kept lattice does not,
+    # and a lattice too coarse explains every peak, so a satin's coverage does not bring the satins in
+    assert kept == [("twill1", wrong), ("twill1", true), ("twill0", true), ("twill0m", true)]
+    assert ("twill0m", near, 0.384 + COVERAGE_MARGIN) in [(c["pattern"], tuple(c["tiles"]), c["peak_coverage"])
+                                                         for c in ruled_out]
+    coverage[wrong] = 0.7                                       # the kept lattice makes the peaks: the network decides
+    assert rated({("twill1", wrong): 0.989})[0] == [("twill1", wrong)]
+    coverage[wrong] = 0.384
+    assert rated({("twill1", wrong): 0.5, ("satin1m", satin): 0.5})[0] == [("twill1", wrong), ("satin1m", satin)]
 
 
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):

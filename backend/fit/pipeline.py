@@ -89,7 +89,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         return peak_coverage(spectra, *lattice_of(cand.tiles, rig), rotation, skew)
 
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
-                                                      settings.min_pattern_probability, coverage_of)
+                                                      settings.min_pattern_probability, coverage_of, rig)
     timings["lattice_s"] = time.perf_counter() - started
     size = settings.size or search.working_size(found, np.asarray(reflection).shape[0], rig)
     settings = dataclasses.replace(settings, size=size, spp=settings.spp or search.samples_per_pixel(size),

@@ -1,10 +1,11 @@
 """The search stage of a fit: which weave, at what density, from where, with how much camera blur.
 
 1. Candidates: one (pattern, tiles) per preset from the photos' spectra
-   (:func:`backend.texture.candidates.propose`); an initialisation network may rate them, and those
-   it gives less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`), unless
-   they are of a family it keeps and their lattice makes far more of the photos' peaks than every
-   kept candidate's.
+   (:func:`backend.texture.candidates.propose`); an initialisation network may rate them, each
+   pattern on every lattice proposed in its family (:func:`family_lattices`), and those it gives
+   less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`), unless they are of
+   a family it keeps and their lattice makes far more of the photos' peaks than every kept
+   candidate's.
 2. Starting points (:func:`starting_points`): the network's guess for a candidate, or the
    pattern's typical parameters with the albedos scaled to the photos' mean colour
    (:func:`colour_matched`) and the best of a few gap scales (:func:`best_gap`); ranked by loss.
@@ -32,7 +33,7 @@ from ..core.params import PARAMETERS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from ..image.metrics import spectrum_corr
-from ..texture.candidates import Candidate
+from ..texture.candidates import Candidate, tile_range
 from ..texture.lattice import yarns_in_view
 from .objective import Objective
 from .optimise import Run
@@ -83,25 +84,60 @@ def iterations_for(size: int) -> int:
     return BASE_ITERATIONS if size <= BASE_SIZE else FINE_ITERATIONS
 
 
+LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
+
+
+def family_lattices(found: list[Candidate], rig: CaptureRig) -> list[Candidate]:
+    """``found`` with each pattern also on every lattice proposed for another pattern of its family
+    (plain, twill, satin) that its tile range allows (:func:`backend.texture.candidates.tile_range`),
+    once per lattice: each pattern's own candidate, then the others in the order of ``found``.
+
+    The lattice of a preset comes from the harmonics its typical render shows, and twins differ there:
+    photo-like satin0m_008 of seed 7 had satin0m proposed on tiles (46.1, 13.7), a lattice that makes
+    0.28 of the photos' peak strength, while satin1m was on the true one (22.2, 40.9), 0.92. The
+    network, shown every pattern on every lattice of its family, gives satin0m 0.99 on the true lattice
+    (on its own, 0.0)."""
+    lattices = {}
+    for cand in found:
+        lattices.setdefault(priors.family(cand.pattern), []).append(cand)
+    shared = []
+    for cand in found:
+        for origin in [cand] + lattices[priors.family(cand.pattern)]:
+            (u_lo, u_hi), (v_lo, v_hi) = tile_range(cand.pattern, rig)
+            tu, tv = origin.tiles
+            if not (u_lo <= tu <= u_hi and v_lo <= tv <= v_hi) and origin is not cand:
+                continue
+            if any(c.pattern == cand.pattern and same_lattice(c.tiles, origin.tiles) for c in shared):
+                continue
+            shared.append(cand if origin is cand else Candidate(cand.pattern, origin.tiles, origin.score))
+    return shared
+
+
+def same_lattice(tiles, other) -> bool:
+    return all(abs(t - o) <= LATTICE_MATCH * max(t, o) for t, o in zip(tiles, other))
+
+
 def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float,
-                     coverage_of: Callable[[Candidate], float]
+                     coverage_of: Callable[[Candidate], float], rig: CaptureRig
                      ) -> tuple[list[Candidate], dict[int, float], list[dict]]:
     """(kept candidates, probability by id(candidate), summaries of those ruled out).
 
-    The network rules out the candidates it gives less than ``threshold``, but not one of a weave
-    family it keeps (plain, twill, satin) whose lattice makes more than COVERAGE_MARGIN more of the
-    photos' peak strength (``coverage_of``, :func:`backend.texture.lattice.peak_coverage`) than every
-    kept candidate: :func:`chosen` would rule all the kept ones out once trialled beside it. The
-    network reads the harmonics at each candidate's lattice, and can keep a family on a wrong lattice
-    alone (photo-like twill1m_007 of seed 7: twill1 on tiles 33 % off, coverage 0.38; the twills on
-    the true lattice 0.91, probabilities under 0.01). Its family stands: the coverage is one-sided
-    (a lattice too coarse explains every peak), so it cannot bring in another family (real twill1: a
-    satin0 lattice too coarse, 0.94, beside the kept twills' 0.60, would have won)."""
+    The network rates every pattern on every lattice of its family (:func:`family_lattices`) and
+    rules out the candidates it gives less than ``threshold``, but not one of a weave family it
+    keeps (plain, twill, satin) whose lattice makes more than COVERAGE_MARGIN more of the photos' peak
+    strength (``coverage_of``, :func:`backend.texture.lattice.peak_coverage`) than every kept
+    candidate: :func:`chosen` would rule all the kept ones out once trialled beside it. The network
+    reads the harmonics at each candidate's lattice, and can keep a family on a wrong lattice alone.
+    Its family stands: the coverage is one-sided (a lattice too coarse explains every peak), so it
+    cannot bring in another family (real twill1: a satin0 lattice too coarse, 0.94, beside the kept
+    twills' 0.60, would have won)."""
     if pattern_probabilities is None or len(found) <= 1:
         return found, {}, []
-    probabilities = pattern_probabilities(found)
+    shared = family_lattices(found, rig)
+    probabilities = pattern_probabilities(shared)
     if probabilities is None:
         return found, {}, []
+    found = shared
     rated = {id(c): p for c, p in zip(found, probabilities)}
     coverage = {id(c): coverage_of(c) for c in found}
     kept = [c for c, p in zip(found, probabilities) if p >= threshold] or [found[int(np.argmax(probabilities))]]
