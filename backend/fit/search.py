@@ -100,16 +100,19 @@ def family_lattices(found: list[Candidate], rig: CaptureRig) -> list[Candidate]:
     lattices = {}
     for cand in found:
         lattices.setdefault(priors.family(cand.pattern), []).append(cand)
-    shared = []
+    shared: list[Candidate] = []
+
+    def listed(pattern: str, tiles) -> bool:
+        return any(c.pattern == pattern and same_lattice(c.tiles, tiles) for c in shared)
+
     for cand in found:
-        for origin in [cand] + lattices[priors.family(cand.pattern)]:
-            (u_lo, u_hi), (v_lo, v_hi) = tile_range(cand.pattern, rig)
+        if not listed(cand.pattern, cand.tiles):
+            shared.append(cand)
+        (u_lo, u_hi), (v_lo, v_hi) = tile_range(cand.pattern, rig)
+        for origin in lattices[priors.family(cand.pattern)]:
             tu, tv = origin.tiles
-            if not (u_lo <= tu <= u_hi and v_lo <= tv <= v_hi) and origin is not cand:
-                continue
-            if any(c.pattern == cand.pattern and same_lattice(c.tiles, origin.tiles) for c in shared):
-                continue
-            shared.append(cand if origin is cand else Candidate(cand.pattern, origin.tiles, origin.score))
+            if u_lo <= tu <= u_hi and v_lo <= tv <= v_hi and not listed(cand.pattern, origin.tiles):
+                shared.append(Candidate(cand.pattern, origin.tiles, origin.score))
     return shared
 
 
