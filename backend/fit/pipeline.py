@@ -37,6 +37,7 @@ deterministic for a given input, settings and seed (fixed jitter, no random step
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Callable
 
@@ -85,8 +86,12 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
         if should_stop is not None and should_stop():
             raise FitCancelled(run.best if run is not None else None)
 
+    @functools.cache  # by lattice: the search asks again for each pattern on it, and for each trial
+    def coverage_at(tiles: tuple[float, float]) -> float:
+        return peak_coverage(spectra, *lattice_of(tiles, rig), rotation, skew)
+
     def coverage_of(cand: Candidate) -> float:
-        return peak_coverage(spectra, *lattice_of(cand.tiles, rig), rotation, skew)
+        return coverage_at(tuple(cand.tiles))
 
     found, rated, ruled_out = search.rated_candidates(found, pattern_probabilities,
                                                       settings.min_pattern_probability, coverage_of, rig)

@@ -144,11 +144,12 @@ def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: f
     rated = {id(c): p for c, p in zip(found, probabilities)}
     coverage = {id(c): coverage_of(c) for c in found}
     kept = [c for c, p in zip(found, probabilities) if p >= threshold] or [found[int(np.argmax(probabilities))]]
+    kept_ids = {id(c) for c in kept}
     families = {priors.family(c.pattern) for c in kept}
     bar = max(coverage[id(c)] for c in kept) + COVERAGE_MARGIN
 
     def keeps(c: Candidate) -> bool:
-        return any(c is k for k in kept) or priors.family(c.pattern) in families and coverage[id(c)] > bar
+        return id(c) in kept_ids or priors.family(c.pattern) in families and coverage[id(c)] > bar
 
     ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score,
                   "peak_coverage": coverage[id(c)], "probability": rated[id(c)]}
@@ -279,7 +280,6 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
                                          "peak_coverage": coverage, "selection": selection,
                                          "probability": rated.get(id(cand))}, selection, coverage))
     return trials
-
 
 
 def chosen(trials: list[Trial]) -> Trial:
