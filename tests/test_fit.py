@@ -32,6 +32,7 @@ from backend.fit.search import (
 from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
+from backend.image.spectrum import Peak
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
@@ -470,6 +471,50 @@ def test_agreeing_readings_with_the_reflections_help_keep_a_turn(tmp_path):
     # reflection's help two do at 2.97 (plain 3.03, satin1 2.91) and none unturned, where the combs
     # scored higher and the plain's tiles came out 41 % off.
     assert_placed_as_made(tmp_path, seed=97, index=0, pattern="plain", rotation_tolerance_deg=0.15)
+
+
+def test_the_sieves_strongest_turn_replaces_a_placement_whose_lattices_miss_the_peaks(tmp_path):
+    # Photo-like twill1m_017 (seed 23) is turned -3.99 degrees. The maps preferred -0.32, where its
+    # candidates' lattices made at most 0.53 of the photos' peak strength (its tiles 9 % off); the
+    # summed sieve scan peaks at -4.0, where the twills' lattices make 0.80-0.85 (search._rescued).
+    assert_placed_as_made(tmp_path, seed=23, index=17, pattern="twill1m", rotation_tolerance_deg=0.2)
+
+
+def test_only_a_placement_whose_lattices_miss_the_peaks_gives_way_to_the_sieves_turn(monkeypatch):
+    a, b, turn = 40.0, 50.0, -4.0
+    scale = DEFAULT_RIG.view_size / DEFAULT_RIG.plane_size
+
+    def peak(m, n, strength):
+        fx, fy = lattice.turned_frequencies(m * a, n * b, turn)
+        return Peak(float(fx), float(fy), strength)
+
+    spectra = lattice.Spectra(512, [[peak(1, 0, 5.0), peak(0, 1, 4.0), peak(1, 1, 3.0), peak(2, 1, 2.0)], []], [], [])
+    true = search.Candidate("twill1", (a / scale, b / scale), 1.0)
+    missing = search.Candidate("twill1", (1.2 * a / scale, 0.8 * b / scale), 1.0)   # none of its harmonics shows
+    estimate = lattice.Placement(1.0, -0.32, -0.32, lattice.Lattice(a, b, 1.0), sieve_turn_deg=turn)
+    proposed_at, offered = [], [true]
+    monkeypatch.setattr(search, "_comb_lattices", lambda *args: {})
+    monkeypatch.setattr(search, "_with_anchored", lambda spectra, rig, combs, per_pattern: (
+        proposed_at.append(rig.sample_rotation_deg) or (list(offered), ["its readings"])))
+
+    def rescued(placement, found):
+        return search._rescued(spectra, DEFAULT_RIG, ("twill1",), 1, estimate, placement, (found, ["readings"]))
+
+    assert rescued((-0.32, 0.0), [missing]) == ((turn, 0.0), ([true], ["its readings"]))
+    assert proposed_at == [turn]
+    # the sieve's turn must make RESCUE_GAIN more of the peaks than the placement it would replace
+    offered[:] = [missing]
+    assert rescued((-0.32, 0.0), [missing]) == ((-0.32, 0.0), ([missing], ["readings"]))
+    # a placement whose lattices make the peaks is not questioned, nor an unsheared one at the sieve's turn
+    proposed_at.clear()
+    estimate = lattice.Placement(1.0, turn, turn, lattice.Lattice(a, b, 1.0), sieve_turn_deg=1.5)
+    assert rescued((turn, 0.0), [true])[0] == (turn, 0.0)
+    estimate = lattice.Placement(1.0, -3.6, -3.6, lattice.Lattice(a, b, 1.0), sieve_turn_deg=turn)
+    assert rescued((-3.6, 0.0), [missing])[0] == (-3.6, 0.0)
+    assert proposed_at == []
+    # a sheared one is another placement, even at the sieve's turn
+    offered[:] = [true]
+    assert rescued((-3.6, 2.0), [missing])[0] == (turn, 0.0)
 
 
 def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float,

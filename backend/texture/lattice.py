@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -456,7 +456,9 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
                          tooth_cost: float = 1.0, reach: float = 2.5
                          ) -> tuple["Placement", "Placement | None"]:
     """The best turned and the best sheared placement of :func:`estimate_placement` (None when no
-    two axes' angles are close enough to pair)."""
+    two axes' angles are close enough to pair), each with the turn where the summed sieve scan peaks
+    (``sieve_turn_deg``: a placement whose lattices miss the photos' peaks is tried there too,
+    :func:`backend.texture.candidates.placed`)."""
     peaks, images, size = spectra.all_peaks, len(spectra.peaks), spectra.size
     angles = np.arange(-ROTATION_SCAN_DEG, ROTATION_SCAN_DEG + 1e-9, 0.25)
     scan = [_combs(peaks, images, size, (a_range, b_range), angle, 0.0, 0.003, tooth_cost, reach)
@@ -514,7 +516,9 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     best_sheared = max((_refine_placement(spectra.maps, generic, lat, warp, weft, size, True)
                         for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]), key=lambda p: p.score,
                        default=None)
-    return best_turned, best_sheared
+    strongest = float(angles[turned[0]])
+    return (replace(best_turned, sieve_turn_deg=strongest),
+            None if best_sheared is None else replace(best_sheared, sieve_turn_deg=strongest))
 
 
 PEAK_PAIR_PEAKS = 6
@@ -607,6 +611,7 @@ class Placement:
     warp_deg: float
     weft_deg: float
     lattice: Lattice
+    sieve_turn_deg: float | None = None  # the turn where the summed sieve scan peaks (estimate_placement)
 
     @property
     def rotation_deg(self) -> float:
