@@ -8,8 +8,8 @@
 3. :func:`placed` does this for the sample's placement read from the spectra: a sheared one is
    kept as it is; a turned one is compared with the unturned sample, and the placement whose
    candidates' yarn vectors (5.) agree on a turn, or else whose best candidate scores higher, is kept;
-   where none of its candidates' lattices makes the photos' strongest peaks, the turn where the
-   summed sieve scan peaks is tried too;
+   where none of its candidates' lattices makes the photos' strongest peaks, the other placement
+   and the turn where the summed sieve scan peaks are tried too;
 4. each candidate's tiles are then the mean spacing over the whole photo, read from the phase of its
    harmonics (:func:`backend.texture.spacing.mean_lattice`), not the spacing at the photo's centre
    that the windowed spectrum reads;
@@ -281,8 +281,8 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     that turn), and the unturned comb stays.
 
     Where none of the placement's candidates makes LOW_COVERAGE of the photos' peak strength, the
-    sample is also placed at the turn where the summed sieve scan peaks, and kept there where its
-    candidates make RESCUE_GAIN more (:func:`_rescued`).
+    placement compared with it and the sample at the turn where the summed sieve scan peaks are
+    rivals, and the best of them is kept where its candidates make RESCUE_GAIN more (:func:`_rescued`).
 
     The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
     if rotation is not None:
@@ -296,6 +296,7 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
         also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
         read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
                               per_pattern)
+        rivals = {}
     else:
         at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
         reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}
@@ -307,46 +308,56 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
         else:
             placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
         read = reads[placement]
-    placement, (candidates, readings) = _rescued(spectra, rig, patterns, per_pattern, estimate, placement, read)
+        rivals = {p: reads[p] for p in reads if p != placement}
+    placement, (candidates, readings) = _rescued(spectra, rig, patterns, per_pattern, estimate, placement, read,
+                                                 rivals)
     turn = yarn_turn(readings, placement)
     return (placement[0] if turn is None else turn, placement[1]), candidates
 
 
-LOW_COVERAGE = 0.6         # a placement whose lattices all make less of the photos' peak strength than this ...
-RESCUE_GAIN = 0.3          # ... gives way to the sieve's strongest turn where its lattices make this much more
+LOW_COVERAGE = 0.7         # a placement whose lattices all make less of the photos' peak strength than this ...
+RESCUE_GAIN = 0.3          # ... gives way to a rival whose lattices make this much more
 RESCUE_MIN_TURN_DEG = 0.5  # (a turn this close to an unsheared placement is the same placement)
+
+Read = tuple[list[Candidate], list[spacing.MeanSpacing]]  # a placement's candidates and their readings
 
 
 def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...], per_pattern: int,
-             estimate: lattice.Placement, placement: tuple[float, float],
-             read: tuple[list[Candidate], list[spacing.MeanSpacing]]
-             ) -> tuple[tuple[float, float], tuple[list[Candidate], list[spacing.MeanSpacing]]]:
-    """(placement, its candidates and readings): the one given, or the unsheared sample at the turn
-    where the summed sieve scan peaks (``estimate.sieve_turn_deg``) where none of the given one's
-    candidates makes LOW_COVERAGE of the photos' peak strength (:func:`lattice.peak_coverage`) and the
-    best of that turn's makes RESCUE_GAIN more.
+             estimate: lattice.Placement, placement: tuple[float, float], read: Read,
+             rivals: dict[tuple[float, float], Read]) -> tuple[tuple[float, float], Read]:
+    """(placement, its candidates and readings): the one given, or, where none of its candidates
+    makes LOW_COVERAGE of the photos' peak strength (:func:`lattice.peak_coverage`), the rival whose
+    best candidate makes the most, where that is RESCUE_GAIN more. The rivals: ``rivals`` (the other
+    placement :func:`placed` compared, already read) and the unsheared sample at the turn where the
+    summed sieve scan peaks (``estimate.sieve_turn_deg``), read here.
 
     Every peak of a weave's photos is a harmonic of its tile lattice at the true placement, so there
     the true lattice (or one too coarse) makes nearly all of them: 0.65-1 on the photo-like pairs of
-    seeds 7 and 23, the dev goldens and the dev real pairs placed within half a degree. The
-    estimate's maps can prefer a wrong turn where the sieves' spacings miss (uneven yarn spacing,
-    aliased yarn harmonics): photo-like seed-23 twill1m_017, turned -3.99 degrees, was placed at
-    -0.32 with tiles 9 % off, its candidates making at most 0.53 of the peaks, while the summed sieve
-    scan peaked at -4.0, where the twills' lattices are within 1 % of the truth and make 0.80-0.85.
-    The coverage is one-sided (a lattice too coarse makes every peak), hence the gain asked of the
-    rival, and the rival is the sieve's own turn, not the best of many."""
-    turn = estimate.sieve_turn_deg
-    if turn is None or (placement[1] == 0.0 and abs(turn - placement[0]) < RESCUE_MIN_TURN_DEG):
-        return placement, read
+    seeds 7 and 23, the dev goldens and the dev real pairs placed within half a degree. At a wrong
+    placement the lattices that the combs fit there make fewer. Photo-like seed-23 twill1m_017,
+    turned -3.99 degrees, was placed at -0.32 with tiles 9 % off, its candidates making at most 0.53
+    of the peaks, while the summed sieve scan peaked at -4.0, where the twills' lattices are within
+    1 % of the truth and make 0.80-0.85. Seed 53 (``bench placement``): twill1_002, turned 1.90 and
+    read at 1.6, and twill1m_017, turned -5.0 and read at -4.91, had been placed unturned (the
+    unturned combs scored higher), their candidates making at most 0.62 and 0.28 of the peaks; both
+    are now placed at the turn read (tiles of the twills 5.2 -> 0.5 % and 13 -> 0.1-0.6 % off). No
+    other pair of seeds 7, 23 and 53, the dev goldens or the dev real pairs moved. The coverage is
+    one-sided (a lattice too coarse makes every peak), hence the gain asked of a rival, and the
+    rivals are few."""
     covered = _best_coverage(spectra, rig, placement, read[0])
     if covered >= LOW_COVERAGE:
         return placement, read
-    rival = (turn, 0.0)
-    rival_rig = _placed_rig(rig, rival)
-    rival_read = _with_anchored(spectra, rival_rig, _comb_lattices(spectra, rival_rig, patterns, per_pattern),
-                                per_pattern)
-    if _best_coverage(spectra, rig, rival, rival_read[0]) > covered + RESCUE_GAIN:
-        return rival, rival_read
+    rivals = dict(rivals)
+    turn = estimate.sieve_turn_deg
+    if turn is not None and not any(skew == 0.0 and abs(turn - rotation) < RESCUE_MIN_TURN_DEG
+                                    for rotation, skew in [placement, *rivals]):
+        sieve_rig = _placed_rig(rig, (turn, 0.0))
+        combs = _comb_lattices(spectra, sieve_rig, patterns, per_pattern)
+        rivals[turn, 0.0] = _with_anchored(spectra, sieve_rig, combs, per_pattern)
+    coverage = {rival: _best_coverage(spectra, rig, rival, found) for rival, (found, _) in rivals.items()}
+    best = max(coverage, key=coverage.get, default=None)
+    if best is not None and coverage[best] > covered + RESCUE_GAIN:
+        return best, rivals[best]
     return placement, read
 
 
