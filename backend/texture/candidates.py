@@ -337,7 +337,7 @@ def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...
     placement the lattices that the combs fit there make fewer. Photo-like seed-23 twill1m_017,
     turned -3.99 degrees, was placed at -0.32 with tiles 9 % off, its candidates making at most 0.53
     of the peaks, while the summed sieve scan peaked at -4.0, where the twills' lattices are within
-    1 % of the truth and make 0.80-0.85. Seed 53 (``bench placement``): twill1_002, turned 1.90 and
+    1.1 % of the truth and make 0.80-0.85. Seed 53 (``bench placement``): twill1_002, turned 1.90 and
     read at 1.6, and twill1m_017, turned -5.0 and read at -4.91, had been placed unturned (the
     unturned combs scored higher), their candidates making at most 0.62 and 0.28 of the peaks; both
     are now placed at the turn read (tiles of the twills 5.2 -> 0.5 % and 13 -> 0.1-0.6 % off). No
@@ -363,8 +363,8 @@ def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...
 
 def _best_coverage(spectra: lattice.Spectra, rig: CaptureRig, placement: tuple[float, float],
                    found: list[Candidate]) -> float:
-    placed_rig = _placed_rig(rig, placement)
-    return max((lattice.peak_coverage(spectra, *lattice.lattice_of(c.tiles, placed_rig), *placement) for c in found),
+    """The most of the photos' peak strength that one of ``found``'s lattices makes at ``placement``."""
+    return max((lattice.peak_coverage(spectra, *lattice.lattice_of(c.tiles, rig), *placement) for c in found),
                default=0.0)
 
 
