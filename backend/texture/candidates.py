@@ -292,10 +292,8 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     unturned, found = (0.0, 0.0), (estimate.rotation_deg, estimate.skew_deg)
     if found == unturned or estimate.skew_deg != 0.0:  # unturned, or sheared: kept as it is
         placement = unturned if found == unturned else found  # never a -0.0 turn
-        placed_rig = _placed_rig(rig, placement)
         also = (estimate.lattice,) if estimate.skew_deg != 0.0 else ()
-        read = _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
-                              per_pattern)
+        read = _read_at(spectra, rig, placement, patterns, per_pattern, also)
         rivals = {}
     else:
         at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
@@ -351,14 +349,21 @@ def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...
     turn = estimate.sieve_turn_deg
     if turn is not None and not any(skew == 0.0 and abs(turn - rotation) < RESCUE_MIN_TURN_DEG
                                     for rotation, skew in [placement, *rivals]):
-        sieve_rig = _placed_rig(rig, (turn, 0.0))
-        combs = _comb_lattices(spectra, sieve_rig, patterns, per_pattern)
-        rivals[turn, 0.0] = _with_anchored(spectra, sieve_rig, combs, per_pattern)
+        rivals[turn, 0.0] = _read_at(spectra, rig, (turn, 0.0), patterns, per_pattern)
     coverage = {rival: _best_coverage(spectra, rig, rival, found) for rival, (found, _) in rivals.items()}
     best = max(coverage, key=coverage.get, default=None)
     if best is not None and coverage[best] > covered + RESCUE_GAIN:
         return best, rivals[best]
     return placement, read
+
+
+def _read_at(spectra: lattice.Spectra, rig: CaptureRig, placement: tuple[float, float], patterns: tuple[str, ...],
+             per_pattern: int, also: tuple[lattice.Lattice, ...] = ()) -> Read:
+    """The candidates and their readings for the sample at ``placement``: the comb lattices (with
+    ``also``) joined by those read from single peaks."""
+    placed_rig = _placed_rig(rig, placement)
+    return _with_anchored(spectra, placed_rig, _comb_lattices(spectra, placed_rig, patterns, per_pattern, also),
+                          per_pattern)
 
 
 def _best_coverage(spectra: lattice.Spectra, rig: CaptureRig, placement: tuple[float, float],
