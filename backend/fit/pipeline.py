@@ -22,9 +22,7 @@
                winner's start (not from its trial: the trial steps only chose the pattern) and
                after a fresh camera-blur scan there (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
-               reflection need the optimisation at 512 px); its first ``trial_iterations`` steps
-               beside its face twin on its lattice, which the 256 px trials cannot tell from it
-               (:func:`_finalist`)
+               reflection need the optimisation at 512 px; the choice of pattern does not)
     result     the best parameters seen, their loss and terms, the camera blur, the photos' light
                falloff at those parameters, the candidates compared, the loss history and stage
                timings
@@ -40,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import time
 from typing import Callable
 
@@ -118,14 +115,20 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
                                lambda i, n, selection: progress("search", i, n, selection, None), coverage_of)
     winner = search.chosen(trials)
-    run, duel_steps = winner.run, 0
-    if coarse is not settings:
-        run, duel_steps = _finalist(winner, trials, ruled_out, _objective(reflection, transmission, rig, settings),
-                                    objective, settings, blur, blur_floor, initial_for, check_stop, progress)
+    run = winner.run
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
-    steps = _optimise(run, settings, check_stop, progress, duel_steps)
+    if coarse is not settings:
+        # The winner starts again from its start at the working size, as a lone candidate does: the
+        # trial steps at the base size chose the pattern, but where a yarn gets about a pixel there the
+        # loss reads an aliased weave, and going on from them could end worse (measured: golden
+        # example_twill1, FLIP T .081 alone, .122 after a trial beside its rival twill0m).
+        run = Run(winner.start.params, _objective(reflection, transmission, rig, settings), settings, run.total,
+                  blur, blur_floor)
+        if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
+            run.camera_blur_px = search.best_blur(run.best, run.objective, blur_floor, also=blur)
+    steps = _optimise(run, settings, check_stop, progress)
     timings["optimise_s"] = time.perf_counter() - loop_started
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
@@ -144,49 +147,6 @@ def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings)
                      settings.light_falloff)
 
 
-def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], fine: Objective,
-              coarse: Objective, settings: FitSettings, blur: float, blur_floor: float | None, initial_for,
-              check_stop, progress: Progress) -> tuple[Run, int]:
-    """(the run that goes on at the working size, the steps it has had), where the search ran coarse.
-
-    The winner starts again from its start at the working size, as a lone candidate does: the trial
-    steps at the base size chose the pattern, but where a yarn gets about a pixel there the loss reads
-    an aliased weave, and going on from them could end worse (measured: golden example_twill1, FLIP T
-    .081 alone, .122 after a trial beside its rival twill0m). For the same reason the choice between
-    two patterns on one lattice is made there: a rival pattern on the winner's lattice (a trial's,
-    :func:`search.rival`, or else one the network ruled out, :func:`search.untried_rival`) is run
-    beside it for ``trial_iterations`` steps (at most ``iterations``), and the run with the lower
-    loss goes on: its steps are the first of the optimisation's ``iterations``, so a winner that
-    holds its place ends as it would have alone. Each records its loss there (``fine_trial_loss``).
-    """
-    total = settings.iterations + settings.trial_iterations
-    finalists = [(winner.start.params, winner.summary)]
-    rival = search.rival(trials, winner)
-    if rival is not None:
-        finalists.append((rival.start.params, rival.summary))
-    elif (untried := search.untried_rival(ruled_out, winner.start.candidate)) is not None:
-        [start] = search.starting_points([untried], coarse, blur, initial_for, lambda *_: check_stop())
-        finalists.append((start.params, next(c for c in ruled_out if c["pattern"] == untried.pattern
-                                             and tuple(c["tiles"]) == untried.tiles)))
-    runs = []
-    for params, _ in finalists:
-        run = Run(params, fine, settings, total, blur, blur_floor)
-        if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
-            run.camera_blur_px = search.best_blur(run.best, fine, blur_floor, also=blur)
-        runs.append(run)
-    steps = min(settings.trial_iterations, settings.iterations)
-    if len(runs) == 1 or steps == 0:
-        return runs[0], 0
-    for k, run in enumerate(runs):  # one run after the other: the compiled renderer keeps to one weave at a time
-        for done in range(steps):
-            run.step()
-            check_stop(run)
-            progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
-    for (_, summary), run in zip(finalists, runs):
-        summary["fine_trial_loss"] = run.best_loss
-    return min(runs, key=lambda r: r.best_loss), steps
-
-
 def _coarse(settings: FitSettings) -> FitSettings:
     """The settings of the search: BASE_SIZE with the same samples per image, or ``settings`` itself
     when its size is not above BASE_SIZE."""
@@ -196,25 +156,14 @@ def _coarse(settings: FitSettings) -> FitSettings:
     return dataclasses.replace(settings, size=search.BASE_SIZE, spp=spp)
 
 
-def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, done: int = 0) -> int:
-    """The winner's run goes on until it has had ``settings.iterations`` steps at the working size, or
-    fewer where it has converged (:func:`converged`); returns the steps it had there in all.
-
-    ``done``: the steps it has had at the working size already (the duel's, :func:`_finalist`): it
-    goes on from them as one run, so a winner that holds its place fits as it would have alone. With
-    none (its steps were trial steps at the base size), it goes on from its best parameters so far
-    with a fresh Adam state."""
-    if done == 0:
-        run.restart_from_best()
+def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress) -> int:
+    """The winner's run goes on from its best parameters so far for ``settings.iterations`` steps, or
+    fewer where it has converged (:func:`converged`); returns the steps it ran."""
+    run.restart_from_best()
     loop_started = time.perf_counter()
     search_round = 0
     best, improved_at = run.best_loss, 0
-    if done:  # where the best loss last moved in the steps it has had (each step keeps the loss before it)
-        best = math.inf
-        for step, (_, value) in enumerate(run.history, start=1):
-            if value < best:
-                best, improved_at = value, step
-    for it in range(done, settings.iterations):
+    for it in range(settings.iterations):
         value = run.step()
         check_stop(run)
         done = it + 1
@@ -228,7 +177,7 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
         progress("optimise", done, settings.iterations, value, eta)
-    return done
+    return settings.iterations
 
 
 def converged(settings: FitSettings, done: int, improved_at: int, searches: int) -> bool:
