@@ -113,7 +113,11 @@ def misfit(centres: np.ndarray, medians: np.ndarray, sigma: float) -> float:
 
 def read_blur(*images: np.ndarray, gamma: float = GAMMA) -> BlurReading:
     """One sigma for photos taken through the same camera (the module docstring's fit)."""
-    rings = [ring_medians(image, gamma) for image in images]
+    return _reading([ring_medians(image, gamma) for image in images])
+
+
+def _reading(rings: list[tuple[np.ndarray, np.ndarray]]) -> BlurReading:
+    """:func:`read_blur` of photos given by their :func:`ring_medians`."""
     rings = [(c, m) for c, m in rings if len(c) >= 3]
     if not rings:
         return BlurReading(0.0, 1.0)
@@ -133,10 +137,11 @@ def pair_blur(reflection: np.ndarray, transmission: np.ndarray) -> BlurReading:
     1.77 px, sensor noise over its reflection) gains 3.8 as a pair (R 2.9, T 7.3: 1.26 px); no single
     photo of the 11 golden renders of the full model gains more than 2.7.
     """
-    reading = read_blur(reflection, transmission)
+    rings = [ring_medians(reflection), ring_medians(transmission)]  # each photo's spectrum read once
+    reading = _reading(rings)
     if reading.blurred:
         return reading
-    return max((read_blur(reflection), read_blur(transmission)), key=lambda r: r.gain)
+    return max((_reading([one]) for one in rings), key=lambda r: r.gain)
 
 
 def photo_blur_px(reflection: np.ndarray, transmission: np.ndarray, film_size: int) -> float:
