@@ -278,6 +278,23 @@ PRESETS: dict[str, Weave] = {**PAPER_PRESETS,
 """Every preset, in the shader's pattern-index order: the paper's five, then their mirror images."""
 
 
+def _cyclic_shifts(matrix: tuple[tuple[int, ...], ...]) -> set[tuple[tuple[int, ...], ...]]:
+    """``matrix`` started at every row and column of its tile."""
+    height, width = len(matrix), len(matrix[0])
+    return {tuple(tuple(matrix[(r + i) % height][(c + j) % width] for c in range(width)) for r in range(height))
+            for i in range(height) for j in range(width)}
+
+
+def face_twin(weave: Weave) -> str | None:
+    """The preset whose matrix is ``weave``'s with every crossing turned over (warp over weft <-> weft
+    over warp), up to where the tile starts: the same diagonal with the floats of the other yarn
+    (twill0 <-> twill1m, twill1 <-> twill0m, satin0 <-> satin1, satin0m <-> satin1m; plain is its
+    own). Seen at a pixel or two per yarn, a weave and its twin show the same lattice and diagonal."""
+    turned = tuple(tuple(1 - c for c in row) for row in weave.matrix)
+    return next((name for name, other in PRESETS.items()
+                 if name != weave.name and turned in _cyclic_shifts(other.matrix)), None)
+
+
 def paper_preset(pattern: str) -> str:
     """The paper's preset that ``pattern`` is, or mirrors (other names are returned as they are)."""
     return MIRRORED_OF.get(pattern, pattern)

@@ -115,20 +115,15 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
                                lambda i, n, selection: progress("search", i, n, selection, None), coverage_of)
     winner = search.chosen(trials)
-    run = winner.run
+    run, duel_steps = winner.run, 0
+    if coarse is not settings:
+        run, duel_steps = _finalist(winner, trials, ruled_out, _objective(reflection, transmission, rig, settings),
+                                    objective, settings, blur, blur_floor, initial_for, check_stop, progress)
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
-    if coarse is not settings:
-        # The winner starts again from its start at the working size, as a lone candidate does: the
-        # trial steps at the base size chose the pattern, but where a yarn gets about a pixel there the
-        # loss reads an aliased weave, and going on from them could end worse (measured: golden
-        # example_twill1, FLIP T .081 alone, .122 after a trial beside its rival twill0m).
-        run = Run(winner.start.params, _objective(reflection, transmission, rig, settings), settings, run.total,
-                  blur, blur_floor)
-        if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
-            run.camera_blur_px = search.best_blur(run.best, run.objective, blur_floor, also=blur)
-    steps = _optimise(run, settings, check_stop, progress)
+    steps = duel_steps + _optimise(run, dataclasses.replace(settings, iterations=settings.iterations - duel_steps),
+                                   check_stop, progress)
     timings["optimise_s"] = time.perf_counter() - loop_started
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
@@ -145,6 +140,49 @@ def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings)
     gram = GramDescriptor.load(settings.vgg_weights, device) if settings.vgg_weights else None
     return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight,
                      settings.light_falloff)
+
+
+def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], fine: Objective,
+              coarse: Objective, settings: FitSettings, blur: float, blur_floor: float | None, initial_for,
+              check_stop, progress: Progress) -> tuple[Run, int]:
+    """(the run that goes on at the working size, the steps it has had), where the search ran coarse.
+
+    The winner starts again from its start at the working size, as a lone candidate does: the trial
+    steps at the base size chose the pattern, but where a yarn gets about a pixel there the loss reads
+    an aliased weave, and going on from them could end worse (measured: golden example_twill1, FLIP T
+    .081 alone, .122 after a trial beside its rival twill0m). For the same reason the choice between
+    two patterns on one lattice is made there: a rival pattern on the winner's lattice (a trial's,
+    :func:`search.rival`, or else one the network ruled out, :func:`search.untried_rival`) is run
+    beside it for ``trial_iterations`` steps (at most ``iterations``), and the run with the lower
+    loss goes on; its steps count towards the optimisation's ``iterations``. Each records its loss
+    there (``fine_trial_loss``).
+    """
+    total = settings.iterations + settings.trial_iterations
+    finalists = [(winner.start.params, winner.summary)]
+    rival = search.rival(trials, winner)
+    if rival is not None:
+        finalists.append((rival.start.params, rival.summary))
+    elif (untried := search.untried_rival(ruled_out, winner.start.candidate)) is not None:
+        [start] = search.starting_points([untried], coarse, blur, initial_for, lambda *_: check_stop())
+        finalists.append((start.params, next(c for c in ruled_out if c["pattern"] == untried.pattern
+                                             and tuple(c["tiles"]) == untried.tiles)))
+    runs = []
+    for params, _ in finalists:
+        run = Run(params, fine, settings, total, blur, blur_floor)
+        if blur_floor is not None:  # the blur that matched at 256 px need not match at the working size
+            run.camera_blur_px = search.best_blur(run.best, fine, blur_floor, also=blur)
+        runs.append(run)
+    steps = min(settings.trial_iterations, settings.iterations)
+    if len(runs) == 1 or steps == 0:
+        return runs[0], 0
+    for k, run in enumerate(runs):  # one run after the other: the compiled renderer keeps to one weave at a time
+        for done in range(steps):
+            run.step()
+            check_stop(run)
+            progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
+    for (_, summary), run in zip(finalists, runs):
+        summary["fine_trial_loss"] = run.best_loss
+    return min(runs, key=lambda r: r.best_loss), steps
 
 
 def _coarse(settings: FitSettings) -> FitSettings:

@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from ..core import priors
+from ..core import priors, weave
 from ..core.params import PARAMETERS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
@@ -288,6 +288,39 @@ def chosen(trials: list[Trial]) -> Trial:
     pairs of seed 7 and the 11 dev goldens, coverage at the true placement: each trial on a wrong
     lattice was 0.58 or more below the best, and no winner changes; real twill2: twill1 on a lattice
     three times too fine down the image, 0.13, now loses to twill0 on the photos' own, 0.93.)"""
+    return min(_eligible(trials), key=lambda t: (t.selection, trials.index(t)))
+
+
+def _eligible(trials: list[Trial]) -> list[Trial]:
     best = max(t.coverage for t in trials)
-    eligible = [t for t in trials if t.coverage >= best - COVERAGE_MARGIN]
-    return min(eligible, key=lambda t: (t.selection, trials.index(t)))
+    return [t for t in trials if t.coverage >= best - COVERAGE_MARGIN]
+
+
+def rival(trials: list[Trial], winner: Trial) -> Trial | None:
+    """The eligible trial of the winner's face twin on the winner's lattice
+    (:func:`backend.core.weave.face_twin`: the same diagonal, the floats of the other yarn), or None.
+
+    A weave and its face twin differ in which yarn floats, a detail of a pixel or two at BASE_SIZE on
+    a dense weave: there the trials cannot tell them apart, and the working size decides between the
+    two (the fit's coarse to fine). Measured (photo-like seed 53, twill0m_016, 42.8 x 27.7 tiles):
+    the trials at 256 px ranked its face twin twill1 first (selection 2.18 against 2.24); whole fits
+    at 512 px end at 1.91 for twill1 and 1.66 for twill0m."""
+    twin = face_twin(winner.start.candidate)
+    return next((t for t in _eligible(trials) if t.start.candidate.pattern == twin
+                 and same_lattice(t.start.candidate.tiles, winner.start.candidate.tiles)), None)
+
+
+def untried_rival(ruled_out: list[dict], winner: Candidate) -> Candidate | None:
+    """Where no trial is :func:`rival`'s: the winner's face twin on its lattice among the candidates
+    the network ruled out (``ruled_out``: :func:`rated_candidates`' summaries), or None. The network
+    reads a dense weave at the same 256 px as the trials: on photo-like seed 53 twill1_012 (44.9 x
+    72.1 tiles) it kept the face twin twill0m alone (0.987) and gave the true twill1 0.013; whole fits
+    at 512 px end at 1.80 for twill0m and 1.42 for twill1."""
+    twin = face_twin(winner)
+    found = next((c for c in ruled_out if c["pattern"] == twin and same_lattice(c["tiles"], winner.tiles)), None)
+    return None if found is None else Candidate(found["pattern"], tuple(found["tiles"]), found["lattice_score"])
+
+
+def face_twin(candidate: Candidate) -> str | None:
+    """The face twin of the candidate's preset (None for a custom weave)."""
+    return weave.face_twin(weave.PRESETS[candidate.pattern]) if candidate.pattern in weave.PRESETS else None
