@@ -239,8 +239,10 @@ def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
 
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
-    image), the winner's optimisation at the working size (64 px), from the winner's start (its trial
-    only chose it); the best parameters are from it."""
+    image), the rest at the working size (64 px): the winner from its start (its trial only chose
+    it) beside its face twin on its lattice, which the network ruled out (from the twin's own start),
+    for ``trial_iterations`` steps each; the lower loss goes on for the remaining iterations and its
+    best parameters are the result."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
     seen, steps = [], []  # steps: the parameters of each Adam step
@@ -257,21 +259,32 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5}  # the others, mirrored ones included: 0
     result = fit(*twill_pair, settings=settings,
                  pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
-    assert (result.size, result.spp, result.iterations) == (64, 2, 3)
-    search_calls, optimise_calls = seen[:-3], seen[-3:]
+    assert (result.size, result.spp, result.iterations, result.steps) == (64, 2, 3, 3)
+    fine = [k for k, call in enumerate(seen) if call[0] == 64]
+    assert fine == list(range(fine[0], len(seen)))  # the base size first, then only the working size
+    search_calls, fine_calls = seen[:fine[0]], seen[fine[0]:]
     assert {(size, spp) for size, spp, _ in search_calls} == {(32, 8)}
     assert sum(grad for *_, grad in search_calls) == 4  # two trials of two steps
-    assert optimise_calls == [(64, 2, True)] * 3
-    trial_steps = [p for p in steps[:-3] if p is not None]
-    winner_start = next(p for p in trial_steps[::2] if p.startswith(result.params.pattern + "_"))
-    assert steps[-3] == winner_start and steps[-2] != winner_start  # from the start, then on
-    assert [i for i, _ in result.history] == [0, 1, 2]  # steps at 64 px only
-    assert result.loss == min(loss for _, loss in result.history)
-    # nothing to refine at the base size or below: one size throughout
+    assert fine_calls == [(64, 2, True)] * 5            # two finalists of two steps, then the last step
+    [winner] = [c for c in result.candidates if "trial_loss" in c and "fine_trial_loss" in c]
+    twin = {"twill0": "twill1m", "twill1": "twill0m"}[winner["pattern"]]
+    duel = {c["pattern"]: c["fine_trial_loss"] for c in result.candidates if "fine_trial_loss" in c}
+    assert set(duel) == {winner["pattern"], twin}
+    assert next(c for c in result.candidates if c["pattern"] == twin and "fine_trial_loss" in c)["probability"] == 0
+    trial_steps = [p for p in steps[:fine[0]] if p is not None]
+    winner_start = next(p for p in trial_steps[::2] if p.startswith(winner["pattern"] + "_"))
+    first, second = steps[fine[0]], steps[fine[0] + 2]
+    assert first == winner_start and second.startswith(twin + "_") and steps[fine[0] + 1] != first
+    assert result.params.pattern == min(duel, key=duel.get)
+    assert [i for i, _ in result.history] == [0, 1, 2]  # the duel's two steps count, then one more
+    assert result.loss == min(loss for _, loss in result.history) == pytest.approx(
+        min(min(duel.values()), result.history[-1][1]))
+    # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
-    fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
-        pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+    result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
+                 pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
     assert {(size, spp) for size, spp, _ in seen} == {(32, 2)}
+    assert not any("fine_trial_loss" in c for c in result.candidates)
 
 
 def test_default_iterations_follow_the_working_size():
@@ -580,6 +593,31 @@ def test_the_lowest_selection_wins_among_the_lattices_that_make_the_photos_peaks
     assert chosen([near, own, other]) is near                   # within the margin the selection decides
     first, second = trial(2.0, 0.9), trial(2.0, 0.9)
     assert chosen([first, second]) is first                     # ties go to the earlier trial, as before
+
+
+def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on_its_lattice():
+    from backend.fit.search import Start, rival, untried_rival
+
+    def trial(pattern, tiles, selection, coverage=0.9):
+        return Trial(Start(0.0, 0, search.Candidate(pattern, tiles, 1.0), None), None, {}, selection, coverage)
+
+    lattice_, near, other = (42.8, 27.7), (42.8 * 1.005, 27.7), (42.8, 55.4)
+    winner = trial("twill1", lattice_, 2.18)
+    twin = trial("twill0m", near, 2.24)                        # within LATTICE_MATCH: the same lattice
+    assert rival([winner, trial("twill0", lattice_, 2.2), twin], winner) is twin   # not another twill
+    assert rival([winner, trial("twill0m", other, 2.2)], winner) is None          # not on another lattice
+    assert rival([winner, trial("twill0m", lattice_, 2.2, coverage=0.9 - COVERAGE_MARGIN - 0.01)], winner) is None
+    plain = trial("plain", (140.0, 140.0), 1.0)
+    assert rival([plain, trial("plain", (140.0, 140.0), 1.1)], plain) is None     # plain is its own twin
+    ruled_out = [{"pattern": "twill0m", "tiles": list(other), "lattice_score": 1.0, "probability": 0.3},
+                 {"pattern": "twill1m", "tiles": list(lattice_), "lattice_score": 2.0, "probability": 0.2},
+                 {"pattern": "twill0m", "tiles": list(near), "lattice_score": 3.0, "probability": 0.001}]
+    assert untried_rival(ruled_out, winner.start.candidate) == search.Candidate("twill0m", near, 3.0)
+    assert untried_rival(ruled_out[:2], winner.start.candidate) is None
+    satin = search.Candidate("satin0", (23.5, 48.1), 1.0)
+    satin1 = {"pattern": "satin1", "tiles": [23.5, 48.1], "lattice_score": 1.0}
+    assert untried_rival([satin1], satin).pattern == "satin1"
+    assert untried_rival(ruled_out, search.Candidate("custom", lattice_, 1.0)) is None
 
 
 def test_the_loss_spectrum_is_the_metric(twill_pair):

@@ -16,6 +16,7 @@ from backend.core.weave import (
     WEFT,
     Weave,
     WeaveError,
+    face_twin,
     mirrored,
     weave_from_matrix,
 )
@@ -58,6 +59,23 @@ def test_a_mirrored_preset_is_the_left_right_mirror_image_of_its_paper_preset(na
     # Mirrored twice is the preset itself; a plain weave has no other handedness.
     assert mirrored(mirror, base.name) == base
     assert "plain" not in MIRRORED_OF.values()
+
+
+def test_a_face_twin_is_the_weave_turned_over_at_every_crossing():
+    """Every crossing turned over (warp over weft <-> weft over warp), up to where the tile starts;
+    the diagonal stays, so a twin is never a mirror image."""
+    twins = {name: face_twin(w) for name, w in PRESETS.items()}
+    assert twins == {"plain": None, "twill0": "twill1m", "twill1": "twill0m", "satin0": "satin1", "satin1": "satin0",
+                     "twill0m": "twill1", "twill1m": "twill0", "satin0m": "satin1m", "satin1m": "satin0m"}
+    for name, twin in twins.items():
+        if twin is None:
+            continue
+        assert twins[twin] == name
+        mine, theirs = PRESETS[name].matrix, PRESETS[twin].matrix
+        rows, cols = len(mine), len(mine[0])
+        assert any(all(mine[r][c] == 1 - theirs[(r + i) % rows][(c + j) % cols]
+                       for r in range(rows) for c in range(cols)) for i in range(rows) for j in range(cols))
+    assert face_twin(weave_from_matrix(["0011", "0110", "1100", "1001"])) is None   # a 2/2 twill: none of the presets
 
 
 def test_segment_figures_of_the_spec():

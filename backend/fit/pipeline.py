@@ -22,7 +22,9 @@
                winner's start (not from its trial: the trial steps only chose the pattern) and
                after a fresh camera-blur scan there (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
-               reflection need the optimisation at 512 px; the choice of pattern does not)
+               reflection need the optimisation at 512 px); its first ``trial_iterations`` steps
+               beside its face twin on its lattice, which the 256 px trials cannot tell from it
+               (:func:`_finalist`)
     result     the best parameters seen, their loss and terms, the camera blur, the photos' light
                falloff at those parameters, the candidates compared, the loss history and stage
                timings
