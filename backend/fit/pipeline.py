@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 from typing import Callable
 
@@ -124,8 +125,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
-    steps = duel_steps + _optimise(run, dataclasses.replace(settings, iterations=settings.iterations - duel_steps),
-                                   check_stop, progress)
+    steps = _optimise(run, settings, check_stop, progress, duel_steps)
     timings["optimise_s"] = time.perf_counter() - loop_started
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
@@ -156,8 +156,8 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     two patterns on one lattice is made there: a rival pattern on the winner's lattice (a trial's,
     :func:`search.rival`, or else one the network ruled out, :func:`search.untried_rival`) is run
     beside it for ``trial_iterations`` steps (at most ``iterations``), and the run with the lower
-    loss goes on; its steps count towards the optimisation's ``iterations``. Each records its loss
-    there (``fine_trial_loss``).
+    loss goes on: its steps are the first of the optimisation's ``iterations``, so a winner that
+    holds its place ends as it would have alone. Each records its loss there (``fine_trial_loss``).
     """
     total = settings.iterations + settings.trial_iterations
     finalists = [(winner.start.params, winner.summary)]
@@ -196,14 +196,25 @@ def _coarse(settings: FitSettings) -> FitSettings:
     return dataclasses.replace(settings, size=search.BASE_SIZE, spp=spp)
 
 
-def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress) -> int:
-    """The winner's run goes on from its best parameters so far for ``settings.iterations`` steps, or
-    fewer where it has converged (:func:`converged`); returns the steps it ran."""
-    run.restart_from_best()
+def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, done: int = 0) -> int:
+    """The winner's run goes on until it has had ``settings.iterations`` steps at the working size, or
+    fewer where it has converged (:func:`converged`); returns the steps it had there in all.
+
+    ``done``: the steps it has had at the working size already (the duel's, :func:`_finalist`): it
+    goes on from them as one run, so a winner that holds its place fits as it would have alone. With
+    none (its steps were trial steps at the base size), it goes on from its best parameters so far
+    with a fresh Adam state."""
+    if done == 0:
+        run.restart_from_best()
     loop_started = time.perf_counter()
     search_round = 0
     best, improved_at = run.best_loss, 0
-    for it in range(settings.iterations):
+    if done:  # where the best loss last moved in the steps it has had (each step keeps the loss before it)
+        best = math.inf
+        for step, (_, value) in enumerate(run.history, start=1):
+            if value < best:
+                best, improved_at = value, step
+    for it in range(done, settings.iterations):
         value = run.step()
         check_stop(run)
         done = it + 1
@@ -217,7 +228,7 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress) -
             return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
         progress("optimise", done, settings.iterations, value, eta)
-    return settings.iterations
+    return done
 
 
 def converged(settings: FitSettings, done: int, improved_at: int, searches: int) -> bool:
