@@ -241,8 +241,8 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
     image), the rest at the working size (64 px): the winner from its start (its trial only chose
     it) beside its face twin on its lattice, which the network ruled out (from the twin's own start),
-    for ``trial_iterations`` steps each; the lower loss goes on for the remaining iterations and its
-    best parameters are the result."""
+    for ``duel_iterations`` steps each; with no margin the lower loss goes on for the remaining
+    iterations and its best parameters are the result; with a margin larger than any loss, the winner."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
     seen, steps = [], []  # steps: the parameters of each Adam step
@@ -254,8 +254,8 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
         return terms(self, fabric, camera_blur_px)
 
     monkeypatch.setattr(Objective, "terms", recording)
-    settings = FitSettings(iterations=3, trial_iterations=2, trials=2, size=64, spp=2, search_every=0,
-                           compile=False, camera_blur=1.0, sample_rotation=0.0)
+    settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=0.0, trials=2, size=64,
+                           spp=2, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0)
     given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5}  # the others, mirrored ones included: 0
     result = fit(*twill_pair, settings=settings,
                  pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
@@ -279,6 +279,11 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert [i for i, _ in result.history] == [0, 1, 2]  # the duel's two steps count, then one more
     assert result.loss == min(loss for _, loss in result.history) == pytest.approx(
         min(min(duel.values()), result.history[-1][1]))
+    # a twin must beat the winner by more than the margin to go on
+    held = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "duel_margin": 1e9}),
+               pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+    assert held.params.pattern == winner["pattern"]
+    assert {c["pattern"]: c["fine_trial_loss"] for c in held.candidates if "fine_trial_loss" in c} == duel
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),

@@ -31,6 +31,8 @@ class FitSettings:
     seed: int = 0
     trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
+    duel_iterations: int = 10        # steps at the working size of the winner and of its face twin (a dense weave)
+    duel_margin: float = 0.2         # the face twin goes on only where its loss is this much lower after them
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
     search_every: int = 50           # iterations between discrete searches (each about 20 renders of new geometry)
