@@ -113,7 +113,8 @@ def test_the_loss_is_lowest_at_the_true_parameters(twill_pair):
 
 
 def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
-    settings = FitSettings(pattern="twill1", iterations=6, size=64, spp=4, search_every=3, compile=False)
+    settings = FitSettings(pattern="twill1", iterations=6, size=64, spp=4, first_search=3, search_every=3,
+                           compile=False)
     first = fit(*twill_pair, settings=settings)
     second = fit(*twill_pair, settings=settings)
     assert first.params == second.params
@@ -143,7 +144,7 @@ class ScriptedRun:
 
 def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     from backend.fit.pipeline import _optimise
-    settings = FitSettings(iterations=100, search_every=50, patience=20)
+    settings = FitSettings(iterations=100, first_search=50, search_every=50, patience=20)
     reports = []
 
     def optimise(run, settings=settings):
@@ -161,15 +162,30 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     improving = ScriptedRun([10.0 - 0.01 * i for i in range(100)])
     assert optimise(improving) == 100 and [r[1] for r in reports] == list(range(1, 101))
     # patience 0, or no search where one is due: every step runs
-    assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, search_every=50, patience=0)) == 100
+    assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0)) == 100
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
-    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=50, patience=20)) == 21
+    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, first_search=50, patience=20)) == 21
+
+
+def test_discrete_searches_come_after_the_first_search_then_every_search_every():
+    from backend.fit.pipeline import search_due
+
+    def searches(**given):
+        settings = FitSettings(**given)
+        return [done for done in range(1, settings.iterations + 1) if search_due(settings, done)]
+
+    assert searches(iterations=100) == [25]  # the defaults at 512 px, and at 256 px
+    assert searches(iterations=150) == [25, 125]
+    assert searches(iterations=100, first_search=50, search_every=50) == [50]  # never after the last step
+    assert searches(iterations=100, first_search=10, search_every=30) == [10, 40, 70]
+    assert searches(iterations=100, search_every=0) == []
 
 
 def test_fit_estimates_the_camera_blur(twill_pair):
     # A phone photo is softer than a sharp render: the fit finds the blur (or keeps it when told).
     soft = render_pair(TWILL, CaptureRig(camera_blur_px=1.0), size=512, spp=8, seed=3)
-    settings = FitSettings(pattern="twill1", iterations=3, size=256, spp=16, search_every=2, compile=False)
+    settings = FitSettings(pattern="twill1", iterations=3, size=256, spp=16, first_search=2, search_every=2,
+                           compile=False)
     start = lambda candidate: TWILL  # noqa: E731  (the truth: this checks the blur alone)
     blurred = fit(soft.reflection.numpy(), soft.transmission.numpy(), settings=settings, initial_for=start)
     assert blurred.camera_blur_px == pytest.approx(1.0, abs=0.3)

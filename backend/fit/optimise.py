@@ -4,7 +4,7 @@
   twins, height scale, albedos, diffuse weight, multiple weight), each with a learning rate
   ``lr * (hi - lo)`` of its declared range, halved at 50, 70 and 85 % of the run; every parameter is
   clamped into its range after each step.
-- :meth:`Run.discrete_search` (every ``search_every`` iterations): a joint coarse step on gap scale,
+- :meth:`Run.discrete_search` (:func:`backend.fit.pipeline.search_due`): a joint coarse step on gap scale,
   then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, and on the camera
   blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
   than the paper's random +/- steps.
