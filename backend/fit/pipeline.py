@@ -256,7 +256,10 @@ def search_due(settings: FitSettings, done: int) -> bool:
     among three: in-sample). Out of sample, photo-like seed 53 (its 16 twills and satins) it is about
     neutral: FLIP R .1262 -> .1261, T .0842 -> .0847, roughness MAE .0652 -> .0646, thickness MAE
     .3853 -> .3700, novel-light colour .0094 -> .0092, colour L1 R .0027 -> .0034 (satin1_004 .0039
-    -> .0151), pattern 16/16 in both. Searches after 25 and 75 steps moved the figures less; a search every
+    -> .0151), pattern 16/16 in both; the 11 dev goldens (6 at 512 px, 5 at 256 px): pattern 11/11 and
+    tiles within .13 % in both, FLIP R .0507 -> .0495, T .0491 -> .0501, roughness MAE .0728 -> .0768
+    (satin0_s1 .015 -> .171), thickness MAE .511 -> .477: thickness moved closer on all three sets,
+    roughness both ways. Searches after 25 and 75 steps moved the figures less; a search every
     25 steps did as well or a little better on most (seed 7 roughness .0715, real spectrum T .660) but adds two
     searches to a 512-px fit, 14 s on two cores (a search renders 20 new geometries, 7 s at 512 px,
     as much as 22 Adam steps)."""
