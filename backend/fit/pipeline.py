@@ -259,10 +259,10 @@ def search_due(settings: FitSettings, done: int) -> bool:
     -> .0151), pattern 16/16 in both; the 11 dev goldens (6 at 512 px, 5 at 256 px): pattern 11/11 and
     tiles within .13 % in both, FLIP R .0507 -> .0495, T .0491 -> .0501, roughness MAE .0728 -> .0768
     (satin0_s1 .015 -> .171), thickness MAE .511 -> .477: thickness moved closer on all three sets,
-    roughness both ways. Searches after 25 and 75 steps moved the figures less; a search every
-    25 steps did as well or a little better on most (seed 7 roughness .0715, real spectrum T .660) but adds two
-    searches to a 512-px fit, 14 s on two cores (a search renders 20 new geometries, 7 s at 512 px,
-    as much as 22 Adam steps)."""
+    roughness both ways. Searches after 25 and 75 steps moved the figures less; a search every 25
+    steps did as well or a little better on most (seed 7 roughness .0715, real spectrum T .660) but
+    adds two searches to a 512-px fit, 14 s on two cores (a search renders 20 new geometries, 7 s at
+    512 px, as much as 22 Adam steps)."""
     return (bool(settings.search_every) and settings.first_search <= done < settings.iterations
             and (done - settings.first_search) % settings.search_every == 0)
 
@@ -284,5 +284,4 @@ def converged(settings: FitSettings, done: int, improved_at: int, searches: int)
     still precede a gain, rarely. (Measured with the search at 50; it is now at 25, :func:`search_due`.)"""
     if not settings.patience or done - improved_at < settings.patience:
         return False
-    searching = settings.search_every and settings.first_search < settings.iterations
-    return not searching or searches > 0
+    return searches > 0 or not search_due(settings, settings.first_search)  # none falls inside the run
