@@ -331,6 +331,29 @@ def test_a_blur_scan_renders_the_radiance_once(monkeypatch):
     assert len(calls) == 3 and reflection.requires_grad
 
 
+@pytest.mark.parametrize("pattern, noise", [("plain", 3.0), ("twill1", 0.0), ("satin0", 5.0)])
+def test_gap_and_twist_steps_reuse_the_lattice_bands_with_the_numbers_of_a_fresh_render(pattern, noise, monkeypatch):
+    """A discrete search renders one lattice at several gap scales and twists: the renderer computes
+    the lattice's bands once (``tile_bands``) and each image is the one a fresh renderer makes."""
+    from backend.model import render as render_module
+
+    base = FabricParams(pattern=pattern, tiles=(70.0, 90.0), noise=noise)
+    steps = [base, base.replace(gap_scale=(0.7, 0.95)), base.replace(twist_deg=(-20.0, 10.0)),
+             base.replace(gap_scale=(0.8, 0.6), twist_deg=(5.0, -30.0))]
+    calls = []
+    tile_bands = render_module.tile_bands
+    monkeypatch.setattr(render_module, "tile_bands", lambda *args: calls.append(1) or tile_bands(*args))
+    renderer = Renderer(DEFAULT_RIG, 48, 4)
+    with torch.no_grad():
+        for params in steps:
+            kept = renderer.radiance(ParamTensors.from_params(params))
+            fresh = Renderer(DEFAULT_RIG, 48, 4).radiance(ParamTensors.from_params(params))
+            assert torch.equal(kept[0], fresh[0]) and torch.equal(kept[1], fresh[1])
+        assert len(calls) == 1 + len(steps)  # once for the kept renderer, once per fresh one
+        renderer.radiance(ParamTensors.from_params(base.replace(tiles=(71.0, 90.0))))
+        assert len(calls) == 2 + len(steps)  # another lattice: new bands
+
+
 def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
     image = torch.rand(24, 24, 3, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 1.3), (image,))

@@ -122,7 +122,7 @@ def test_tension_is_linear_between_segment_centres():
     # Warp 0: back segment [0, 2) (centre 1, mu 1), front [2, 8) (centre 5, mu 0); along-coordinate = Y.
     Y = torch.tensor([1.0, 2.0, 3.0, 5.0, 7.0], dtype=torch.float64)
     warp = lookup._yarn(WARP, torch.zeros(5, dtype=torch.long), torch.floor(Y / 2).long(),
-                        torch.ones(5, dtype=torch.bool), Y, torch.zeros_like(Y), 1.0, weave.tile_height)
+                        torch.ones(5, dtype=torch.bool), Y, torch.zeros_like(Y), weave.tile_height)
     assert warp["mu"].tolist() == pytest.approx([1.0, 0.75, 0.5, 0.0, 0.5])
 
 

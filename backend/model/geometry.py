@@ -3,7 +3,9 @@
 From world positions to, per layer: warp/weft masks, the yarn normal and fiber direction before
 height scaling, the tension thickness factor, and the noise factors of spec 4.6. It depends only on
 the discrete parameters (pattern, tiles, gap scale, twist, noise), so the optimiser computes it
-once per discrete state and reuses it across iterations.
+once per discrete state and reuses it across iterations. Most of it depends on the lattice alone
+(pattern and tiles: :func:`tile_bands`), which the renderer keeps while a discrete search tries
+gap scales and twists on one lattice.
 
 UV mapping (spec 1): u = x / P, v = y / P + 1; tile coordinates s = frac(u tu), t = 1 - frac(v tv);
 tile units X = s * tile_width, Y = t * tile_height (Y grows down the image). A sample whose warps are
@@ -30,7 +32,7 @@ import torch
 from ..core.rig import CaptureRig
 from . import rng
 from .camera import SampleChunk
-from .layers import GAP, WARP, WEFT, Layer, WeaveLookup
+from .layers import GAP, WARP, WEFT, Bands, Layer, WeaveLookup
 from .yarn import local_frame
 
 
@@ -103,10 +105,30 @@ def tile_coordinates(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig, tiles, l
     return s * lookup.weave.tile_width, t * lookup.weave.tile_height, torch.floor(u).long(), torch.floor(v).long()
 
 
+@dataclass
+class TileBands:
+    """The part of a chunk's geometry that only the lattice sets (tiles; the pattern is the lookup's):
+    tile coordinates, tile indices and the :class:`backend.model.layers.Bands` there."""
+
+    X: torch.Tensor
+    Y: torch.Tensor
+    tile_u: torch.Tensor
+    tile_v: torch.Tensor
+    bands: Bands
+
+
+def tile_bands(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, tiles) -> TileBands:
+    X, Y, tile_u, tile_v = tile_coordinates(chunk.x, chunk.y, rig, tiles, lookup)
+    return TileBands(X, Y, tile_u, tile_v, lookup.bands(X, Y))
+
+
 def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey,
-                    dtype=torch.float32) -> SampleGeometry:
-    X, Y, tile_u, tile_v = tile_coordinates(chunk.x, chunk.y, rig, key.tiles, lookup)
-    front, back = lookup.layers(X, Y, key.gap_scale)
+                    dtype=torch.float32, bands: TileBands | None = None) -> SampleGeometry:
+    """The geometry of ``key`` at the chunk's samples; ``bands``: its :func:`tile_bands` when known
+    (the same chunk, lookup and tiles), which is most of the work."""
+    found = tile_bands(chunk, lookup, rig, key.tiles) if bands is None else bands
+    X, Y, tile_u, tile_v = found.X, found.Y, found.tile_u, found.tile_v
+    front, back = lookup.layers_of(found.bands, key.gap_scale)
     layers = [front, back][: key.layers]
     twist = tuple(math.radians(a) for a in key.twist_deg)
     s_min = lookup.weave.s_min if key.tension else 1.0

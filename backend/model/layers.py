@@ -51,6 +51,18 @@ class Layer:
         return Layer(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
 
 
+@dataclass
+class Bands:
+    """Per point, which bands of the tile it lies in and each yarn's segment coordinates there
+    (:meth:`WeaveLookup.bands`): all of a layer lookup but the gap scale's part."""
+
+    warp: dict                 # the warp through each point: u, across (tile units), mu, flat, segment, index
+    weft: dict                 # the same for the weft
+    in_warp: torch.Tensor      # in a warp band
+    in_weft: torch.Tensor      # in a weft band
+    warp_over: torch.Tensor    # the weave matrix at the point's cell: the warp on top
+
+
 class WeaveLookup:
     """Tensor form of a weave's interval tables, on one device, for per-sample evaluation.
 
@@ -81,6 +93,12 @@ class WeaveLookup:
 
     def layers(self, X: torch.Tensor, Y: torch.Tensor, gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
         """Front and back layers at tile coordinates (X, Y) (any shape, tile units, wrapped here)."""
+        return self.layers_of(self.bands(X, Y), gap_scale)
+
+    def bands(self, X: torch.Tensor, Y: torch.Tensor) -> "Bands":
+        """Everything :meth:`layers` reads at (X, Y) that the gap scale does not change: a fit's
+        discrete search tries several gap scales (and twists) on one lattice, and this is most of
+        the work of each (:class:`backend.model.render.Renderer` keeps it)."""
         w = self.weave
         # Position across the bands, from the first band's leading edge (wraps the tile).
         xr = torch.remainder(X - w.warp_offset, w.tile_width).to(self.dtype)
@@ -92,10 +110,15 @@ class WeaveLookup:
         in_warp = x_in < w.warp_width
         in_weft = y_in < w.weft_width
         warp_over = self.matrix.take(row * w.cols + col)
+        warp = self._yarn(WARP, col, row, in_weft, yr, x_in - w.warp_width / 2, w.tile_height)
+        weft = self._yarn(WEFT, row, col, in_warp, xr, y_in - w.weft_width / 2, w.tile_width)
+        return Bands(warp, weft, in_warp, in_weft, warp_over)
 
-        warp = self._yarn(WARP, col, row, in_weft, yr, x_in - w.warp_width / 2, gap_scale[WARP], w.tile_height)
-        weft = self._yarn(WEFT, row, col, in_warp, xr, y_in - w.weft_width / 2, gap_scale[WEFT], w.tile_width)
-
+    def layers_of(self, bands: "Bands", gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
+        """:meth:`layers` from the :meth:`bands` at the same points: v and the gap test, per spec 3.1-3.2."""
+        warp, weft = (self._across(yarn, found, gap_scale[yarn]) for yarn, found in ((WARP, bands.warp),
+                                                                                      (WEFT, bands.weft)))
+        in_warp, in_weft, warp_over = bands.in_warp, bands.in_weft, bands.warp_over
         crossing = in_warp & in_weft
         front_is_warp = in_warp & (~in_weft | warp_over)
         front_is_weft = in_weft & (~in_warp | ~warp_over)
@@ -103,8 +126,9 @@ class WeaveLookup:
         back = self._compose(warp, weft, crossing & ~warp_over, crossing & warp_over)
         return front, back
 
-    def _yarn(self, yarn, index, cross_index, in_crossing, along, across, xi, period):
-        """Segment coordinates of the yarn of direction `yarn` through every point (present or not)."""
+    def _yarn(self, yarn, index, cross_index, in_crossing, along, across, period) -> dict:
+        """Segment coordinates of the yarn of direction `yarn` through every point (present or not),
+        but for those the gap scale sets (:meth:`_across`)."""
         table = self.tables[yarn]
         flat_index = index * table["intervals"] + 2 * cross_index + (~in_crossing).long()
 
@@ -120,15 +144,18 @@ class WeaveLookup:
         mu_there = torch.where(before, column("mu_prev"), column("mu_next"))
         dist_there = torch.where(before, column("dist_prev"), column("dist_next"))
         mu = mu_here + (mu_there - mu_here) * offset.abs() / dist_there
-        width = self.weave.band(yarn)[0]
         # Along-yarn offset l: up the image for a warp (the along-coordinate runs down), right for a weft.
         # u = l / (length / 2) * umax, negated on the back layer.
         sign = (1.0 - 2.0 * column("layer")) * (-1.0 if yarn == WARP else 1.0)
         u = offset * sign * (2.0 * self.umax[yarn]) / length
-        v = across * (math.pi / (width * xi))
-        gap = across.abs() >= width * xi / 2
-        return dict(u=u, v=v, mu=mu, gap=gap, flat=column("flat") > 0,
-                    segment=column("segment").long(), index=index)
+        return dict(u=u, across=across, mu=mu, flat=column("flat") > 0, segment=column("segment").long(),
+                    index=index)
+
+    def _across(self, yarn: int, found: dict, xi: float) -> dict:
+        """:meth:`_yarn`'s coordinates with v and the gap test at gap scale ``xi``."""
+        width = self.weave.band(yarn)[0]
+        across = found["across"]
+        return {**found, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
 
     @staticmethod
     def _compose(warp: dict, weft: dict, is_warp, is_weft) -> Layer:

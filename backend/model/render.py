@@ -41,7 +41,7 @@ from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_projected
 from .camera import CameraSamples, SampleChunk
 from .compile_cache import allow_cached_custom_gradients, use_persistent_compile_cache
-from .geometry import GeometryKey, sample_geometry
+from .geometry import GeometryKey, TileBands, sample_geometry, tile_bands
 from .imaging import display_transform, gaussian_blur
 from .layers import WeaveLookup
 from .param_tensors import ParamTensors
@@ -86,6 +86,7 @@ class Renderer:
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
         self._geometry: OrderedDict = OrderedDict()
+        self._bands: dict = {}  # rows -> (lattice, TileBands) of the last lattice rendered
         self._geometry_slots = geometry_cache if self._keep else 0
         self._lookups: dict = {}
         self._last_radiance: tuple | None = None  # (parameter values, radiance) of the last render without gradients
@@ -126,12 +127,26 @@ class Renderer:
             self._geometry.move_to_end(cache_key)
             return self._geometry[cache_key]
         with torch.no_grad():
-            geometry = project(chunk, sample_geometry(chunk, lookup, self.rig, key, self.dtype))
+            geometry = project(chunk, sample_geometry(chunk, lookup, self.rig, key, self.dtype,
+                                                      self._bands_for(key, lookup, rows, chunk)))
         if self._geometry_slots:
             self._geometry[cache_key] = geometry
             while len(self._geometry) > self._geometry_slots * len(self.ranges):
                 self._geometry.popitem(last=False)
         return geometry
+
+    def _bands_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> TileBands:
+        """The chunk's :func:`tile_bands` for the key's lattice, kept for the last lattice rendered: a
+        discrete search (:meth:`backend.fit.optimise.Run.discrete_search`) and a starting point's gap
+        scan render one lattice at several gap scales and twists."""
+        lattice = (key.pattern, key.tiles)
+        kept = self._bands.get(rows)
+        if kept is not None and kept[0] == lattice:
+            return kept[1]
+        bands = tile_bands(chunk, lookup, self.rig, key.tiles)
+        if self._geometry_slots:
+            self._bands[rows] = (lattice, bands)
+        return bands
 
     # -- rendering ---------------------------------------------------------------------------
     def radiance(self, fabric: ParamTensors, progress=None) -> tuple[torch.Tensor, torch.Tensor]:
