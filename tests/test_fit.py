@@ -174,8 +174,10 @@ def test_discrete_searches_come_after_the_first_search_then_every_search_every()
         settings = FitSettings(**given)
         return [done for done in range(1, settings.iterations + 1) if search_due(settings, done)]
 
-    assert searches(iterations=100) == [25]  # the defaults at 512 px, and at 256 px
-    assert searches(iterations=150) == [25, 125]
+    assert searches(iterations=100) == [25, 50, 75]  # the defaults at 512 px, and at 256 px
+    assert searches(iterations=150) == [25, 50, 75]
+    assert searches(iterations=150, max_searches=5) == [25, 50, 75, 100, 125]
+    assert searches(iterations=150, max_searches=0) == []
     assert searches(iterations=100, first_search=50, search_every=50) == [50]  # never after the last step
     assert searches(iterations=100, first_search=10, search_every=30) == [10, 40, 70]
     assert searches(iterations=100, search_every=0) == []

@@ -36,8 +36,10 @@ class FitSettings:
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
     first_search: int = 25           # the iteration after which the first discrete search runs (each search
-                                     # renders about 20 new geometries: as much as 22 Adam steps at 512 px)
-    search_every: int = 100          # iterations from one discrete search to the next (0: no searches)
+                                     # evaluates the loss 20 times: as much as 19 Adam steps at 512 px)
+    search_every: int = 25           # iterations from one discrete search to the next (0: no searches)
+    max_searches: int = 3            # discrete searches in a run at most (each costs as much at 256 px, 16 spp, as at
+                                     # 512 px, 4 spp: the same million samples)
     patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
                                      # a discrete search has had its turn (0: it runs every iteration)
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
