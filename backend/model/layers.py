@@ -95,7 +95,7 @@ class WeaveLookup:
         """Front and back layers at tile coordinates (X, Y) (any shape, tile units, wrapped here)."""
         return self.layers_of(self.bands(X, Y), gap_scale)
 
-    def bands(self, X: torch.Tensor, Y: torch.Tensor) -> "Bands":
+    def bands(self, X: torch.Tensor, Y: torch.Tensor) -> Bands:
         """Everything :meth:`layers` reads at (X, Y) that the gap scale does not change: a fit's
         discrete search tries several gap scales (and twists) on one lattice, and this is most of
         the work of each (:class:`backend.model.render.Renderer` keeps it)."""
@@ -114,7 +114,7 @@ class WeaveLookup:
         weft = self._yarn(WEFT, row, col, in_warp, xr, y_in - w.weft_width / 2, w.tile_width)
         return Bands(warp, weft, in_warp, in_weft, warp_over)
 
-    def layers_of(self, bands: "Bands", gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
+    def layers_of(self, bands: Bands, gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
         """:meth:`layers` from the :meth:`bands` at the same points: v and the gap test, per spec 3.1-3.2."""
         warp, weft = (self._across(yarn, found, gap_scale[yarn]) for yarn, found in ((WARP, bands.warp),
                                                                                       (WEFT, bands.weft)))
