@@ -9,6 +9,7 @@ import torch
 
 from backend.core import priors
 from backend.core.rig import DEFAULT_RIG, CaptureRig, RigError
+from backend.image import spectrum
 from backend.image.spectrum import Peak
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
@@ -191,3 +192,32 @@ def test_two_strong_peaks_read_as_low_harmonics_pin_the_turn():
     assert all(abs(t) <= lattice.ROTATION_SCAN_DEG for _, _, t in found)
     # the mirror turn is not read: u and v each keep their own angle
     assert not any(np.allclose(hypothesis, (a, b, -turn), atol=0.05) for hypothesis in found)
+
+
+def test_a_photo_of_noise_alone_shows_no_weave_and_does_not_place_the_sample():
+    # The strongest peak of a noise spectrum stays under chance_peakness (a false alarm of 1e-6 per
+    # photo, so none in these); a weave's photo stands far above it.
+    rng = np.random.default_rng(11)
+    noise = [np.clip(0.5 + 0.05 * rng.standard_normal((256, 256, 3)), 0, 1) for _ in range(8)]
+    chance = spectrum.chance_peakness(256)
+    assert 3.7 < chance < 3.9
+    assert max(spectrum.spectral_peaks(image)[0].strength for image in noise) < chance
+    # A plain turned -2.5 degrees seen in reflection only: the transmission is noise.
+    rig = CaptureRig(sample_rotation_deg=-2.5)
+    params = priors.typical("plain").replace(tiles=(40.0, 40.0))
+    with torch.no_grad():
+        reflection = Renderer(rig, 256, 8, seed=2).render(params).reflection.numpy()
+    spectra = lattice.Spectra.of([reflection, noise[0]])
+    assert spectra.shows_weave == [True, False]
+    weave = spectra.of_the_weave()
+    assert len(weave.maps) == len(weave.peaks) == len(weave.highpassed) == 1 and weave.maps[0] is spectra.maps[0]
+    found = candidates.sample_placement(spectra, CaptureRig())
+    span = candidates._search_range(CaptureRig(), priors.FIT_PATTERNS)
+    alone = lattice.estimate_placement(lattice.Spectra.of([reflection]), span, span)
+    assert (found.rotation_deg, found.lattice) == (alone.rotation_deg, alone.lattice)
+    assert found.rotation_deg == pytest.approx(-2.5, abs=0.25)
+    # both photos show a weave, or neither: the spectra stay as they are
+    both_weave = lattice.Spectra.of([reflection, reflection])
+    assert both_weave.of_the_weave() is both_weave
+    both_noise = lattice.Spectra.of(noise[:2])
+    assert both_noise.of_the_weave() is both_noise

@@ -8,7 +8,9 @@ Content
     lamp that did not fire), or overexposed (more than half of its pixels clipped in some channel).
     A pair in which neither photo shows a yarn pattern (:func:`yarn_peaks` finds no peak in either
     spectrum: a blank wall, a photo out of focus) is refused too; one photo without is a warning
-    (a transmission photo of a dense fabric may show little).
+    (a transmission photo of a dense fabric may show little). A photo whose sharpest spectral peak
+    does not stand above what noise alone shows (:func:`check_weave_shown`) is a warning too: the
+    yarn lattice and the sample's placement are then read from the other photo, or are guesses.
 
 Framing
     The two source images must have the same pixel size (:func:`check_source_sizes`, else
@@ -35,7 +37,7 @@ import cv2
 import numpy as np
 
 from .errors import PhotoError
-from .spectrum import hann, highpass, power_spectrum
+from .spectrum import chance_peakness, hann, highpass, power_spectrum, shows_weave, spectral_peaks
 from .tone import GAMMA, luminance
 
 BLACK_LEVEL = 0.002      # linear; the darkest usable photo seen (twill2_T) has 99.9 % of its pixels above 0.04
@@ -262,9 +264,10 @@ def check_content(image: np.ndarray, path: Path) -> None:
                          "lower the exposure so the fabric's highlights stay below white")
 
 
-def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path]
-                            ) -> tuple[list[str], dict]:
-    """Compares the yarn lattices of the two working images.
+def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path],
+                            compare: bool = True) -> tuple[list[str], dict]:
+    """Compares the yarn lattices of the two working images (not with ``compare`` off: one photo
+    shows no weave, :func:`check_weave_shown`, and its peaks are noise that no framing explains).
 
     The photos agree when their peaks coincide at scale 1 (:func:`same_lattice_score`: the two photos
     may show different low harmonics of the same lattice) at least half as well as at the best scale
@@ -280,6 +283,8 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
     if not peaks_r and not peaks_t:
         raise PhotoError(f"{label}: neither photo shows a yarn pattern (no peak in either spectrum): photograph "
                          "the fabric flat and in focus, close enough that its yarns show")
+    if not compare:
+        return [], info
     if not peaks_r or not peaks_t:
         missing = [str(n) for n, p in zip(names, (peaks_r, peaks_t)) if not p]
         return [f"{', '.join(missing)}: no clear yarn pattern in the spectrum; the framing check was skipped"], info
@@ -310,3 +315,29 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
     raise PhotoError(f"{label}: the photos are framed differently: {zoom} ({agree}; {dominant}), more "
                      f"than {FRAMING_REFUSE:.0%} off; the same fabric on the same stand shows the same yarn density "
                      "in both photos")
+
+
+def check_weave_shown(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path]
+                      ) -> tuple[list[str], dict]:
+    """Warnings for the photos whose spectrum shows no peak above noise (:func:`.spectrum.shows_weave`,
+    the test the yarn lattice applies: :meth:`backend.texture.lattice.Spectra.of_the_weave`), and
+    each photo's strongest peakness beside the level noise alone reaches. A dense weave behind a
+    phone's blur can leave the transmission, or both photos, without a visible weave: the fit then
+    reads the yarn lattice from the other photo, or has nothing to read it from."""
+    size = reflection.shape[0]
+    peaks = [spectral_peaks(image, count=1) for image in (reflection, transmission)]
+    strongest = [round(p[0].strength, 2) if p else 0.0 for p in peaks]
+    chance = chance_peakness(size)
+    info = {"reflection": strongest[0], "transmission": strongest[1], "noise_level": round(chance, 2)}
+    shown = [shows_weave(p, size) for p in peaks]
+    if all(shown):
+        return [], info
+    level = f"noise alone reaches {chance:.1f}"
+    if not any(shown):
+        return [f"{names[0]} / {names[1]}: neither photo shows its yarns above the noise (sharpest spectral peaks "
+                f"{strongest[0]:.1f} and {strongest[1]:.1f}; {level}): the yarn density, the weave and the sample's "
+                "turn are guesses; photograph the fabric closer (3 px or more per yarn) and in focus"], info
+    hidden, seen = (1, 0) if shown[0] else (0, 1)
+    return [f"{names[hidden]}: shows no yarn pattern above the noise (sharpest spectral peak {strongest[hidden]:.1f}; "
+            f"{level}): the yarn density and the sample's turn are read from {names[seen]} alone, and the "
+            "framing check was skipped"], info

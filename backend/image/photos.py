@@ -45,6 +45,7 @@ from .pair_checks import (
     check_framing_frequency,
     check_order,
     check_source_sizes,
+    check_weave_shown,
     order_cues,
     order_score,
 )
@@ -81,7 +82,9 @@ class PhotoPair:
     the order score) and ``yarn_frequency`` (each image's spectral peaks as [fx, fy] in cycles per
     image, strongest first; ``mismatch``, see :func:`.pair_checks.frequency_mismatch`; ``scale``,
     the magnification of the transmission lattice that best aligns it with the reflection's; None
-    where either image shows no clear yarn pattern).
+    where either image shows no clear yarn pattern or no weave above the noise) and
+    ``weave_peakness`` (each image's sharpest spectral peak beside the level noise alone reaches:
+    :func:`.pair_checks.check_weave_shown`).
     """
 
     reflection: np.ndarray
@@ -206,9 +209,10 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     check_content(image_r, reflection.path)
     check_content(image_t, transmission.path)
 
-    frequency_warnings, frequency_info = check_framing_frequency(image_r, image_t, (reflection.path,
-                                                                                    transmission.path))
-    warnings += frequency_warnings
+    weave_warnings, weave_info = check_weave_shown(image_r, image_t, (reflection.path, transmission.path))
+    frequency_warnings, frequency_info = check_framing_frequency(image_r, image_t, (reflection.path, transmission.path),
+                                                                 compare=not weave_warnings)
+    warnings += frequency_warnings + weave_warnings
     cues_r, cues_t = order_cues(image_r), order_cues(image_t)
     reasons = check_order(cues_r, cues_t)
     if reasons:
@@ -237,6 +241,6 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     info = {"reflection": describe(reflection, scale_r), "transmission": describe(transmission, scale_t),
             "size": size,
             "order": {"reflection": cues_r, "transmission": cues_t, "score": order_score(cues_r, cues_t)},
-            "yarn_frequency": frequency_info,
+            "yarn_frequency": frequency_info, "weave_peakness": weave_info,
             "registration": None if registration is None else registration.to_dict()}
     return PhotoPair(image_r, image_t, warnings, info)

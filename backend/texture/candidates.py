@@ -149,10 +149,11 @@ def _search_range(rig: CaptureRig, patterns: tuple[str, ...]) -> tuple[float, fl
 
 def sample_placement(spectra: lattice.Spectra, rig: CaptureRig,
                      patterns: tuple[str, ...] = priors.FIT_PATTERNS) -> lattice.Placement:
-    """The sample's rotation and skew in the holder, read from both photos' spectra, with the
-    lattice that shows them (:func:`backend.texture.lattice.estimate_placement`)."""
+    """The sample's rotation and skew in the holder, read from the spectra of the photos that show
+    the weave (:meth:`backend.texture.lattice.Spectra.of_the_weave`), with the lattice that shows
+    them (:func:`backend.texture.lattice.estimate_placement`)."""
     span = _search_range(rig, patterns)
-    return lattice.estimate_placement(spectra, span, span)
+    return lattice.estimate_placement(spectra.of_the_weave(), span, span)
 
 
 def propose(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
