@@ -95,7 +95,11 @@ class Spectra:
         peaks of a photo that shows no weave pull the sieves, and its noise map, which some wrong
         placement always explains best, would veto the turn the other photo shows (photo-like seed 53
         plain_015: the reflection shows the (1, 1) harmonics of a plain turned -2.64 degrees, the
-        transmission nothing above noise, peakness 3.27; placed at +0.12 degrees, tiles 52 % off)."""
+        transmission nothing above noise, peakness 3.27; placed at +0.12 degrees, tiles 52 % off; now
+        -2.67 degrees, 0.37 %). Out of sample, the five such plains of photo-like seed 97's first 40
+        pairs (transmissions 3.02-3.49): rotation off by 1.85 -> 0.06 degrees on average, tiles of the
+        plain off by over 1 % on 2 -> 0 (6.6 -> 0.16 %, 9.8 -> 0.32 %); seed 7's plain_010 and seed
+        23's plain_010 and twill1m_017 moved by under 0.2 degrees, tiles within 0.5 % before and after."""
         keep = self.shows_weave
         if all(keep) or not any(keep):
             return self
