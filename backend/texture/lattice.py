@@ -99,7 +99,7 @@ class Spectra:
         -2.67 degrees, 0.37 %). Out of sample, the five such plains of photo-like seed 97's first 40
         pairs (transmissions 3.02-3.49): rotation off by 1.85 -> 0.06 degrees on average, tiles of the
         plain off by over 1 % on 2 -> 0 (6.6 -> 0.16 %, 9.8 -> 0.32 %); seed 7's plain_010 and seed
-        23's plain_010 and twill1m_017 moved by under 0.2 degrees, tiles within 0.5 % before and after."""
+        23's plain_010 and twill1m_017 moved by under 0.2 degrees, tiles within 0.6 % before and after."""
         keep = self.shows_weave
         if all(keep) or not any(keep):
             return self
