@@ -2,6 +2,7 @@
 phone's effects do what they say."""
 import dataclasses
 import json
+import math
 import random
 
 import numpy as np
@@ -12,7 +13,7 @@ from backend.bench import photolike
 from backend.bench.novel_light import NOVEL_LIGHTS, novel_light_error
 from backend.core.params import FabricParams
 from backend.core.priors import typical
-from backend.core.rig import CaptureRig
+from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.init import photo_like
 from backend.model.imaging import display_transform
 from backend.model.phone import PhoneEffects
@@ -43,6 +44,43 @@ def test_a_photo_like_set_is_a_function_of_its_seed(tmp_path):
     assert truth["rig"]["camera_blur_px"] == pytest.approx(truth["phone"]["blur_px"], abs=1e-4)
     assert 0.5 <= truth["phone"]["blur_px"] <= 2.0 and 75 <= truth["phone"]["jpeg_quality"] <= 95
     json.dumps(first)  # the cases.json entry is plain JSON
+
+
+def test_a_moved_set_moves_only_the_reflection_photo(tmp_path):
+    still = photolike.make_item(tmp_path / "a", seed=4, index=3, rig=SMALL)
+    moved = photolike.make_item(tmp_path / "m", seed=4, index=3, rig=SMALL, moved=True)
+    again = photolike.make_item(tmp_path / "n", seed=4, index=3, rig=SMALL, moved=True)
+    assert "move" not in still and moved == again
+    assert {k: v for k, v in moved.items() if k != "move"} == still     # the truth is the transmission's framing
+    assert photo_like.MOVE_SCALE[0] <= moved["move"]["scale"] <= photo_like.MOVE_SCALE[1]
+    assert abs(moved["move"]["turn_deg"]) <= photo_like.MAX_MOVE_TURN_DEG
+    name = "satin0_003"
+    assert (tmp_path / "m" / f"{name}_T.png").read_bytes() == (tmp_path / "a" / f"{name}_T.png").read_bytes()
+    assert (tmp_path / "m" / f"{name}_R.png").read_bytes() != (tmp_path / "a" / f"{name}_R.png").read_bytes()
+
+
+@pytest.mark.parametrize("index, pattern", [(1, "twill0"), (3, "twill1")])
+def test_the_moved_reflection_shows_the_lattice_moved_as_drawn(index, pattern):
+    # The registration's map of the moved pair is the drawn move after the unmoved pair's own (the two
+    # photos weigh different parts of a non-uniformly spaced sample: 0.3-0.6 %, a tenth of a degree).
+    # Drawn twill0: 1.0056 and turned +1.49 degrees, read 1.0073 and +1.33 (unmoved 1.0029, -0.12);
+    # twill1: 1.0321 and -0.10, read 1.0375 and -0.21 (unmoved 1.0055, -0.11).
+    from backend.image.registration import lattice_map
+
+    def scale_and_turn(matrix):
+        turn = math.degrees(math.atan2(matrix[1, 0] - matrix[0, 1], matrix[0, 0] + matrix[1, 1]))
+        return math.sqrt(np.linalg.det(matrix)), turn
+
+    still = photo_like.photograph(pattern, photolike.item_rng(5, index), DEFAULT_RIG, 2)
+    shot = photo_like.photograph(pattern, photolike.item_rng(5, index), DEFAULT_RIG, 2,
+                                 move_rng=photolike.item_rng(5, index, "move"))
+    assert np.array_equal(shot.transmission, still.transmission) and shot.params == still.params
+    own_scale, own_turn = scale_and_turn(lattice_map(still.reflection, still.transmission, 1.0)[0])
+    matrix, matches, _, _ = lattice_map(shot.reflection, shot.transmission, shot.move.scale)
+    scale, turn = scale_and_turn(matrix)
+    assert matches >= 12
+    assert scale == pytest.approx(shot.move.scale * own_scale, abs=0.002)
+    assert turn == pytest.approx(shot.move.turn_deg + own_turn, abs=0.2)
 
 
 def test_a_phone_without_effects_is_the_renderers_display_transform():

@@ -10,10 +10,15 @@ diagonal of its weave differs. Real fabrics come in both handednesses (a twill s
 a left-hand twill), and a fit that knew only the paper's five would put the other one's weave where
 no photo shows it.
 
+With ``moved``, the phone also moves between the shots of every item (:class:`backend.init.photo_like.PhoneMove`,
+drawn from a generator seeded by (s, k) of its own): the reflection photo shows the lattice 1-1.1
+times as dense and turned by up to 2 degrees, the transmission photo and every other draw stay the
+unmoved set's, and the truth stays the transmission's framing.
+
 Files: ``DIR/<name>_R.png``, ``DIR/<name>_T.png`` (8-bit) and ``DIR/cases.json``, a list of
 ``{"name", "params" (interchange string), "flags": {}, "rig" (with the true rotation and camera
-blur), "phone" (every drawn effect)}``: the golden folders' format plus the truth the fit benchmark
-needs (:mod:`backend.bench.fit`).
+blur), "phone" (every drawn effect), "move" (a moved set's reflection move, else absent)}``: the
+golden folders' format plus the truth the fit benchmark needs (:mod:`backend.bench.fit`).
 """
 from __future__ import annotations
 
@@ -30,8 +35,8 @@ from ..image.png import write_png
 from ..init.photo_like import photograph
 
 
-def item_rng(seed: int, index: int) -> random.Random:
-    return random.Random(zlib.crc32(f"photolike/{seed}/{index}".encode()))
+def item_rng(seed: int, index: int, what: str = "photolike") -> random.Random:
+    return random.Random(zlib.crc32(f"{what}/{seed}/{index}".encode()))
 
 
 def item_pattern(index: int) -> str:
@@ -40,25 +45,29 @@ def item_pattern(index: int) -> str:
     return MIRROR_OF.get(pattern, pattern) if (index // len(priors.PATTERNS)) % 2 else pattern
 
 
-def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None) -> dict:
+def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None,
+              moved: bool = False) -> dict:
     """Renders item ``index`` into ``out``; returns its cases.json entry. ``pattern`` replaces the
     item's preset (:func:`item_pattern`) with the same draws: a mirrored item's unmirrored twin."""
     pattern = pattern or item_pattern(index)
-    shot = photograph(pattern, item_rng(seed, index), rig)
+    shot = photograph(pattern, item_rng(seed, index), rig, move_rng=item_rng(seed, index, "move") if moved else None)
     name = f"{pattern}_{index:03d}"
     write_png(out / f"{name}_R.png", shot.reflection, bits=8)
     write_png(out / f"{name}_T.png", shot.transmission, bits=8)
-    return {"name": name, "params": shot.params.to_interchange(), "flags": {}, "rig": shot.rig.to_dict(),
+    case = {"name": name, "params": shot.params.to_interchange(), "flags": {}, "rig": shot.rig.to_dict(),
             "phone": shot.phone.to_dict()}
+    if shot.move is not None:
+        case["move"] = shot.move.to_dict()
+    return case
 
 
-def generate(out: str | Path, count: int, seed: int = 0, log=sys.stderr) -> list[dict]:
+def generate(out: str | Path, count: int, seed: int = 0, log=sys.stderr, moved: bool = False) -> list[dict]:
     """Makes items 0 .. count - 1 into ``out`` (cases.json last, so a finished set is one with it)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = []
     for index in range(count):
-        cases.append(make_item(out, seed, index))
+        cases.append(make_item(out, seed, index, moved=moved))
         print(f"photolike: {index + 1}/{count} {cases[-1]['name']}", file=log, flush=True)
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
     return cases

@@ -6,7 +6,7 @@
     dataset --out DIR --per-pattern N [...]    (backend/cli/dataset.py)
     train DATASET --out WEIGHTS [...]          (backend/cli/train.py)
     evaluate-init [--heldout DIR] [--golden DIR] [...]  (backend/cli/evaluate_init.py)
-    photolike --out DIR --count N [--seed S]   (backend/cli/photolike.py)
+    photolike --out DIR --count N [--seed S] [--moved]   (backend/cli/photolike.py)
     bench render|fit|batch [...]               (backend/cli/bench.py)
     batch PHOTOS/ --out DIR [...]              (backend/cli/batch.py; needs Ray, the cluster extra)
 

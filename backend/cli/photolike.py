@@ -1,4 +1,4 @@
-"""``python -m backend photolike --out DIR --count N [--seed S]``: photo-like synthetic pairs with
+"""``python -m backend photolike --out DIR --count N [--seed S] [--moved]``: photo-like synthetic pairs with
 ground truth for the fit benchmark (:mod:`backend.bench.photolike`)."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from .common import positive_int
 
 
 def run_photolike(args) -> int:
-    generate(args.out, args.count, args.seed)
+    generate(args.out, args.count, args.seed, moved=args.moved)
     return 0
 
 
@@ -16,4 +16,7 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--count", type=positive_int, required=True, help="pairs (patterns in turn)")
     p.add_argument("--seed", type=int, default=0, help="set seed (another seed: another set)")
+    p.add_argument("--moved", action="store_true",
+                   help="the phone moves between the shots: the reflection photo shows the lattice 1-1.1 times as "
+                        "dense and turned by up to 2 degrees (the transmission photos and the truth as without)")
     p.set_defaults(run=run_photolike)

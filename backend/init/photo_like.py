@@ -11,6 +11,11 @@ One shot of a weave preset, all drawn from one seeded generator ``rng`` in this 
    falloff, blur 0.5-2 film pixels, exposure and white balance, shot and read noise, JPEG quality);
 5. the seed of the render's sample positions.
 
+With ``move_rng``, the phone also moves between the shots (:func:`moved_reflection`): the
+reflection photo is taken from a little further away and turned, as in the dev real pairs
+(twill1: the reflection's lattice 15 % denser and turned 1 degree; twill2: 3.5 % and -1 degree). The
+move is drawn from its own generator, so a set's unmoved shots stay what they were.
+
 The rig renders the turned sample at ``phone_scale`` times the film's resolution with one sample per
 phone pixel (``phone_scale``\\ :sup:`2` per film pixel), the phone turns each radiance into its photo
 at that resolution, JPEG-compresses it there and it is area-resized to the film
@@ -35,6 +40,8 @@ from ..model.render import Renderer
 from ..texture.lattice import yarns_in_view
 
 MAX_ROTATION_DEG = 5.0
+MOVE_SCALE = (1.0, 1.1)             # how much denser the moved reflection shows the yarn lattice
+MAX_MOVE_TURN_DEG = 2.0             # and how far it is turned
 PHONE_SCALE = 4                     # phone pixels per film pixel (a 2048-px crop of a 12 MP photo)
 PIXELS_PER_YARN = (2.0, 4.0)        # film pixels per yarn on the denser axis, as a photographer frames it
 
@@ -59,19 +66,56 @@ class Shot:
     phone: PhoneEffects
     reflection: np.ndarray   # (film, film, 3) float64 in [0, 1], multiples of 1/255
     transmission: np.ndarray
+    move: "PhoneMove | None" = None  # the phone's move before the reflection shot (truth: the transmission's framing)
 
 
-def photograph(pattern: str, rng: random.Random, rig: CaptureRig, phone_scale: int = PHONE_SCALE) -> Shot:
+@dataclass(frozen=True)
+class PhoneMove:
+    """The reflection photo's framing against the transmission's: its yarn lattice ``scale`` times
+    as dense and turned by ``turn_deg`` in the image (k_R = scale turn(turn_deg) k_T, the map
+    :class:`backend.image.registration.Registration` reads; the sample turned by -turn_deg)."""
+
+    scale: float
+    turn_deg: float
+
+    @classmethod
+    def draw(cls, rng: random.Random) -> "PhoneMove":
+        return cls(rng.uniform(*MOVE_SCALE), rng.uniform(-MAX_MOVE_TURN_DEG, MAX_MOVE_TURN_DEG))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def moved_reflection(params: FabricParams, rig: CaptureRig, move: PhoneMove) -> tuple[FabricParams, CaptureRig]:
+    """The sample as the moved phone frames it: the tiles ``move.scale`` times as many in view and
+    the sample turned so that its lattice turns by ``move.turn_deg`` in the image, about the centre.
+    A render, not a resampled photo: the moved photo shows fabric past the other's edges, and
+    resampling would soften its weave. (The lamps stay where they were against the camera; a turn of
+    2 degrees moves the highlights across the yarns by as much.)"""
+    return (params.replace(tiles=tuple(t * move.scale for t in params.tiles)),
+            dataclasses.replace(rig, sample_rotation_deg=rig.sample_rotation_deg - move.turn_deg))
+
+
+def photograph(pattern: str, rng: random.Random, rig: CaptureRig, phone_scale: int = PHONE_SCALE,
+               move_rng: random.Random | None = None) -> Shot:
     """A sample of ``pattern`` drawn and photographed as the module docstring says."""
     params = framed(priors.sample(pattern, rng), rng.uniform(*PIXELS_PER_YARN), rig)
     placed = dataclasses.replace(rig, sample_rotation_deg=rng.uniform(-MAX_ROTATION_DEG, MAX_ROTATION_DEG),
                                  camera_blur_px=0.0)
     phone = PhoneEffects.draw(rng)
+    render_seed = rng.randrange(1 << 20)
+    size = rig.film_size * phone_scale
     with torch.no_grad():
-        pair = Renderer(placed, size=rig.film_size * phone_scale, spp=1, seed=rng.randrange(1 << 20)).render(params)
+        pair = Renderer(placed, size=size, spp=1, seed=render_seed).render(params)
+        radiances = [pair.reflection_radiance, pair.transmission_radiance]
+        move = None if move_rng is None else PhoneMove.draw(move_rng)
+        if move is not None:
+            moved_params, moved_rig = moved_reflection(params, placed, move)
+            moved_pair = Renderer(moved_rig, size=size, spp=1, seed=render_seed).render(moved_params)
+            radiances[0] = moved_pair.reflection_radiance
     photos = [phone_jpeg(phone.apply(radiance, photo, placed), phone.jpeg_quality, rig.film_size)
-              for photo, radiance in enumerate((pair.reflection_radiance, pair.transmission_radiance))]
+              for photo, radiance in enumerate(radiances)]
     # What an 8-bit file holds: the benchmark writes these as PNGs, the training set uses them as read.
     reflection, transmission = (np.round(p * 255) / 255 for p in photos)
     truth_rig = dataclasses.replace(placed, camera_blur_px=round(phone.blur_px, 4))
-    return Shot(params, truth_rig, phone, reflection, transmission)
+    return Shot(params, truth_rig, phone, reflection, transmission, move)
