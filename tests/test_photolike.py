@@ -57,6 +57,12 @@ def test_a_moved_set_moves_only_the_reflection_photo(tmp_path):
     name = "satin0_003"
     assert (tmp_path / "m" / f"{name}_T.png").read_bytes() == (tmp_path / "a" / f"{name}_T.png").read_bytes()
     assert (tmp_path / "m" / f"{name}_R.png").read_bytes() != (tmp_path / "a" / f"{name}_R.png").read_bytes()
+    # the fit benchmark carries the move to its rows (beside the registration the fit made)
+    from backend.bench.fit import pair_jobs
+    for folder, case in (("a", still), ("m", moved)):
+        (tmp_path / folder / "cases.json").write_text(json.dumps([case]))
+    assert [job["move"] for job in pair_jobs([str(tmp_path / "a"), str(tmp_path / "m")], [], None)] == [
+        None, moved["move"]]
 
 
 @pytest.mark.parametrize("index, pattern", [(1, "twill0"), (3, "twill1")])

@@ -78,7 +78,8 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
     return {"params": FabricParams.from_dict(saved), "rig": CaptureRig.from_dict(saved["rig"]),
             "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
             "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", []),
-            "steps": run.get("steps"), "iterations": run.get("iterations")}
+            "steps": run.get("steps"), "iterations": run.get("iterations"),
+            "registration": saved.get("photos", {}).get("registration")}
 
 
 RESOLVED_PX_PER_YARN = 2.0  # the sampling limit: finer yarns alias, and a phone's optics blur them away
@@ -118,7 +119,8 @@ def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) ->
                          "reflection": pair.reflection, "transmission": pair.transmission,
                          "truth": FabricParams.from_interchange(case["params"]),
                          "rig": CaptureRig.from_dict(case["rig"]) if "rig" in case else DEFAULT_RIG,
-                         "phone": PhoneEffects(**case["phone"]) if "phone" in case else None})
+                         "phone": PhoneEffects(**case["phone"]) if "phone" in case else None,
+                         "move": case.get("move")})
     for folder in map(Path, real):
         for pair in find_pairs(folder)[0]:
             if not names or pair.name in names:
@@ -146,6 +148,12 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                            peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
                            rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
                            at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"])
+                registration = result["registration"]
+                if registration is not None or job.get("move") is not None:
+                    # the photos' framing as registered, beside the phone's true move where the set has one
+                    row["registered"] = None if registration is None else {
+                        k: registration[k] for k in ("moved", "magnification", "turn_deg", "matches")}
+                    row["move"] = job.get("move")
                 for tag in ("reflection", "transmission"):
                     for key, value in result["metrics"][tag].items():
                         row[f"{key}_{tag[0].upper()}"] = round(value, 4)
