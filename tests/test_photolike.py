@@ -2,7 +2,6 @@
 phone's effects do what they say."""
 import dataclasses
 import json
-import math
 import random
 
 import numpy as np
@@ -71,11 +70,11 @@ def test_the_moved_reflection_shows_the_lattice_moved_as_drawn(index, pattern):
     # photos weigh different parts of a non-uniformly spaced sample: 0.3-0.6 %, a tenth of a degree).
     # Drawn twill0: 1.0056 and turned +1.49 degrees, read 1.0073 and +1.33 (unmoved 1.0029, -0.12);
     # twill1: 1.0321 and -0.10, read 1.0375 and -0.21 (unmoved 1.0055, -0.11).
-    from backend.image.registration import lattice_map
+    from backend.image.registration import Registration, lattice_map
 
     def scale_and_turn(matrix):
-        turn = math.degrees(math.atan2(matrix[1, 0] - matrix[0, 1], matrix[0, 0] + matrix[1, 1]))
-        return math.sqrt(np.linalg.det(matrix)), turn
+        read = Registration(matrix, 0, 0.0, 0.0)
+        return read.scale, read.turn_deg
 
     still = photo_like.photograph(pattern, photolike.item_rng(5, index), DEFAULT_RIG, 2)
     shot = photo_like.photograph(pattern, photolike.item_rng(5, index), DEFAULT_RIG, 2,

@@ -88,11 +88,11 @@ class PhoneMove:
 
 def moved_reflection(params: FabricParams, rig: CaptureRig, move: PhoneMove) -> tuple[FabricParams, CaptureRig]:
     """The sample as the moved phone frames it: the tiles ``move.scale`` times as many in view and
-    the sample turned so that its lattice turns by ``move.turn_deg`` in the image (about the tile
-    coordinates' origin, not the image centre: the moved photo's weave is shifted as well, which a
-    phone's move does too). A render, not a resampled photo: the moved photo shows fabric past the other's edges, and
-    resampling would soften its weave. (The lamps stay where they were against the camera; a turn of
-    2 degrees moves the highlights across the yarns by as much.)"""
+    the sample turned so that its lattice turns by ``move.turn_deg`` in the image. The zoom is about
+    the tile coordinates' origin, not the image centre, so the moved photo's weave is shifted as well,
+    which a phone's move does too. A render, not a resampled photo: the moved photo shows fabric past
+    the other's edges, and resampling would soften its weave. (The lamps stay where they were against
+    the camera; a turn of 2 degrees moves the highlights across the yarns by as much.)"""
     return (params.replace(tiles=tuple(t * move.scale for t in params.tiles)),
             dataclasses.replace(rig, sample_rotation_deg=rig.sample_rotation_deg - move.turn_deg))
 
