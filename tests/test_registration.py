@@ -10,7 +10,7 @@ from backend.core.rig import DEFAULT_RIG
 from backend.fit.report import write_report
 from backend.image.photos import load_pair
 from backend.image.png import write_png
-from backend.image.registration import magnified, register
+from backend.image.registration import Registration, magnified, register
 from backend.model.render import render_pair
 
 PARAMS = priors.typical("twill1").replace(tiles=(30.0, 40.0))
@@ -69,3 +69,45 @@ def test_the_report_says_the_photos_were_registered(tmp_path, pair):
                             [], registration=given)
         heights.append(cv2.imread(str(path)).shape[0])
     assert heights[1] > heights[0]  # one more header line
+
+
+@pytest.mark.parametrize("zoom, degrees", [(1.10, 1.0), (1 / 1.08, -1.5)])
+def test_re_renders_are_compared_with_each_photo_as_it_was_taken(tmp_path, pair, zoom, degrees):
+    # A perfect fit renders the registered photos; carried back, its re-renders must lie on the photos
+    # as taken (not magnified, whose resampling would flatter the comparison), cropped to what the fit saw.
+    reflection, transmission = pair
+    moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
+    write_png(tmp_path / "s_R.png", reflection)
+    write_png(tmp_path / "s_T.png", moved)
+    photos = load_pair(tmp_path / "s_R.png", tmp_path / "s_T.png")
+    index = 0 if photos.registration.moved == "reflection" else 1
+    renders = (photos.reflection, photos.transmission)
+    taken, carried = photos.in_own_framing(renders)
+    assert taken[index] is photos.taken[index] and carried[1 - index] is renders[1 - index]
+    compared = photos.as_compared(renders)
+    margin = photos.registration.seen_margin(512)
+    assert 0 < margin < 512 * (1 - 1 / max(zoom, 1 / zoom)) / 2 + 512 * math.radians(abs(degrees)) + 2
+    np.testing.assert_array_equal(compared[1 - index][0], taken[1 - index])
+    photo, render = compared[index]
+    assert photo.shape == render.shape == (512 - 2 * margin, 512 - 2 * margin, 3)
+    np.testing.assert_array_equal(photo, taken[index][margin:512 - margin, margin:512 - margin])
+    inside = np.abs(render - photo).mean()
+    # the registered image against the photo as taken: the lattice apart by the move
+    apart = np.abs(renders[index][margin:512 - margin, margin:512 - margin] - photo).mean()
+    assert inside < 0.35 * apart
+
+
+@pytest.mark.parametrize("matrix", [[[1.05, 0.02], [-0.03, 0.98]], [[0.9, 0.0], [0.0, 0.93]],
+                                    [[1.0, -0.0016], [-0.0226, 1.0]]])  # the last: the dev real satin1's
+def test_the_seen_margin_is_the_largest_centred_square_the_registered_image_holds(matrix):
+    done = Registration(tuple(map(tuple, matrix)), 6, 0.1, 3.0)
+    size = 256
+    centre = (size - 1) / 2
+
+    def inside(margin):  # every pixel of the centred square maps into the registered image
+        y = np.stack(np.meshgrid(np.arange(margin, size - margin), np.arange(margin, size - margin)), -1) - centre
+        x = y.reshape(-1, 2) @ np.linalg.inv(done.photo_map).T
+        return bool((np.abs(x) <= centre + 1e-9).all())
+
+    margin = done.seen_margin(size)
+    assert inside(margin) and (margin == 0 or not inside(margin - 1))

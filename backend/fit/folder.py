@@ -3,8 +3,9 @@
 :func:`fit_to_folder` loads the photos, fits them and writes the folder: ``params.json`` (spec
 names, plus the interchange string, rig, fit details), ``reflection.png`` and ``transmission.png``
 (16-bit re-renders of the fit at the rig's film size and ``output_spp`` samples, as the photos show
-the fabric: their framing, camera blur and fitted light falloff), ``report.png`` and
-``metrics.json`` (FLIP, 16 x 16 colour L1 and spectrum correlation for both images, wall time);
+the fabric: their framing, each photo's own where the pair was registered, camera blur and fitted
+light falloff), ``report.png`` and ``metrics.json`` (FLIP, 16 x 16 colour L1 and spectrum
+correlation for both images over what the fit saw: :meth:`.PhotoPair.as_compared`; wall time);
 :data:`backend.core.results.RESULT_FILES` names them. An existing fit in the folder is never
 overwritten without ``overwrite``.
 
@@ -213,8 +214,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     def write_renders():
         images = _final_renders(result.params, rig, result.light, settings.device, options.output_spp,
                                 render_progress)
-        for name, image in zip(("reflection", "transmission"), images):
-            written[name] = str(write_png(out / f"{name}.png", image))
+        for name, image in zip(("reflection", "transmission"), photos.in_own_framing(images)[1]):
+            written[name] = str(write_png(out / f"{name}.png", image))  # each in its photo's framing
         return images
 
     renders = optional("the re-renders (and so the metrics and report)", write_renders)
@@ -227,7 +228,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     if metrics is not None:
         written["metrics"] = str(out / "metrics.json")
         report = optional("report.png", lambda: write_report(
-            out / "report.png", (photos.reflection, photos.transmission), renders, metrics, result.params, rig,
+            out / "report.png", *photos.in_own_framing(renders), metrics, result.params, rig,
             time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration")))
         if report is not None:
             written["report"] = str(report)
@@ -240,8 +241,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
 def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings: FitSettings, started: float,
                    truth: FabricParams | None, at_bounds: list[str]) -> dict:
     """metrics.json: the renders against the photos, wall time, peak memory, stage timings; the metrics."""
-    metrics = {"reflection": compare(photos.reflection, renders[0]),
-               "transmission": compare(photos.transmission, renders[1])}
+    (photo_r, render_r), (photo_t, render_t) = photos.as_compared(renders)
+    metrics = {"reflection": compare(photo_r, render_r), "transmission": compare(photo_t, render_t)}
     peak_mb = peak_memory_mb(torch.device(settings.device))
     summary = {"metrics": metrics, "wall_s": round(time.perf_counter() - started, 2),
                "peak_mb": None if peak_mb is None else round(peak_mb, 1),

@@ -93,7 +93,8 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
     if registration is not None:
         header.append((f"photos registered: their lattices were {registration['magnification']:.3f}x and "
                        f"{registration['turn_deg']:+.2f} deg apart (the phone moved between the shots); the "
-                       f"{registration['moved']} photo is shown and compared magnified onto the other's framing", None))
+                       f"{registration['moved']} photo is shown as taken, its re-render carried back into its "
+                       "framing, and compared where the fit saw it", None))
     header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
     header = [(line, colour) for text, colour in header for line in wrapped(text, width - 20)]

@@ -22,7 +22,9 @@ the same way (the tests use it to check each step on its own).
   warnings, or :class:`PhotoError` with ``strict=True``.
 - Registration (:mod:`.registration`), last: where the two photos' lattices clearly differ by a
   magnification and turn (the phone moved between the shots), the photo showing more fabric is
-  magnified onto the other's framing, with a warning that says so; ``info["registration"]``.
+  magnified onto the other's framing, with a warning that says so; ``info["registration"]``. The
+  fit's re-renders are carried back into each photo's own framing to be written and compared
+  (:meth:`PhotoPair.in_own_framing`, :meth:`PhotoPair.as_compared`).
 
 Errors are :class:`PhotoError` (a ``ValueError``, declared in :mod:`.errors`) whose message names the
 file and the problem.
@@ -49,7 +51,7 @@ from .pair_checks import (
     order_cues,
     order_score,
 )
-from .registration import register
+from .registration import Registration, register
 from .tone import auto_exposure, encode, resize_linear, to_linear
 
 __all__ = ["DEFAULT_SIZE", "Photo", "PhotoError", "PhotoPair", "check_crop_size", "crop_box", "load_pair",
@@ -91,6 +93,38 @@ class PhotoPair:
     transmission: np.ndarray
     warnings: list[str]
     info: dict
+    registration: Registration | None = None
+    taken: tuple[np.ndarray, np.ndarray] | None = None  # both working images before the registration
+
+    def in_own_framing(self, renders: Sequence[np.ndarray]
+                       ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """(the photos, the re-renders), each in its photo's own framing: a moved photo as it was
+        taken, its re-render (made in the fit's framing, this pair's images) carried back
+        (:meth:`.Registration.as_taken`). The re-renders are written, shown and compared so."""
+        if self.registration is None or self.taken is None:
+            return (self.reflection, self.transmission), (renders[0], renders[1])
+        moved = self.registration.moved == "reflection"
+        carried = self.registration.as_taken(renders[0 if moved else 1])
+        return self.taken, ((carried, renders[1]) if moved else (renders[0], carried))
+
+    def as_compared(self, renders: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(photo, re-render) per image, in the photo's own framing (:meth:`in_own_framing`), cropped to
+        what the fit saw: a moved photo to the centred square its registered image holds
+        (:meth:`.Registration.seen_margin`; outside it the carried-back re-render is made up).
+
+        Compared magnified instead, a moved photo flatters the comparison: the resampling (bilinear)
+        takes off the fine grain and noise a re-render lacks (measured on the dev real twill1, the
+        reflection magnified 1.148x: spectrum correlation .68 against the magnified photo, .51
+        against the photo as taken)."""
+        photos, renders = self.in_own_framing(renders)
+        margins = [0, 0]
+        if self.registration is not None:
+            margins[self.registration.moved == "transmission"] = self.registration.seen_margin(photos[0].shape[0])
+
+        def seen(image, k):
+            return image[k:image.shape[0] - k, k:image.shape[1] - k]
+
+        return [(seen(photo, k), seen(render, k)) for photo, render, k in zip(photos, renders, margins)]
 
 
 def crop_box(image_size: tuple[int, int], crop: Sequence[int] | None, path: Path | str) -> Box:
@@ -225,6 +259,7 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     flat_r, flat_t = _flat_paths(flat_field)
     image_r = flat_corrected(image_r, flat_r, reflection, box, size, warnings)
     image_t = flat_corrected(image_t, flat_t, transmission, box, size, warnings)
+    taken = (image_r, image_t)
     image_r, image_t, registration = register(image_r, image_t, frequency_info["scale"])
     if registration is not None:
         m = registration.magnification
@@ -243,4 +278,4 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
             "order": {"reflection": cues_r, "transmission": cues_t, "score": order_score(cues_r, cues_t)},
             "yarn_frequency": frequency_info, "weave_peakness": weave_info,
             "registration": None if registration is None else registration.to_dict()}
-    return PhotoPair(image_r, image_t, warnings, info)
+    return PhotoPair(image_r, image_t, warnings, info, registration, taken if registration is not None else None)

@@ -81,6 +81,27 @@ class Registration:
         a = np.asarray(self.matrix)
         return math.degrees(math.atan2(a[1, 0] - a[0, 1], a[0, 0] + a[1, 1]))
 
+    @property
+    def photo_map(self) -> np.ndarray:
+        """M of the moved photo P: its registered image is P(c + M (x - c)) (A^-T for the reflection,
+        A^T for the transmission; module docstring)."""
+        a = np.asarray(self.matrix, dtype=float)
+        return np.linalg.inv(a).T if self.moved == "reflection" else a.T
+
+    def as_taken(self, image: np.ndarray) -> np.ndarray:
+        """An image in the registered framing (a re-render) carried into the moved photo's own framing:
+        image(c + M^-1 (y - c)), bicubic (a render has no noise for it to sharpen). Outside
+        :meth:`seen_margin` it holds edge reflections."""
+        return magnified(image, np.linalg.inv(self.photo_map), cv2.INTER_CUBIC)
+
+    def seen_margin(self, size: int) -> int:
+        """The margin (px) of the largest centred square of the moved photo (``size`` px) inside what
+        its registered image holds: a square of half-width r maps into the registered one (half-width
+        c = (size - 1) / 2) when r ||M^-1||_inf <= c (the row-sum norm)."""
+        centre = (size - 1) / 2.0
+        half = centre / float(np.abs(np.linalg.inv(self.photo_map)).sum(axis=1).max())
+        return max(0, math.ceil(centre - half - 1e-9))
+
     def to_dict(self) -> dict:
         return {"matrix": [list(row) for row in self.matrix], "moved": self.moved, "matches": self.matches,
                 "residual_cycles": round(self.residual, 4), "shift_cycles": round(self.shift, 4),
@@ -125,14 +146,14 @@ def _matched(ref: np.ndarray, predicted: np.ndarray, trans: np.ndarray, toleranc
     return np.asarray(q, dtype=float).reshape(-1, 2), np.asarray(p, dtype=float).reshape(-1, 2)
 
 
-def magnified(image: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """``image`` sampled at c + M (x - c) (pixel centres, x = (column, row)): bilinear, edges
-    reflected (a turn can reach a few pixels past a corner)."""
+def magnified(image: np.ndarray, matrix: np.ndarray, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """``image`` sampled at c + M (x - c) (pixel centres, x = (column, row)): bilinear unless told,
+    edges reflected (a turn can reach a few pixels past a corner)."""
     h, w = image.shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     affine = np.hstack([matrix, (centre - matrix @ centre)[:, None]]).astype(np.float64)
     out = cv2.warpAffine(np.ascontiguousarray(image, dtype=np.float32), affine, (w, h),
-                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+                         flags=interpolation | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
     return out.astype(image.dtype, copy=False)
 
 
