@@ -175,5 +175,5 @@ def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | No
         return reflection, transmission, None
     done = Registration(tuple(tuple(float(x) for x in row) for row in matrix), matches, residual, shift)
     if done.moved == "reflection":
-        return magnified(reflection, np.linalg.inv(matrix).T), transmission, done
-    return reflection, magnified(transmission, matrix.T), done
+        return magnified(reflection, done.photo_map), transmission, done
+    return reflection, magnified(transmission, done.photo_map), done
