@@ -167,7 +167,10 @@ def test_a_registered_pairs_re_renders_are_written_and_compared_in_each_photos_o
     # (measured: 0.018 against 0.035 in the fit's framing and 0.009 on the unmoved photo; what is left is
     # the map's own error, about 0.3 %, a pixel at the edges, and two bilinear resamplings)
     assert magnified_off - carried_off > 0.5 * (magnified_off - floor)
-    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    saved = json.loads((out / "metrics.json").read_text())
+    metrics = saved["metrics"]
+    assert saved["compared_region"] == {"reflection": [0, 0, 512, 512],
+                                        "transmission": [k, k, 512 - 2 * k, 512 - 2 * k]}
     again = compare(taken[inside], written[inside].astype(np.float32))
     for name, value in metrics["transmission"].items():
         assert value == pytest.approx(again[name], abs=2e-3), name

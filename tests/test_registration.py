@@ -63,12 +63,18 @@ def test_the_report_says_the_photos_were_registered(tmp_path, pair):
     metrics = {"reflection": {"flip": 0.1, "colour_l1": 0.01, "spectrum_corr": 0.5},
                "transmission": {"flip": 0.1, "colour_l1": 0.01, "spectrum_corr": 0.5}}
     registration = {"moved": "reflection", "magnification": 1.148, "turn_deg": 1.09}
-    heights = []
+    heights, outlined = [], []
     for given in (None, registration):
+        compared = None if given is None else ((38, 38, 436, 436), (0, 0, 512, 512))
         path = write_report(tmp_path / f"report_{given is None}.png", pair, pair, metrics, PARAMS, DEFAULT_RIG, 60.0,
-                            [], registration=given)
-        heights.append(cv2.imread(str(path)).shape[0])
+                            [], registration=given, compared=compared)
+        image = cv2.imread(str(path))
+        heights.append(image.shape[0])
+        green = (image[..., 1] > 200) & (image[..., 0] < 100) & (image[..., 2] < 100)
+        outlined.append(int(green.sum()))
     assert heights[1] > heights[0]  # one more header line
+    # the compared part of the reflection outlined on its three panels (4 x 272 px each), not the transmission's
+    assert outlined[0] < 50 and 3 * 4 * 250 < outlined[1] - outlined[0] < 3 * 4 * 300
 
 
 @pytest.mark.parametrize("zoom, degrees", [(1.10, 1.0), (1 / 1.08, -1.5)])

@@ -229,7 +229,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         written["metrics"] = str(out / "metrics.json")
         report = optional("report.png", lambda: write_report(
             out / "report.png", *photos.in_own_framing(renders), metrics, result.params, rig,
-            time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration")))
+            time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration"),
+            photos.seen_boxes()))
         if report is not None:
             written["report"] = str(report)
     reporter.progress("report", 1, 1)
@@ -250,7 +251,8 @@ def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings
                "loss": result.loss, "pattern": result.params.pattern, "tiles": list(result.params.tiles),
                "camera_blur_px": rig.camera_blur_px, "sample_rotation_deg": rig.sample_rotation_deg,
                "sample_skew_deg": rig.sample_skew_deg,
-               "light_falloff": result.light.to_dict(), "at_bounds": at_bounds}
+               "light_falloff": result.light.to_dict(), "at_bounds": at_bounds,
+               "compared_region": dict(zip(("reflection", "transmission"), map(list, photos.seen_boxes())))}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
     (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -6,7 +6,9 @@
   parameter that ended at a bound of its declared range (in red: the fit wanted a value beyond the
   range, or the images do not constrain it);
 - per image (reflection, transmission): photo, re-render and |error| x 4 (inferno) at 320 px, with
-  FLIP, 16 x 16 colour L1 and spectrum correlation;
+  FLIP, 16 x 16 colour L1 and spectrum correlation; where only part of a photo was compared (a
+  registered pair's moved photo: :meth:`backend.image.photos.PhotoPair.seen_boxes`), that part is
+  outlined;
 - a row of zoomed centre crops (``CROP`` x ``CROP`` photo pixels, enlarged without smoothing) of
   photo and re-render for both images, where the weave itself can be compared: dense weaves have
   2-3 pixels per yarn, which a downsampled overview cannot show.
@@ -48,6 +50,12 @@ def centre_crop(image: np.ndarray, size: int = CROP) -> np.ndarray:
     return image[top:top + size, left:left + size]
 
 
+def _outline(panel: np.ndarray, box, scale: float, colour=(80, 220, 80)):
+    """A box (x, y, w, h, image px) drawn on a panel showing the image at ``scale``."""
+    x, y, w, h = (round(v * scale) for v in box)
+    cv2.rectangle(panel, (x, y), (x + w - 1, y + h - 1), colour, 1)
+
+
 def _text(canvas, text: str, x: int, y: int, scale: float = 0.5, colour=(235, 235, 235)):
     cv2.putText(canvas, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
@@ -78,8 +86,10 @@ def _pairs(values, digits: int) -> str:
 
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
                  metrics: dict[str, dict[str, float]], params: FabricParams, rig: CaptureRig, wall_s: float,
-                 at_bounds: list[str], light: PhotoLight = PhotoLight(), registration: dict | None = None) -> Path:
-    """Writes report.png (see the module docstring)."""
+                 at_bounds: list[str], light: PhotoLight = PhotoLight(), registration: dict | None = None,
+                 compared: tuple[tuple[int, int, int, int], ...] | None = None) -> Path:
+    """Writes report.png (see the module docstring); ``compared``: per image the (x, y, w, h) box the
+    metrics cover, None for the whole images."""
     header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
                f"camera blur {rig.camera_blur_px:.2f} px   sample rotation {rig.sample_rotation_deg:+.2f} deg   "
                f"skew {rig.sample_skew_deg:+.2f} deg   "
@@ -92,9 +102,9 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
                        "   (in the re-renders, not in the material)", None))
     if registration is not None:
         header.append((f"photos registered: their lattices were {registration['magnification']:.3f}x and "
-                       f"{registration['turn_deg']:+.2f} deg apart (the phone moved between the shots); the "
+                       f"{registration['turn_deg']:+.2f} deg apart (the phone moved between the shots)   the "
                        f"{registration['moved']} photo is shown as taken, its re-render carried back into its "
-                       "framing, and compared where the fit saw it", None))
+                       "framing   compared inside the outline: what the fit saw", None))
     header += [(f"at a bound: {item}", RED) for item in at_bounds] or [("no parameter at a bound", None)]
     width = 3 * PANEL
     header = [(line, colour) for text, colour in header for line in wrapped(text, width - 20)]
@@ -110,7 +120,10 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
                       f"spectrum corr {m['spectrum_corr']:.3f}", 10, y + 17)
         panels = [_to_bgr8(photos[row], PANEL), _to_bgr8(renders[row], PANEL),
                   _error_map(photos[row], renders[row], PANEL)]
+        box = None if compared is None else compared[row]
         for col, (panel, label) in enumerate(zip(panels, ("photo", "render", "|error| x4"))):
+            if box is not None and tuple(box) != (0, 0, *photos[row].shape[1::-1]):
+                _outline(panel, box, PANEL / photos[row].shape[1])
             canvas[y + LINE: y + LINE + PANEL, col * PANEL:(col + 1) * PANEL] = panel
             _text(canvas, label, col * PANEL + 8, y + LINE + PANEL - 10, 0.5)
     _text(canvas, f"centre {CROP} x {CROP} px, enlarged", 10, crop_top + 17)

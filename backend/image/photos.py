@@ -117,14 +117,22 @@ class PhotoPair:
         reflection magnified 1.148x: spectrum correlation .68 against the magnified photo, .51
         against the photo as taken)."""
         photos, renders = self.in_own_framing(renders)
-        margins = [0, 0]
+
+        def seen(image, box):
+            x, y, w, h = box
+            return image[y:y + h, x:x + w]
+
+        return [(seen(photo, box), seen(render, box)) for photo, render, box in zip(photos, renders, self.seen_boxes())]
+
+    def seen_boxes(self) -> tuple[Box, Box]:
+        """Per photo, as taken, the part compared with its re-render (x, y, w, h; px): the whole photo,
+        or for a moved one the centred square its registered image holds."""
+        size = self.reflection.shape[0]
+        boxes = [(0, 0, size, size), (0, 0, size, size)]
         if self.registration is not None:
-            margins[self.registration.moved == "transmission"] = self.registration.seen_margin(photos[0].shape[0])
-
-        def seen(image, k):
-            return image[k:image.shape[0] - k, k:image.shape[1] - k]
-
-        return [(seen(photo, k), seen(render, k)) for photo, render, k in zip(photos, renders, margins)]
+            k = self.registration.seen_margin(size)
+            boxes[self.registration.moved == "transmission"] = (k, k, size - 2 * k, size - 2 * k)
+        return boxes[0], boxes[1]
 
 
 def crop_box(image_size: tuple[int, int], crop: Sequence[int] | None, path: Path | str) -> Box:
