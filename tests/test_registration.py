@@ -27,6 +27,16 @@ def turn(degrees: float) -> np.ndarray:
     return np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]])
 
 
+def loaded_moved(folder, pair, zoom: float, degrees: float):
+    """The pair loaded with its transmission photo taken with the phone moved (turned and zoomed), and
+    that moved photo."""
+    reflection, transmission = pair
+    moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
+    write_png(folder / "s_R.png", reflection)
+    write_png(folder / "s_T.png", moved)
+    return load_pair(folder / "s_R.png", folder / "s_T.png"), moved
+
+
 def test_a_pair_framed_alike_is_left_alone(pair):
     reflection, transmission = pair
     out_r, out_t, done = register(reflection, transmission, 1.0)
@@ -39,10 +49,7 @@ def test_the_photo_showing_more_fabric_is_magnified_onto_the_others_framing(tmp_
     # whose lattice is the reflection's seen through M^T. Registration must find A = M^-T and
     # magnify whichever photo shows more fabric, so that both show one lattice again.
     reflection, transmission = pair
-    moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
-    write_png(tmp_path / "s_R.png", reflection)
-    write_png(tmp_path / "s_T.png", moved)
-    photos = load_pair(tmp_path / "s_R.png", tmp_path / "s_T.png")
+    photos, moved = loaded_moved(tmp_path, pair, zoom, degrees)
     info = photos.info["registration"]
     assert info is not None and info["moved"] == ("reflection" if zoom > 1 else "transmission")
     np.testing.assert_allclose(info["matrix"], np.linalg.inv(turn(degrees) / zoom).T, atol=0.004)
@@ -81,11 +88,7 @@ def test_the_report_says_the_photos_were_registered(tmp_path, pair):
 def test_re_renders_are_compared_with_each_photo_as_it_was_taken(tmp_path, pair, zoom, degrees):
     # A perfect fit renders the registered photos; carried back, its re-renders must lie on the photos
     # as taken (not magnified, whose resampling would flatter the comparison), cropped to what the fit saw.
-    reflection, transmission = pair
-    moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
-    write_png(tmp_path / "s_R.png", reflection)
-    write_png(tmp_path / "s_T.png", moved)
-    photos = load_pair(tmp_path / "s_R.png", tmp_path / "s_T.png")
+    photos, _ = loaded_moved(tmp_path, pair, zoom, degrees)
     index = 0 if photos.registration.moved == "reflection" else 1
     renders = (photos.reflection, photos.transmission)
     taken, carried = photos.in_own_framing(renders)
