@@ -156,9 +156,11 @@ def test_ctrl_c_stops_the_batch_and_keeps_what_is_finished(first_run, photos, tm
         for side in "RT":
             shutil.copy(photos[0] / f"good_{side}.png", folder / f"{name}_{side}.png")
     shutil.copytree(out / "good", tmp_path / "out" / "good")
-    # Ctrl+C as soon as a fit has started.
+    # Ctrl+C as soon as a fit has started; the fits are long enough that none ends first (with FIT's two
+    # iterations, one of the two fits at once could finish before the stop reached it on a busy machine).
     stream = EventStream('"status":"started"', lambda: signal.raise_signal(signal.SIGINT))
-    code, events = batch(folder, "--out", tmp_path / "out", "--rig", photos[1], *FIT, "--resume", stream=stream)
+    long_fit = [*FIT[:3], "1000", *FIT[4:]]  # FIT with 1000 iterations
+    code, events = batch(folder, "--out", tmp_path / "out", "--rig", photos[1], *long_fit, "--resume", stream=stream)
     assert code == 130 and events[-1]["event"] == "error" and events[-1]["kind"] == "cancelled"
     rows = {r["name"]: r["status"] for r in json.loads((tmp_path / "out" / "catalogue.json").read_text())["pairs"]}
     assert rows == {"good": "kept", "second": "cancelled", "third": "cancelled"}
