@@ -91,9 +91,9 @@ def test_re_renders_are_compared_with_each_photo_as_it_was_taken(tmp_path, pair,
     photos, _ = loaded_moved(tmp_path, pair, zoom, degrees)
     index = 0 if photos.registration.moved == "reflection" else 1
     renders = (photos.reflection, photos.transmission)
-    taken, carried = photos.in_own_framing(renders)
+    taken, carried = framed = photos.in_own_framing(renders)
     assert taken[index] is photos.taken[index] and carried[1 - index] is renders[1 - index]
-    compared = photos.as_compared(renders)
+    compared = photos.as_compared(framed)
     margin = photos.registration.seen_margin(512)
     assert 0 < margin < 512 * (1 - 1 / max(zoom, 1 / zoom)) / 2 + 512 * math.radians(abs(degrees)) + 2
     np.testing.assert_array_equal(compared[1 - index][0], taken[1 - index])

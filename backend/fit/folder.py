@@ -214,21 +214,22 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     def write_renders():
         images = _final_renders(result.params, rig, result.light, settings.device, options.output_spp,
                                 render_progress)
-        for name, image in zip(("reflection", "transmission"), photos.in_own_framing(images)[1]):
-            written[name] = str(write_png(out / f"{name}.png", image))  # each in its photo's framing
-        return images
+        framed = photos.in_own_framing(images)  # (photos, re-renders), each in its photo's framing
+        for name, image in zip(("reflection", "transmission"), framed[1]):
+            written[name] = str(write_png(out / f"{name}.png", image))
+        return framed
 
-    renders = optional("the re-renders (and so the metrics and report)", write_renders)
+    framed = optional("the re-renders (and so the metrics and report)", write_renders)
     metrics = None
-    if renders is not None:
+    if framed is not None:
         reporter.progress("report", 0, 1)
         metrics = optional("metrics.json (and so report.png)",
-                           lambda: _write_metrics(out, photos, renders, result, rig, settings, started, truth,
+                           lambda: _write_metrics(out, photos, framed, result, rig, settings, started, truth,
                                                   at_bounds))
     if metrics is not None:
         written["metrics"] = str(out / "metrics.json")
         report = optional("report.png", lambda: write_report(
-            out / "report.png", *photos.in_own_framing(renders), metrics, result.params, rig,
+            out / "report.png", *framed, metrics, result.params, rig,
             time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration"),
             photos.seen_boxes()))
         if report is not None:
@@ -239,10 +240,11 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     return 0
 
 
-def _write_metrics(out: Path, photos, renders, result, rig: CaptureRig, settings: FitSettings, started: float,
+def _write_metrics(out: Path, photos, framed, result, rig: CaptureRig, settings: FitSettings, started: float,
                    truth: FabricParams | None, at_bounds: list[str]) -> dict:
-    """metrics.json: the renders against the photos, wall time, peak memory, stage timings; the metrics."""
-    (photo_r, render_r), (photo_t, render_t) = photos.as_compared(renders)
+    """metrics.json: the renders against the photos (``framed``: both in each photo's framing), wall
+    time, peak memory, stage timings; the metrics."""
+    (photo_r, render_r), (photo_t, render_t) = photos.as_compared(framed)
     metrics = {"reflection": compare(photo_r, render_r), "transmission": compare(photo_t, render_t)}
     peak_mb = peak_memory_mb(torch.device(settings.device))
     summary = {"metrics": metrics, "wall_s": round(time.perf_counter() - started, 2),
