@@ -53,8 +53,10 @@ EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd
 # The re-renders' samples per pixel. The three dev real fits' parameters re-rendered at 32 and at 64
 # samples: FLIP moves by at most 0.0003 and the 16 x 16 colour L1 by at most 0.0001, and the render takes
 # half the time (14 -> 7 s of a 125-s fit); at 16 samples FLIP moved by up to 0.0017. The spectrum
-# correlation is a noisier reading of the same images: it moved by up to 0.02, either way.
-OUTPUT_SPP = 32
+# correlation is a noisier reading of the same images: it moved by up to 0.02, either way. 36 (6 x 6)
+# rather than 32: a square of an even side, so that the camera blur acts on sub-pixels
+# (:func:`backend.model.render.subpixel_size`), as in the fit.
+OUTPUT_SPP = 36
 FITTED = tuple(s.name for s in PARAMETERS if s.optimised or (s.searched and s.name != "tiles"))
 
 
