@@ -296,9 +296,11 @@ def test_rig_settings_are_validated():
 
 def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
     params = FabricParams(pattern="twill0", tiles=(120.0, 120.0))
-    sharp_renderer = Renderer(DEFAULT_RIG, 128, 4)
+    sharp_renderer = Renderer(DEFAULT_RIG, 128, 4, subpixel_blur=True)
     sharp = sharp_renderer.render(params)
-    soft = Renderer(CaptureRig(camera_blur_px=4.0), 128, 4).render(params)  # 1 pixel at 128 px
+    soft = Renderer(CaptureRig(camera_blur_px=4.0), 128, 4, subpixel_blur=True).render(params)  # 1 px at 128 px
+    assert torch.allclose(Renderer(CaptureRig(camera_blur_px=4.0), 128, 4).render(params).reflection_radiance,
+                          gaussian_blur(sharp.reflection_radiance, 1.0))  # a fit's: on the pixel means
     with torch.no_grad():
         fine = sharp_renderer.radiance(ParamTensors.from_params(params), fine=True)
     # the sub-pixels are the quarters of each pixel's 2 x 2 strata: their mean is the pixel's (the
@@ -318,28 +320,46 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
     assert torch.equal(gaussian_blur(sharp.reflection, 0.0), sharp.reflection)
 
 
-def test_a_blur_scan_renders_the_radiance_once(monkeypatch):
+@pytest.mark.parametrize("subpixels, images", [(False, 1), (True, 2)])
+def test_a_blur_scan_renders_the_radiance_once(monkeypatch, subpixels, images):
     """Without gradients the last radiance is reused for the same parameter values (a camera-blur scan
-    blurs one render), with the numbers of a fresh render; other values, or gradients, render anew."""
+    blurs one render), with the numbers of a fresh render; other values, or gradients, render anew.
+    Blurring on sub-pixels, a scan that includes no blur renders the pixels and the sub-pixels once each."""
     params = FabricParams(pattern="twill0", tiles=(120.0, 120.0))
     blurs = (0.0, 1.0, 2.0)
     with torch.no_grad():
-        fresh = [Renderer(DEFAULT_RIG, 64, 4).blurred(params, camera_blur_px=blur) for blur in blurs]
-    renderer = Renderer(DEFAULT_RIG, 64, 4)
+        fresh = [Renderer(DEFAULT_RIG, 64, 4, subpixel_blur=subpixels).blurred(params, camera_blur_px=blur)
+                 for blur in blurs]
+    renderer = Renderer(DEFAULT_RIG, 64, 4, subpixel_blur=subpixels)
     calls = []
     radiance = Renderer.radiance
     monkeypatch.setattr(Renderer, "radiance", lambda self, *args, **kwargs: calls.append(1)
                         or radiance(self, *args, **kwargs))
     with torch.no_grad():
         scan = [renderer.blurred(params, camera_blur_px=blur) for blur in blurs]
-        assert len(calls) == 2  # the pixels (no blur) and the sub-pixels (the blurs), once each
+        assert len(calls) == images
         for (reflection, transmission), (expected_r, expected_t) in zip(scan, fresh):
             assert torch.equal(reflection, expected_r) and torch.equal(transmission, expected_t)
         renderer.blurred(params.replace(roughness=(0.3, 0.3)), camera_blur_px=1.0)
-        assert len(calls) == 3
+        assert len(calls) == images + 1
     fabric = ParamTensors.from_params(params.replace(roughness=(0.3, 0.3)), requires_grad=["roughness"])
     reflection, _ = renderer.blurred(fabric, camera_blur_px=1.0)
-    assert len(calls) == 4 and reflection.requires_grad
+    assert len(calls) == images + 2 and reflection.requires_grad
+
+
+@pytest.mark.parametrize("size, sigma", [(64, 0.0), (64, 0.3), (96, 0.9), (32, 4.0)])
+def test_the_sub_pixel_blur_is_its_step_by_step_reference_with_its_gradients(size, sigma):
+    """The blur and the 2 x 2 means in one strided kernel equal the whole sub-pixel image blurred and
+    then averaged, values and gradients (the kernel reaches across the mirrored borders alike)."""
+    torch.manual_seed(3)
+    image = torch.rand(size, size, 3, dtype=torch.float64, requires_grad=True)
+    weights = torch.rand(size // 2, size // 2, 3, dtype=torch.float64)
+    fast, slow = imaging.subpixel_blur(image, sigma), imaging.subpixel_blur_reference(image, sigma)
+    assert fast.shape == (size // 2, size // 2, 3)
+    assert torch.allclose(fast, slow, atol=1e-12)
+    (fast_grad,) = torch.autograd.grad((fast * weights).sum(), image)
+    (slow_grad,) = torch.autograd.grad((slow * weights).sum(), image)
+    assert torch.allclose(fast_grad, slow_grad, atol=1e-12)
 
 
 @pytest.mark.parametrize("frequency, sigma", [(0.3, 1.2), (0.45, 0.6), (0.6, 0.8), (0.7, 0.9), (0.85, 1.0)])

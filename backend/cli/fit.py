@@ -135,7 +135,8 @@ def add_fit_options(p) -> None:
     p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,
-                   help="samples per pixel of the re-renders (default 32)")
+                   help=f"samples per pixel of the re-renders (default {FolderFitOptions.output_spp}; a square "
+                        "of an even side, k x k, lets the camera blur act on sub-pixels)")
 
 
 def add_parser(sub) -> None:

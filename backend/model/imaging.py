@@ -77,8 +77,29 @@ def subpixel_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
     folded about the pixel grid, G(f) + G(1 - f): twice the optics' at Nyquist. On sub-pixels both
     folds move to 1 cycle per pixel, where the Gaussian has nothing left (tests/test_render.py).
     """
-    blurred = gaussian_blur(image, 2.0 * sigma)
-    return F.avg_pool2d(blurred.permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
+    if sigma <= NO_BLUR_PX:
+        return _pooled(image)
+    radius = blur_radius(2.0 * sigma, min(image.shape[0], image.shape[1]) - 1)
+    # The blur and the 2 x 2 mean in one kernel (the Gaussian's taps convolved with (1/2, 1/2)),
+    # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, in about a
+    # third of the work (the whole blurred sub-pixel image is never made).
+    taps = np.convolve(gaussian_kernel(2.0 * sigma, radius), [0.5, 0.5])
+    kernel = torch.tensor(taps, dtype=image.dtype, device=image.device)
+    # each channel a one-channel image of a batch: faster than a depthwise (grouped) convolution
+    planes = F.pad(image.permute(2, 0, 1)[:, None], (radius, radius, radius, radius), mode="reflect")
+    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1), stride=(1, 2))
+    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1), stride=(2, 1))
+    return planes[:, 0].permute(1, 2, 0)
+
+
+def subpixel_blur_reference(image: torch.Tensor, sigma: float) -> torch.Tensor:
+    """:func:`subpixel_blur` step by step: the whole sub-pixel image blurred, then the 2 x 2 means."""
+    return _pooled(gaussian_blur(image, 2.0 * sigma))
+
+
+def _pooled(image: torch.Tensor) -> torch.Tensor:
+    """The 2 x 2 means of an (2 H, 2 W, C) image: (H, W, C)."""
+    return F.avg_pool2d(image.permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
 
 
 def gaussian_blur_products(image: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -117,7 +117,7 @@ class FitRequest:
     size: int | None = None
     device: str | None = None
     rig_json: Path | None = None
-    output_spp: int | None = None   # samples per pixel of the fit's re-renders (backend default: 64)
+    output_spp: int | None = None   # samples per pixel of the fit's re-renders (None: the backend's default)
 
     def arguments(self) -> list[str]:
         patterns = declarations.fit_patterns()
