@@ -55,7 +55,7 @@ EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd
 # half the time (14 -> 7 s of a 125-s fit); at 16 samples FLIP moved by up to 0.0017. The spectrum
 # correlation is a noisier reading of the same images: it moved by up to 0.02, either way. 36 (6 x 6)
 # rather than 32: a square of an even side, so that the camera blur acts on sub-pixels
-# (:func:`backend.model.render.subpixel_size`), as in the fit.
+# (:func:`backend.model.render.subpixel_size`; the fit's own renders blur the pixel means).
 OUTPUT_SPP = 36
 FITTED = tuple(s.name for s in PARAMETERS if s.optimised or (s.searched and s.name != "tiles"))
 
