@@ -8,7 +8,6 @@ import zlib
 import numpy as np
 import pytest
 import torch
-import torch.nn.functional as F
 from oracles import reference
 
 from backend.core.options import RenderOptions
@@ -305,7 +304,7 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
         fine = sharp_renderer.radiance(ParamTensors.from_params(params), fine=True)
     # the sub-pixels are the quarters of each pixel's 2 x 2 strata: their mean is the pixel's (the
     # glow, added where a sample sees no yarn, is taken at each sub-pixel's centre: 5 px wide here)
-    pooled = [F.avg_pool2d(sub.permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0) for sub in fine]
+    pooled = [imaging._pooled(sub) for sub in fine]
     assert fine[0].shape == fine[1].shape == (256, 256, 3)
     assert torch.allclose(pooled[0], sharp.reflection_radiance, atol=1e-6)
     assert pooled[1].mean().item() == pytest.approx(sharp.transmission_radiance.mean().item(), rel=0.002)
@@ -439,7 +438,8 @@ def test_the_convolution_path_of_the_blur_is_the_matrix_products():
     image = torch.rand(60, 64, 3, dtype=torch.float64, generator=generator)
     for sigma in (0.3, 0.6):  # 3 and 5 taps: within 10 % of the 60-px side
         assert 2 * imaging.blur_radius(sigma, 59) + 1 <= imaging.CONV_TAPS_PER_PIXEL * 60
-        convolved = imaging._convolved(image, sigma, imaging.blur_radius(sigma, 59))
+        radius = imaging.blur_radius(sigma, 59)
+        convolved = imaging._convolved(image, imaging.gaussian_kernel(sigma, radius), radius)
         assert torch.allclose(gaussian_blur(image, sigma), convolved, rtol=0, atol=0)  # this path was taken
         assert np.allclose(convolved.numpy(), numpy_blur(image.numpy(), sigma))
         planes = image.permute(2, 0, 1)

@@ -60,7 +60,7 @@ def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
     limit = min(height, width) - 1  # one radius for both axes, as the add-on's preview blur
     radius = blur_radius(sigma, limit)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
-        return _convolved(image, sigma, radius)
+        return _convolved(image, gaussian_kernel(sigma, radius), radius)
     return gaussian_blur_products(image, sigma)
 
 
@@ -84,13 +84,7 @@ def subpixel_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
     # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, and the whole
     # blurred sub-pixel image is never made (1024 px, 0.9 px, 2 cores: 30-60 ms forward against 90-140,
     # 100-170 ms with the backward against 290-300).
-    taps = np.convolve(gaussian_kernel(2.0 * sigma, radius), [0.5, 0.5])
-    kernel = torch.tensor(taps, dtype=image.dtype, device=image.device)
-    channels = image.shape[2]
-    planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
-    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, 2), groups=channels)
-    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(2, 1), groups=channels)
-    return planes[0].permute(1, 2, 0)
+    return _convolved(image, np.convolve(gaussian_kernel(2.0 * sigma, radius), [0.5, 0.5]), radius, stride=2)
 
 
 def subpixel_blur_reference(image: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -130,14 +124,18 @@ def gaussian_kernel(sigma: float, radius: int) -> np.ndarray:
     return kernel / kernel.sum()
 
 
-def _convolved(image: torch.Tensor, sigma: float, radius: int) -> torch.Tensor:
-    """:func:`gaussian_blur` as a depthwise convolution of the image mirror-padded by ``radius``
-    ("reflect": the edge sample is not repeated, as in :func:`blur_matrix`)."""
-    kernel = torch.tensor(gaussian_kernel(sigma, radius), dtype=image.dtype, device=image.device)
+def _convolved(image: torch.Tensor, taps: np.ndarray, radius: int, stride: int = 1) -> torch.Tensor:
+    """A depthwise convolution by ``taps`` along the rows, then the columns, of the image
+    mirror-padded by ``radius`` ("reflect": the edge sample is not repeated, as in
+    :func:`blur_matrix`), evaluated every ``stride`` pixels: :func:`gaussian_blur` with a Gaussian's
+    taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2."""
+    kernel = torch.tensor(taps, dtype=image.dtype, device=image.device)
     channels = image.shape[2]
     planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
-    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
-    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
+    planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, stride),
+                      groups=channels)
+    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
+                      groups=channels)
     return planes[0].permute(1, 2, 0)
 
 
