@@ -204,24 +204,34 @@ def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     # exp(-T S) of thick layers amplifies that to ~1.5e-4 relative on a few pixels (reflection: 2e-7).
     for eager, fused in zip(*results):
         torch.testing.assert_close(fused, eager, rtol=3e-4, atol=1e-6)
+    # a render without gradients, after one with them, goes through the same graph: nothing compiles again
+    graphs = counters["stats"]["unique_graphs"]
+    with torch.no_grad():
+        again = renderer.render(params)
+    assert counters["stats"]["unique_graphs"] == graphs
+    torch.testing.assert_close(again.reflection, results[0][0], rtol=3e-4, atol=1e-6)
+    torch.testing.assert_close(again.transmission, results[0][1], rtol=3e-4, atol=1e-6)
 
 
-def test_a_compiling_renderer_fuses_only_the_renders_that_need_gradients(monkeypatch, tmp_path):
-    """Renders without gradients stay eager (a compile per working size would cost more than they
-    save); renders with gradients go through the compiled graph, one call per chunk of rows. Here
-    torch.compile hands back the function itself with a counter, so no C++ compiler is needed."""
+def test_a_compiling_renderer_fuses_renders_once_one_with_gradients_has_set_its_graphs_inputs(monkeypatch, tmp_path):
+    """Renders without gradients stay eager until a render with gradients has gone through the
+    compiled graph (one call per chunk of rows); after that they go through it too, with the same
+    inputs needing gradients and grad mode on (no second graph to compile), and keep nothing. Here
+    torch.compile hands back the function itself with a record of each call, so no C++ compiler is
+    needed."""
     import backend.model.render as render_module
     calls = []
 
     def fake_compile(fn, **kwargs):
-        def counted(*args):
-            calls.append(torch.is_grad_enabled())
-            return fn(*args)
+        def counted(samples, fabric):
+            calls.append((torch.is_grad_enabled(), frozenset(n for n, v in fabric.values.items() if v.requires_grad)))
+            return fn(samples, fabric)
         return counted
 
     monkeypatch.setattr(render_module.torch, "compile", fake_compile)
     monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path))
     params = FabricParams(pattern="twill1")
+    wanted = frozenset(OPTIMISED)
     renderer = Renderer(size=32, spp=4, compile=True, max_chunk_samples=32 * 4 * 8)  # 4 chunks of rows
     assert renderer.compiled and len(renderer.ranges) == 4
     with torch.no_grad():
@@ -231,16 +241,23 @@ def test_a_compiling_renderer_fuses_only_the_renders_that_need_gradients(monkeyp
     fused = renderer.render(fabric)
     (fused.reflection.mean() + fused.transmission.mean()).backward()
     # each chunk is recomputed in the backward pass (with gradients), after a forward without them
-    assert calls.count(True) == 4 and len(calls) == 8
+    assert calls.count((True, wanted)) == 4 and len(calls) == 8
     assert torch.equal(fused.reflection.detach(), plain.reflection)
     assert torch.equal(fused.transmission.detach(), plain.transmission)
     assert all(fabric.values[n].grad is not None for n in OPTIMISED)
     calls.clear()
     whole = Renderer(size=32, spp=4, compile=True)  # one chunk: the fit's usual case, no recomputation
     with torch.no_grad():
-        whole.render(params)
+        first = whole.render(params)
+    assert calls == []
     whole.render(ParamTensors.from_params(params, requires_grad=OPTIMISED))
-    assert calls == [True]
+    assert calls == [(True, wanted)]
+    with torch.no_grad():
+        later = whole.render(params.replace(roughness=(0.3, 0.5)))
+        again = whole.render(params)
+    assert calls == [(True, wanted)] * 3
+    assert not later.reflection.requires_grad and not torch.equal(later.reflection, first.reflection)
+    assert torch.equal(again.reflection, first.reflection) and torch.equal(again.transmission, first.transmission)
 
 
 def test_glow_shows_only_through_gaps_at_the_centre():
