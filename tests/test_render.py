@@ -213,9 +213,10 @@ def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     torch.testing.assert_close(again.transmission, results[0][1], rtol=3e-4, atol=1e-6)
 
 
-def test_a_compiling_renderer_fuses_renders_once_one_with_gradients_has_set_its_graphs_inputs(monkeypatch, tmp_path):
+def test_a_compiling_renderer_fuses_renders_without_gradients_once_it_knows_the_graphs_inputs(monkeypatch, tmp_path):
     """Renders without gradients stay eager until a render with gradients has gone through the
-    compiled graph (one call per chunk of rows); after that they go through it too, with the same
+    compiled graph (one call per chunk of rows), or the renderer was told which inputs need them;
+    after that they go through it too, with the same
     inputs needing gradients and grad mode on (no second graph to compile), and keep nothing. Here
     torch.compile hands back the function itself with a record of each call, so no C++ compiler is
     needed."""
@@ -258,6 +259,12 @@ def test_a_compiling_renderer_fuses_renders_once_one_with_gradients_has_set_its_
     assert calls == [(True, wanted)] * 3
     assert not later.reflection.requires_grad and not torch.equal(later.reflection, first.reflection)
     assert torch.equal(again.reflection, first.reflection) and torch.equal(again.transmission, first.transmission)
+    calls.clear()
+    declared = Renderer(size=32, spp=4, compile=True, gradient_inputs=OPTIMISED)  # as a fit's renderer is made
+    with torch.no_grad():
+        early = declared.render(params)
+    assert calls == [(True, wanted)]
+    assert torch.equal(early.reflection, first.reflection) and torch.equal(early.transmission, first.transmission)
 
 
 def test_glow_shows_only_through_gaps_at_the_centre():

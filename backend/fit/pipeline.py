@@ -57,7 +57,7 @@ from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
 from .optimise import Run
-from .settings import FitCancelled, FitResult, FitSettings, Progress
+from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -138,7 +138,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
     device = torch.device(settings.device)
     target = Target.from_arrays(reflection, transmission, settings.size, device)
-    renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile)
+    renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile,
+                        gradient_inputs=OPTIMISED)
     gram = GramDescriptor.load(settings.vgg_weights, device) if settings.vgg_weights else None
     return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight,
                      settings.light_falloff)

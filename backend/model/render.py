@@ -34,10 +34,11 @@ compile failure falls back to the eager path with a warning. ``WFC_COMPILE=0`` o
 environment overrides the automatic choice.
 
 Renders without gradients (a fit's starting points, scans and discrete steps) go through the same
-compiled graph once a render with gradients has set which inputs need them: the inputs are given
-that pattern and grad mode is on, so nothing compiles again, and the outputs are detached (nothing
-is kept for a backward pass). Before that, and in renderers that never take gradients (the final
-re-renders, the placement's signatures), they stay eager: a graph of their own would cost a second
+compiled graph once it is known which inputs need gradients (``gradient_inputs``, which a fit
+declares, or else those of the last render with gradients): the inputs are given that pattern and
+grad mode is on, so nothing compiles again, and the outputs are detached (nothing is kept for a
+backward pass). Before that, and in renderers that never take gradients (the final re-renders, the
+placement's signatures), they stay eager: a graph of their own would cost a second
 compile per working size, about 25 s on a cold cache (measured when it was tried: a photo-like 512-px
 fit 166 s instead of 199 s on a cold cache). Through the gradient graph the BSDF's forward at 512 px
 and 4 spp takes 123 ms against 400 ms eager (``bench render``), and a fit of the dev real twill2
@@ -104,7 +105,8 @@ class Renderer:
     def __init__(self, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4, seed: int = 0,
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
-                 compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool = False):
+                 compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool = False,
+                 gradient_inputs: tuple[str, ...] | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
         self.size, self.spp, self.block_samples = size, spp, block_samples
@@ -131,7 +133,8 @@ class Renderer:
             use_persistent_compile_cache()
             allow_cached_custom_gradients()
         self._compiled = torch.compile(self._terms, dynamic=False) if compile else None
-        self._grad_names: frozenset[str] | None = None  # the parameters the compiled graph differentiates
+        # the parameters the compiled graph differentiates: as declared, else as the last render with gradients had them
+        self._grad_names = None if gradient_inputs is None else frozenset(gradient_inputs)
 
     # -- cached stages -----------------------------------------------------------------------
     def _chunk(self, rows: tuple[int, int]) -> SampleChunk:
