@@ -618,6 +618,35 @@ def test_the_lowest_selection_wins_among_the_lattices_that_make_the_photos_peaks
     assert chosen([first, second]) is first                     # ties go to the earlier trial, as before
 
 
+def test_a_start_on_a_lattice_chosen_would_rule_out_gets_no_trial_steps(twill_pair):
+    """The trials of the starts whose lattice coverage :func:`chosen` keeps are those of a search that
+    tried every start (the coverage does not depend on the steps); the others get none, and neither
+    does a lone eligible start where the winner restarts at the working size."""
+    from backend.fit.search import Start, trial_runs
+    objective = Objective(Target.from_arrays(*twill_pair, size=64), Renderer(DEFAULT_RIG, 64, 4, compile=False),
+                          DEFAULT_RIG)
+    settings = FitSettings(iterations=4, trial_iterations=2, size=64, spp=4, search_every=0, compile=False)
+    starts = [Start(0.0, k, search.Candidate(pattern, tiles, 1.0), typical(pattern).replace(tiles=tiles))
+              for k, (pattern, tiles) in enumerate([("twill1", TWILL.tiles), ("twill0", TWILL.tiles),
+                                                     ("twill1m", (TWILL.tiles[0], 3 * TWILL.tiles[1]))])]
+    coverage = {"twill1": 0.93, "twill0": 0.95, "twill1m": 0.13}
+
+    def trials_of(chosen_starts, restarted=False):
+        return trial_runs(chosen_starts, objective, settings, 1.0, None, {}, lambda run: None, lambda *a: None,
+                          lambda cand: coverage[cand.pattern], restarted)
+
+    every = trials_of(starts)
+    steps = [len(t.run.history) for t in every]
+    assert steps == [2, 2, 0] and every[2].summary["skipped"] and every[2].summary["spectrum_corr"] is None
+    assert every[2].summary["trial_loss"] == every[2].start.loss
+    alone = trials_of(starts[:2])      # the same two eligible starts without the third: the same trials
+    assert [t.selection for t in alone] == [t.selection for t in every[:2]]
+    assert chosen(alone).start is chosen(every).start
+    lone = [starts[0], starts[2]]
+    assert [len(t.run.history) for t in trials_of(lone, restarted=True)] == [0, 0]
+    assert [len(t.run.history) for t in trials_of(lone, restarted=False)] == [2, 0]  # its steps go on in the fit
+
+
 def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on_its_lattice():
     from backend.fit.search import Start, rival, untried_rival
 

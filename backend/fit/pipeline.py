@@ -116,7 +116,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     if blur_floor is not None and len(starts) > 1:  # the starting losses change with the blur
         starts = search.reranked(starts, objective, blur)
     trials = search.trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
-                               lambda i, n, selection: progress("search", i, n, selection, None), coverage_of)
+                               lambda i, n, selection: progress("search", i, n, selection, None), coverage_of,
+                               restarted=coarse is not settings)
     winner = search.chosen(trials)
     run, duel_steps = winner.run, 0
     if coarse is not settings:
