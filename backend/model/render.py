@@ -42,7 +42,7 @@ placement's signatures), they stay eager: a graph of their own would cost a seco
 compile per working size, about 25 s on a cold cache (measured when it was tried: a photo-like 512-px
 fit 166 s instead of 199 s on a cold cache). Through the gradient graph the BSDF's forward at 512 px
 and 4 spp takes 123 ms against 400 ms eager (``bench render``), and a fit of the dev real twill2
-(80 such renders) 170 s instead of 185 s (same session, 2 cores).
+(about 100 such renders) 159 s instead of 171-176 s (one session, 2 cores, warm compile caches).
 """
 from __future__ import annotations
 
