@@ -226,8 +226,8 @@ class Renderer:
     def _evaluate(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None,
                   fused: bool = True, fine: bool = False):
         """The chunk's pixels (sub-pixels where ``fine``): the BSDF's terms by the compiled graph when
-        there is one and ``fused`` (with gradients), or forward only through it once a render with
-        gradients has set its inputs (module docstring), else everything eager."""
+        there is one and ``fused`` (with gradients), or forward only through it once the inputs it
+        differentiates are known (module docstring), else everything eager."""
         if self._compiled is None or not (fused or self._grad_names is not None):
             return self._eager(samples, fabric, glow, fine)
         try:
