@@ -257,10 +257,12 @@ def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
 
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
-    image), the rest at the working size (64 px): the winner from its start (its trial only chose
-    it) beside its face twin on its lattice, which the network ruled out (from the twin's own start),
-    for ``duel_iterations`` steps each; with no margin the lower loss goes on for the remaining
-    iterations and its best parameters are the result; with a margin larger than any loss, the winner."""
+    image), the rest at the working size (64 px): the winner from its start beside its face twin on
+    its lattice, which the network ruled out (from the twin's own start), for ``duel_iterations``
+    steps each; with no margin the lower loss goes on for the remaining iterations and its best
+    parameters are the result; with a margin larger than any loss, the winner. Here twill0's start
+    sits on a lattice three times too fine (coverage .23 against twill1's .88), so neither trial takes
+    a step: chosen() would rule twill0 out, and twill1, alone, starts again at the working size."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
     seen, steps = [], []  # steps: the parameters of each Adam step
@@ -282,17 +284,18 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert fine == list(range(fine[0], len(seen)))  # the base size first, then only the working size
     search_calls, fine_calls = seen[:fine[0]], seen[fine[0]:]
     assert {(size, spp) for size, spp, _ in search_calls} == {(32, 8)}
-    assert sum(grad for *_, grad in search_calls) == 4  # two trials of two steps
+    assert sum(grad for *_, grad in search_calls) == 0  # no trial steps (docstring)
+    skipped = [c for c in result.candidates if c.get("skipped")]
+    assert [c["pattern"] for c in skipped] == ["twill0"] and skipped[0]["trial_loss"] == skipped[0]["start_loss"]
     assert fine_calls == [(64, 2, True)] * 5            # two finalists of two steps, then the last step
     [winner] = [c for c in result.candidates if "trial_loss" in c and "fine_trial_loss" in c]
+    assert winner["pattern"] == "twill1" and winner["trial_loss"] == winner["start_loss"]
     twin = {"twill0": "twill1m", "twill1": "twill0m"}[winner["pattern"]]
     duel = {c["pattern"]: c["fine_trial_loss"] for c in result.candidates if "fine_trial_loss" in c}
     assert set(duel) == {winner["pattern"], twin}
     assert next(c for c in result.candidates if c["pattern"] == twin and "fine_trial_loss" in c)["probability"] == 0
-    trial_steps = [p for p in steps[:fine[0]] if p is not None]
-    winner_start = next(p for p in trial_steps[::2] if p.startswith(winner["pattern"] + "_"))
     first, second = steps[fine[0]], steps[fine[0] + 2]
-    assert first == winner_start and second.startswith(twin + "_") and steps[fine[0] + 1] != first
+    assert first.startswith(winner["pattern"] + "_") and second.startswith(twin + "_") and steps[fine[0] + 1] != first
     assert result.params.pattern == min(duel, key=duel.get)
     assert [i for i, _ in result.history] == [0, 1, 2]  # the duel's two steps count, then one more
     assert result.loss == min(loss for _, loss in result.history) == pytest.approx(
@@ -302,6 +305,20 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
                pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
     assert held.params.pattern == winner["pattern"]
     assert {c["pattern"]: c["fine_trial_loss"] for c in held.candidates if "fine_trial_loss" in c} == duel
+    # both trials eligible (a margin wider than any coverage gap): two trials of two steps, and the
+    # winner goes on at the working size from its start, not from where its trial left it
+    monkeypatch.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
+    seen.clear()
+    steps.clear()
+    both = fit(*twill_pair, settings=settings, pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+    fine = [k for k, call in enumerate(seen) if call[0] == 64]
+    trial_steps = [p for p in steps[:fine[0]] if p is not None]
+    assert len(trial_steps) == 4 and not any(c.get("skipped") for c in both.candidates)
+    winner_start = next(p for p in trial_steps[::2] if p.startswith(both.params.pattern + "_"))
+    assert steps[fine[0]] == winner_start
+    monkeypatch.undo()
+    monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
+    monkeypatch.setattr(Objective, "terms", recording)
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
