@@ -307,18 +307,17 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert {c["pattern"]: c["fine_trial_loss"] for c in held.candidates if "fine_trial_loss" in c} == duel
     # both trials eligible (a margin wider than any coverage gap): two trials of two steps, and the
     # winner goes on at the working size from its start, not from where its trial left it
-    monkeypatch.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
     seen.clear()
     steps.clear()
-    both = fit(*twill_pair, settings=settings, pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+    with monkeypatch.context() as wide:
+        wide.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
+        both = fit(*twill_pair, settings=settings,
+                   pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
     fine = [k for k, call in enumerate(seen) if call[0] == 64]
     trial_steps = [p for p in steps[:fine[0]] if p is not None]
     assert len(trial_steps) == 4 and not any(c.get("skipped") for c in both.candidates)
     winner_start = next(p for p in trial_steps[::2] if p.startswith(both.params.pattern + "_"))
     assert steps[fine[0]] == winner_start
-    monkeypatch.undo()
-    monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
-    monkeypatch.setattr(Objective, "terms", recording)
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),

@@ -216,10 +216,9 @@ def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
 def test_a_compiling_renderer_fuses_renders_without_gradients_once_it_knows_the_graphs_inputs(monkeypatch, tmp_path):
     """Renders without gradients stay eager until a render with gradients has gone through the
     compiled graph (one call per chunk of rows), or the renderer was told which inputs need them;
-    after that they go through it too, with the same
-    inputs needing gradients and grad mode on (no second graph to compile), and keep nothing. Here
-    torch.compile hands back the function itself with a record of each call, so no C++ compiler is
-    needed."""
+    after that they go through it too, with the same inputs needing gradients and grad mode on (no
+    second graph to compile), and keep nothing. Here torch.compile hands back the function itself
+    with a record of each call, so no C++ compiler is needed."""
     import backend.model.render as render_module
     calls = []
 

@@ -270,24 +270,25 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
     """
     shortlisted = starts[: max(1, settings.trials)]
     coverages = [coverage_of(start.candidate) for start in shortlisted]
-    eligible = [c >= max(coverages) - COVERAGE_MARGIN for c in coverages]
+    eligible = _within_coverage_margin(coverages)
     compare = sum(eligible) > 1 or (len(shortlisted) > 1 and not restarted)
     total = settings.iterations + settings.trial_iterations
     trials = []
-    for index, (start, coverage, runs) in enumerate(zip(shortlisted, coverages, eligible)):
+    for index, (start, coverage, kept) in enumerate(zip(shortlisted, coverages, eligible)):
         run = Run(start.params, objective, settings, total, camera_blur_px, blur_floor)
-        for _ in range(settings.trial_iterations if compare and runs else 0):
+        tried = compare and kept
+        for _ in range(settings.trial_iterations if tried else 0):
             run.step()
             check_stop(run)
         trial_loss = run.best_loss if run.history else start.loss
-        similarity = spectrum_similarity(run.best, objective, camera_blur_px) if compare and runs else None
-        selection = trial_loss + settings.spectrum_weight * (1.0 - (1.0 if similarity is None else similarity))
+        similarity = spectrum_similarity(run.best, objective, camera_blur_px) if tried else None
+        selection = trial_loss + (0.0 if similarity is None else settings.spectrum_weight * (1.0 - similarity))
         on_trial(index + 1, len(shortlisted), selection)
         cand = start.candidate
         summary = {"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
                    "start_loss": start.loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
                    "peak_coverage": coverage, "selection": selection, "probability": rated.get(id(cand))}
-        if not runs:
+        if not kept:
             summary["skipped"] = "its lattice makes far less of the photos' peaks than the best start's"
         trials.append(Trial(start, run, summary, selection, coverage))
     return trials
@@ -303,8 +304,13 @@ def chosen(trials: list[Trial]) -> Trial:
 
 
 def _eligible(trials: list[Trial]) -> list[Trial]:
-    best = max(t.coverage for t in trials)
-    return [t for t in trials if t.coverage >= best - COVERAGE_MARGIN]
+    return [t for t, kept in zip(trials, _within_coverage_margin([t.coverage for t in trials])) if kept]
+
+
+def _within_coverage_margin(coverages: list[float]) -> list[bool]:
+    """Per coverage, whether it is at most COVERAGE_MARGIN below the best of them."""
+    best = max(coverages)
+    return [c >= best - COVERAGE_MARGIN for c in coverages]
 
 
 def rival(trials: list[Trial], winner: Trial) -> Trial | None:
