@@ -26,18 +26,19 @@ Measured with ``bench placement`` (tiles of the true pattern's candidate, agains
 sum): seed 53, the 18 pairs whose candidate is on the true lattice, mean 0.58 -> 0.41 %, max 1.59 ->
 0.89 %, over 1 %: 3 -> 0 (plain_000 1.07 -> 0.66, satin0_013 1.11 -> 0.25); its rotation error mean
 0.042 -> 0.044 degrees, median 0.038 -> 0.028 (the turn is read from the same steps); the 11 dev
-goldens, evenly spaced, 0.05 -> 0.07 % mean, max 0.13 % in both. The harmonics read are the HARMONICS with the most
-power |Y_h|^2 in the Hann-windowed y, among those whose power is SHOWN times the mean frequency bin's.
-Their frequencies g_h = m u + n v are solved, least squares weighted by w = |Y_h|^2, for the yarn
-vectors u = a' (cos theta_1, -sin theta_1) and v = b' (sin theta_2, cos theta_2) (as
-:func:`.lattice.turned_frequencies` turns them); a' = |u| and b' = |v|. The lengths do not depend on
-the placement's angles: turned back at the angles as given, a rotation read 0.6 degrees off leaks one
-axis's frequency into the other's (seed-97 twill1_012: read 1.8 % off where the true turn gives
-0.3 %). Where the harmonics read do not pin both vectors (fewer than two independent (m, n)), each
-axis's harmonics are turned back at the given angles (:func:`.lattice.fabric_frequencies`: (f1, f2))
-and a' = sum w m f1 / sum w m^2, and b' likewise with n. The power of the line itself weighs, not
-the mean of |z_h|^2: what the low-passed z holds beyond a harmonic's own line, noise or a
-neighbour's tail, has no steady phase.
+goldens, evenly spaced, 0.05 -> 0.07 % mean, max 0.13 % in both.
+
+The harmonics read are the HARMONICS with the most power |Y_h|^2 in the Hann-windowed y, among those
+whose power is SHOWN times the mean frequency bin's. Their frequencies g_h = m u + n v are solved,
+least squares weighted by w = |Y_h|^2, for the yarn vectors u = a' (cos theta_1, -sin theta_1) and
+v = b' (sin theta_2, cos theta_2) (as :func:`.lattice.turned_frequencies` turns them); a' = |u| and
+b' = |v|. The lengths do not depend on the placement's angles: turned back at the angles as given, a
+rotation read 0.6 degrees off leaks one axis's frequency into the other's (seed-97 twill1_012: read
+1.8 % off where the true turn gives 0.3 %). Where the harmonics read do not pin both vectors (fewer
+than two independent (m, n)), each axis's harmonics are turned back at the given angles
+(:func:`.lattice.fabric_frequencies`: (f1, f2)) and a' = sum w m f1 / sum w m^2, and b' likewise
+with n. The power of the line itself weighs, not the mean of |z_h|^2: what the low-passed z holds
+beyond a harmonic's own line, noise or a neighbour's tail, has no steady phase.
 
 The filter G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d pixels
 puts it four standard deviations of the filter's response away. The neighbours that count carry
