@@ -11,34 +11,22 @@ The mean spacing is in the phase of the harmonics. For a harmonic h = (m, n) of 
 (cycles per image), at image frequency f_h = turned(m a, n b) (:func:`.lattice.turned_frequencies`),
 
     z_h(p)  = G_s * [ y(p) exp(-2 pi i f_h . p / N) ]          demodulated and low-passed
-    s_h(p)  = z_h(p + e_x) conj(z_h(p))
-    delta_x = N / (2 pi) arg sum_p s_h(p) / max(|s_h(p)|, median_p |s_h(p)|)   (and delta_y down the image)
+    delta_x = N / (2 pi) arg sum_p z_h(p + e_x) conj(z_h(p))   (and delta_y down the image)
 
 where y is the high-passed luminance: the phase of z_h advances by 2 pi (f_true - f_h) . e per pixel
-step e, and the sum averages it over the whole photo, every pixel where the harmonic shows at least
-as strongly as at the median pixel alike (EVEN_QUANTILE), those where it is weaker less (there noise,
-which has no steady phase, takes over): the harmonic's frequency is read as g_h = f_h + delta. The
-plain sum, weighted by |z_h|^2, reads the spacing where the harmonic is strongest, and in a
-transmission photo that is the centre, where the lamp's glow lights the gaps: photo-like seed 53
-satin1m_019's (0, 5) harmonic is 20-40 times stronger in the central 128 rows than elsewhere, and
-the yarns are 2 % denser there than on average; read 1.6 % off the mean that way, 0.4 % evenly.
-Measured with ``bench placement`` (tiles of the true pattern's candidate, against the power-weighted
-sum): seed 53, the 18 pairs whose candidate is on the true lattice, mean 0.58 -> 0.41 %, max 1.59 ->
-0.89 %, over 1 %: 3 -> 0 (plain_000 1.07 -> 0.66, satin0_013 1.11 -> 0.25); its rotation error mean
-0.042 -> 0.044 degrees, median 0.038 -> 0.028 (the turn is read from the same steps); the 11 dev
-goldens, evenly spaced, 0.05 -> 0.07 % mean, max 0.13 % in both.
-
-The harmonics read are the HARMONICS with the most power |Y_h|^2 in the Hann-windowed y, among those
-whose power is SHOWN times the mean frequency bin's. Their frequencies g_h = m u + n v are solved,
-least squares weighted by w = |Y_h|^2, for the yarn vectors u = a' (cos theta_1, -sin theta_1) and
-v = b' (sin theta_2, cos theta_2) (as :func:`.lattice.turned_frequencies` turns them); a' = |u| and
-b' = |v|. The lengths do not depend on the placement's angles: turned back at the angles as given, a
-rotation read 0.6 degrees off leaks one axis's frequency into the other's (seed-97 twill1_012: read
-1.8 % off where the true turn gives 0.3 %). Where the harmonics read do not pin both vectors (fewer
-than two independent (m, n)), each axis's harmonics are turned back at the given angles
-(:func:`.lattice.fabric_frequencies`: (f1, f2)) and a' = sum w m f1 / sum w m^2, and b' likewise
-with n. The power of the line itself weighs, not the mean of |z_h|^2: what the low-passed z holds
-beyond a harmonic's own line, noise or a neighbour's tail, has no steady phase.
+step e, and the sum averages it over the whole photo, weighted by where the harmonic shows: the
+harmonic's frequency is read as g_h = f_h + delta. The harmonics read are the HARMONICS with the most
+power |Y_h|^2 in the Hann-windowed y, among those whose power is SHOWN times the mean frequency bin's.
+Their frequencies g_h = m u + n v are solved, least squares weighted by w = |Y_h|^2, for the yarn
+vectors u = a' (cos theta_1, -sin theta_1) and v = b' (sin theta_2, cos theta_2) (as
+:func:`.lattice.turned_frequencies` turns them); a' = |u| and b' = |v|. The lengths do not depend on
+the placement's angles: turned back at the angles as given, a rotation read 0.6 degrees off leaks one
+axis's frequency into the other's (seed-97 twill1_012: read 1.8 % off where the true turn gives
+0.3 %). Where the harmonics read do not pin both vectors (fewer than two independent (m, n)), each
+axis's harmonics are turned back at the given angles (:func:`.lattice.fabric_frequencies`: (f1, f2))
+and a' = sum w m f1 / sum w m^2, and b' likewise with n. The power of the line itself weighs, not
+the mean of |z_h|^2: what the low-passed z holds beyond a harmonic's own line, noise or a
+neighbour's tail, has no steady phase.
 
 The filter G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d pixels
 puts it four standard deviations of the filter's response away. The neighbours that count carry
@@ -73,7 +61,6 @@ PASSES = 2
 SOLVABLE = 1e-3          # det / trace^2 of the harmonics' normal matrix below which they do not pin both axes
 SHOWN = 10.0             # a harmonic is read when its power is this many times the mean frequency bin's
 LIGHT_BAND = 64 / (2 * math.pi)  # cycles per image: the photo's light, as far as the high-pass of N / 64 px leaves it
-EVEN_QUANTILE = 0.5      # pixels where a harmonic shows at least as strongly as at this quantile weigh alike
 
 
 @dataclass(frozen=True)
@@ -208,14 +195,6 @@ def _phase_slope(y: np.ndarray, fx: float, fy: float, sigma: float) -> tuple[flo
     z = (cv2.GaussianBlur(z.real.astype(np.float32), (0, 0), sigma).astype(np.float64)
          + 1j * cv2.GaussianBlur(z.imag.astype(np.float32), (0, 0), sigma))
     size = y.shape[0]
-    across = np.angle(_evenly_summed(z[:, 1:] * np.conj(z[:, :-1])))
-    down = np.angle(_evenly_summed(z[1:, :] * np.conj(z[:-1, :])))
+    across = np.angle(np.sum(z[:, 1:] * np.conj(z[:, :-1])))
+    down = np.angle(np.sum(z[1:, :] * np.conj(z[:-1, :])))
     return across * size / (2 * math.pi), down * size / (2 * math.pi)
-
-
-def _evenly_summed(steps: np.ndarray) -> complex:
-    """sum_p s(p) / max(|s(p)|, the EVEN_QUANTILE of |s|) of the phase steps s (module docstring)."""
-    strength = np.abs(steps)
-    # the quantile of a low-passed field: every 4th pixel each way reads it closely, at 1/16 of the cost
-    floor = max(float(np.quantile(strength[::4, ::4], EVEN_QUANTILE)), 1e-300)  # (1e-300: a blank photo)
-    return complex(np.sum(steps / np.maximum(strength, floor)))
