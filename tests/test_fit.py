@@ -277,8 +277,13 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=0.0, trials=2, size=64,
                            spp=2, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0)
     given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5}  # the others, mirrored ones included: 0
+
+    def rated(candidates):  # twill1 on the true lattice only: its start beside twill0's on the too-fine one
+        return [0.0 if c.pattern == "twill1" and c.tiles != pytest.approx(TWILL.tiles, rel=0.01)
+                else given.get(c.pattern, 0.0) for c in candidates]
+
     result = fit(*twill_pair, settings=settings,
-                 pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+                 pattern_probabilities=rated)
     assert (result.size, result.spp, result.iterations, result.steps) == (64, 2, 3, 3)
     fine = [k for k, call in enumerate(seen) if call[0] == 64]
     assert fine == list(range(fine[0], len(seen)))  # the base size first, then only the working size
@@ -302,7 +307,7 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
         min(min(duel.values()), result.history[-1][1]))
     # a twin must beat the winner by more than the margin to go on
     held = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "duel_margin": 1e9}),
-               pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+               pattern_probabilities=rated)
     assert held.params.pattern == winner["pattern"]
     assert {c["pattern"]: c["fine_trial_loss"] for c in held.candidates if "fine_trial_loss" in c} == duel
     # both trials eligible (a margin wider than any coverage gap): two trials of two steps, and the
@@ -312,7 +317,7 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     with monkeypatch.context() as wide:
         wide.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
         both = fit(*twill_pair, settings=settings,
-                   pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+                   pattern_probabilities=rated)
     fine = [k for k, call in enumerate(seen) if call[0] == 64]
     trial_steps = [p for p in steps[:fine[0]] if p is not None]
     assert len(trial_steps) == 4 and not any(c.get("skipped") for c in both.candidates)
@@ -321,7 +326,7 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
-                 pattern_probabilities=lambda cs: [given.get(c.pattern, 0.0) for c in cs])
+                 pattern_probabilities=rated)
     assert {(size, spp) for size, spp, _ in seen} == {(32, 2)}
     assert not any("fine_trial_loss" in c for c in result.candidates)
 
