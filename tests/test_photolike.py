@@ -14,6 +14,7 @@ from backend.core.params import FabricParams
 from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.init import photo_like
+from backend.model import phone as phone_effects
 from backend.model.imaging import display_transform
 from backend.model.phone import PhoneEffects
 from backend.model.render import Renderer
@@ -86,6 +87,37 @@ def test_the_moved_reflection_shows_the_lattice_moved_as_drawn(index, pattern):
     assert matches >= 12
     assert scale == pytest.approx(shot.move.scale * own_scale, abs=0.002)
     assert turn == pytest.approx(shot.move.turn_deg + own_turn, abs=0.2)
+
+
+def test_a_set_without_a_phone_effect_differs_from_the_full_set_in_that_effect_alone(tmp_path):
+    full = photolike.make_item(tmp_path / "full", seed=4, index=3, rig=SMALL)
+    flat = photolike.make_item(tmp_path / "flat", seed=4, index=3, rig=SMALL, without=("warp", "falloff"))
+    assert flat["without"] == ["warp", "falloff"] and "without" not in full
+    assert flat["params"] == full["params"] and flat["rig"] == full["rig"]  # the same draws and render
+    changed = {k for k in full["phone"] if flat["phone"][k] != full["phone"][k]}
+    assert changed == {"warp_px", "falloff"}
+    assert flat["phone"]["warp_px"] == 0.0 and tuple(flat["phone"]["falloff"]) == (0.0,) * 4
+    assert full["phone"]["warp_px"] > 0.0
+    name = "satin0_003_T.png"
+    assert (tmp_path / "flat" / name).read_bytes() != (tmp_path / "full" / name).read_bytes()
+    # every effect taken away: the truth's blur is none, and the case reads back as the phone it was
+    bare = photolike.make_item(tmp_path / "bare", seed=4, index=3, rig=SMALL, without=phone_effects.EFFECTS)
+    assert bare["rig"]["camera_blur_px"] == 0.0 and bare["phone"]["jpeg_quality"] is None
+    phone = PhoneEffects(**bare["phone"])
+    assert phone.gains(0).tolist() == [1.0, 1.0, 1.0] and phone.noise_gain == 0.0 == phone.read_noise
+    with pytest.raises(ValueError, match="unknown phone effect lens"):
+        phone.without("lens")
+
+
+def test_the_photolike_command_takes_effects_away_by_name(tmp_path, capsys):
+    from backend.cli.main import main
+    assert main(["photolike", "--out", str(tmp_path), "--count", "1", "--seed", "4", "--without", "noise",
+                 "jpeg"]) == 0
+    [case] = json.loads((tmp_path / "cases.json").read_text())
+    assert case["without"] == ["noise", "jpeg"] and case["phone"]["noise_gain"] == 0.0
+    with pytest.raises(SystemExit):
+        main(["photolike", "--out", str(tmp_path / "x"), "--count", "1", "--without", "lens"])
+    assert "invalid choice: 'lens'" in capsys.readouterr().err
 
 
 def test_a_phone_without_effects_is_the_renderers_display_transform():
@@ -176,6 +208,7 @@ def test_the_phones_jpeg_is_a_deterministic_lossy_copy_at_the_film_size():
     area = image.reshape(32, 4, 32, 4, 3).mean(axis=(1, 3))
     assert 0.0005 < np.abs(phone - area).mean() < 0.05          # compressed, then resized by area
     assert np.abs(phone_jpeg(image, 95, 32) - area).mean() < np.abs(phone - area).mean()
+    np.testing.assert_allclose(phone_jpeg(image, None, 32), area, atol=1e-9)  # no JPEG: the resize alone
 
 
 def test_framing_resolves_the_weave_and_leaves_a_coarse_one_alone():

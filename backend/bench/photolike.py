@@ -15,9 +15,14 @@ drawn from a generator seeded by (s, k) of its own): the reflection photo shows 
 times as dense and turned by up to 2 degrees, the transmission photo and every other draw stay the
 unmoved set's, and the truth stays the transmission's framing.
 
+With ``without`` (names of :data:`backend.model.phone.EFFECTS`), the phone lacks those effects
+(:meth:`backend.model.phone.PhoneEffects.without`): every draw, the render and the other effects
+stay the full set's, so a fit benchmark of the two sets tells what those effects cost.
+
 Files: ``DIR/<name>_R.png``, ``DIR/<name>_T.png`` (8-bit) and ``DIR/cases.json``, a list of
 ``{"name", "params" (interchange string), "flags": {}, "rig" (with the true rotation and camera
-blur), "phone" (every drawn effect), "move" (a moved set's reflection move, else absent)}``: the
+blur), "phone" (every drawn effect, as the photos have them), "move" (a moved set's reflection move,
+else absent), "without" (the effects taken away, else absent)}``: the
 golden folders' format plus the truth the fit benchmark needs (:mod:`backend.bench.fit`).
 """
 from __future__ import annotations
@@ -46,11 +51,12 @@ def item_pattern(index: int) -> str:
 
 
 def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None,
-              moved: bool = False) -> dict:
+              moved: bool = False, without: tuple[str, ...] = ()) -> dict:
     """Renders item ``index`` into ``out``; returns its cases.json entry. ``pattern`` replaces the
     item's preset (:func:`item_pattern`) with the same draws: a mirrored item's unmirrored twin."""
     pattern = pattern or item_pattern(index)
-    shot = photograph(pattern, item_rng(seed, index), rig, move_rng=item_rng(seed, index, "move") if moved else None)
+    shot = photograph(pattern, item_rng(seed, index), rig, move_rng=item_rng(seed, index, "move") if moved else None,
+                      without=tuple(without))
     name = f"{pattern}_{index:03d}"
     write_png(out / f"{name}_R.png", shot.reflection, bits=8)
     write_png(out / f"{name}_T.png", shot.transmission, bits=8)
@@ -58,16 +64,19 @@ def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, p
             "phone": shot.phone.to_dict()}
     if shot.move is not None:
         case["move"] = shot.move.to_dict()
+    if without:
+        case["without"] = list(without)
     return case
 
 
-def generate(out: str | Path, count: int, seed: int = 0, log=sys.stderr, moved: bool = False) -> list[dict]:
+def generate(out: str | Path, count: int, seed: int = 0, log=sys.stderr, moved: bool = False,
+             without: tuple[str, ...] = ()) -> list[dict]:
     """Makes items 0 .. count - 1 into ``out`` (cases.json last, so a finished set is one with it)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = []
     for index in range(count):
-        cases.append(make_item(out, seed, index, moved=moved))
+        cases.append(make_item(out, seed, index, moved=moved, without=without))
         print(f"photolike: {index + 1}/{count} {cases[-1]['name']}", file=log, flush=True)
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
     return cases

@@ -1,13 +1,14 @@
-"""``python -m backend photolike --out DIR --count N [--seed S] [--moved]``: photo-like synthetic pairs with
-ground truth for the fit benchmark (:mod:`backend.bench.photolike`)."""
+"""``python -m backend photolike --out DIR --count N [--seed S] [--moved] [--without EFFECT ...]``:
+photo-like synthetic pairs with ground truth for the fit benchmark (:mod:`backend.bench.photolike`)."""
 from __future__ import annotations
 
 from ..bench.photolike import generate
+from ..model.phone import EFFECTS
 from .common import positive_int
 
 
 def run_photolike(args) -> int:
-    generate(args.out, args.count, args.seed, moved=args.moved)
+    generate(args.out, args.count, args.seed, moved=args.moved, without=tuple(args.without))
     return 0
 
 
@@ -19,4 +20,7 @@ def add_parser(sub) -> None:
     p.add_argument("--moved", action="store_true",
                    help="the phone moves between the shots: the reflection photo shows the lattice 1-1.1 times as "
                         "dense and turned by up to 2 degrees (the transmission photos and the truth as without)")
+    p.add_argument("--without", nargs="+", choices=EFFECTS, default=[], metavar="EFFECT",
+                   help=f"a phone without these effects ({', '.join(EFFECTS)}): the same set otherwise, so that "
+                        "a fit benchmark of both tells what they cost")
     p.set_defaults(run=run_photolike)

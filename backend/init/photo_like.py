@@ -98,12 +98,14 @@ def moved_reflection(params: FabricParams, rig: CaptureRig, move: PhoneMove) -> 
 
 
 def photograph(pattern: str, rng: random.Random, rig: CaptureRig, phone_scale: int = PHONE_SCALE,
-               move_rng: random.Random | None = None) -> Shot:
-    """A sample of ``pattern`` drawn and photographed as the module docstring says."""
+               move_rng: random.Random | None = None, without: tuple[str, ...] = ()) -> Shot:
+    """A sample of ``pattern`` drawn and photographed as the module docstring says, by a phone
+    without the effects named in ``without`` (:meth:`backend.model.phone.PhoneEffects.without`: drawn,
+    then taken away)."""
     params = framed(priors.sample(pattern, rng), rng.uniform(*PIXELS_PER_YARN), rig)
     placed = dataclasses.replace(rig, sample_rotation_deg=rng.uniform(-MAX_ROTATION_DEG, MAX_ROTATION_DEG),
                                  camera_blur_px=0.0)
-    phone = PhoneEffects.draw(rng)
+    phone = PhoneEffects.draw(rng).without(*without)
     render_seed = rng.randrange(1 << 20)
     size = rig.film_size * phone_scale
     with torch.no_grad():
