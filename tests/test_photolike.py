@@ -14,9 +14,8 @@ from backend.core.params import FabricParams
 from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.init import photo_like
-from backend.model import phone as phone_effects
 from backend.model.imaging import display_transform
-from backend.model.phone import PhoneEffects
+from backend.model.phone import EFFECTS, PhoneEffects
 from backend.model.render import Renderer
 
 SMALL = CaptureRig(film_size=64)  # every effect is in film pixels: a small film keeps the test fast
@@ -101,7 +100,7 @@ def test_a_set_without_a_phone_effect_differs_from_the_full_set_in_that_effect_a
     name = "satin0_003_T.png"
     assert (tmp_path / "flat" / name).read_bytes() != (tmp_path / "full" / name).read_bytes()
     # every effect taken away: the truth's blur is none, and the case reads back as the phone it was
-    bare = photolike.make_item(tmp_path / "bare", seed=4, index=3, rig=SMALL, without=phone_effects.EFFECTS)
+    bare = photolike.make_item(tmp_path / "bare", seed=4, index=3, rig=SMALL, without=EFFECTS)
     assert bare["rig"]["camera_blur_px"] == 0.0 and bare["phone"]["jpeg_quality"] is None
     phone = PhoneEffects(**bare["phone"])
     assert phone.gains(0).tolist() == [1.0, 1.0, 1.0] and phone.noise_gain == 0.0 == phone.read_noise

@@ -2,11 +2,10 @@
 import os
 import subprocess
 import sys
-from pathlib import Path
+
+from conftest import ROOT
 
 from backend.core.threads import BLOCK_TIME_MS, SPIN_COUNT, wait_briefly
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_backend_spins_briefly_unless_the_user_chose_a_policy():
