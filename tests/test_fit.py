@@ -1,4 +1,5 @@
 """Fitting: the lattice, the descriptor, the optimiser, the fit command's contract, the metrics."""
+import dataclasses
 import json
 import os
 import signal
@@ -127,7 +128,7 @@ class ScriptedRun:
 
     def __init__(self, best_after_step, search_gain=0.0):
         self.best_after_step, self.search_gain = list(best_after_step), search_gain
-        self.best_loss, self.steps, self.searches = float("inf"), 0, []
+        self.best_loss, self.steps, self.searches, self.warp_reads = float("inf"), 0, [], []
 
     def restart_from_best(self):
         pass
@@ -136,6 +137,12 @@ class ScriptedRun:
         self.best_loss = min(self.best_loss, self.best_after_step[self.steps])
         self.steps += 1
         return self.best_loss
+
+    def update_warp(self):
+        self.warp_reads.append(self.steps)
+
+    def end_warp_trial(self):
+        pass
 
     def discrete_search(self, round_index):
         self.searches.append(self.steps)
@@ -154,6 +161,9 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     # the best at step 38, never beaten: the search at 50 has its turn, then 20 steps past 38 it ends
     flat = ScriptedRun([10.0 - 0.1 * min(i, 37) for i in range(100)])
     assert optimise(flat) == 58 and flat.steps == 58 and flat.searches == [50]
+    assert flat.warp_reads == [50]  # the photos' spacing warp is read again before each discrete search
+    unwarped = ScriptedRun([10.0 - 0.1 * min(i, 37) for i in range(100)])
+    assert optimise(unwarped, dataclasses.replace(settings, spacing_warp=False)) == 58 and unwarped.warp_reads == []
     assert reports[-1][:3] == ("optimise", 100, 100)  # the progress bar completes
     # before the search: a plateau of 30 steps does not end it; the search's gain starts a new count
     gained = ScriptedRun([10.0 - 0.1 * min(i, 9) for i in range(100)], search_gain=0.5)
@@ -382,6 +392,8 @@ def test_fit_example_end_to_end(tmp_path):
     # ... and lit exactly as the rig says: the light falloff solved with the fit is about flat.
     assert metrics["light_falloff"] == saved["fit"]["light_falloff"]
     assert max(abs(c) for tag in ("reflection", "transmission") for c in metrics["light_falloff"][tag]) < 0.05
+    # ... and its yarns are evenly spaced (12 steps: no discrete search, where the warp is read)
+    assert saved["fit"]["spacing_warp"] is None and metrics["timings"]["warp_s"] == 0.0
     for tag in ("reflection", "transmission"):
         assert set(metrics["metrics"][tag]) == {"flip", "colour_l1", "spectrum_corr"}
         assert metrics["metrics"][tag]["colour_l1"] < 0.03

@@ -11,8 +11,9 @@ product's; wall time includes starting Python and importing torch) on
   sampling limit (``resolved``: what an image can show at all);
 - real pairs (``<name>_R.*``/``_T.*``; no truth);
 and, for every pair, FLIP, 16 x 16 colour L1 and spectrum correlation of the re-renders against the
-photos (the definitions of the team's ``photo_metrics.py``), the camera blur and rotation the fit
-found, which parameters ended at a bound, wall time, peak memory and the optimisation's steps run
+photos (the definitions of the team's ``photo_metrics.py``), the camera blur, rotation and spacing
+warp the fit found (on photo-like sets also the phone's warp and the fit's distance from it:
+:func:`warp_errors`), which parameters ended at a bound, wall time, peak memory and the optimisation's steps run
 of its iterations (fewer where it converged). Prints one line per pair and a
 summary per kind of pair with the targets of the fit issue.
 """
@@ -28,11 +29,14 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from ..core.pairs import find_pairs
 from ..core.params import FabricParams
 from ..core.priors import family
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..model.phone import PhoneEffects
+from ..model.spacing_warp import SpacingWarp, grid_centres, non_affine
 from ..texture.lattice import yarns_in_view
 from .novel_light import novel_light_error
 
@@ -79,7 +83,8 @@ def run_fit(reflection: Path, transmission: Path, out: Path, extra: list[str], e
             "metrics": metrics["metrics"], "wall_s": wall, "cpu_s": cpu, "timings": metrics.get("timings", {}),
             "stderr": stderr, "peak_mb": metrics.get("peak_mb"), "at_bounds": metrics.get("at_bounds", []),
             "steps": run.get("steps"), "iterations": run.get("iterations"),
-            "registration": saved.get("photos", {}).get("registration")}
+            "registration": saved.get("photos", {}).get("registration"),
+            "warp": SpacingWarp.from_dict(warp) if (warp := saved["fit"].get("spacing_warp")) else None}
 
 
 RESOLVED_PX_PER_YARN = 2.0  # the sampling limit: finer yarns alias, and a phone's optics blur them away
@@ -100,6 +105,17 @@ def parameter_errors(fitted: FabricParams, truth: FabricParams) -> dict:
     return {"pattern_ok": fitted.pattern == truth.pattern, "family_ok": family(fitted.pattern) == family(truth.pattern),
             "roughness_mae": mae("roughness"), "thickness_mae": mae("thickness"),
             "tiles_error_pct": tiles_error_pct(fitted.tiles, truth.tiles)}
+
+
+def warp_errors(fitted: SpacingWarp | None, phone: PhoneEffects, film_size: int) -> dict:
+    """The phone's uneven yarn spacing against the one the fit read: the root mean square of the true
+    warp's non-affine part (the tiles, rotation and skew carry the rest) and of the fitted one's
+    difference from it, film pixels."""
+    x, y = np.meshgrid(grid_centres(film_size), grid_centres(film_size), indexing="xy")
+    true = [non_affine(d, film_size) for d in phone.displacement(x, y)]
+    found = (0.0, 0.0) if fitted is None else fitted.sampled(film_size)
+    return {"warp_true_rms_px": round(float(np.sqrt(np.mean(true[0] ** 2 + true[1] ** 2))), 3),
+            "warp_error_px": round(float(np.sqrt(np.mean((true[0] - found[0]) ** 2 + (true[1] - found[1]) ** 2))), 3)}
 
 
 def tiles_error_pct(found, truth) -> float:
@@ -147,7 +163,8 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                 row.update(pattern=fitted.pattern, tiles=[round(x, 1) for x in fitted.tiles],
                            peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
                            rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
-                           at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"])
+                           at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"],
+                           warp_rms_px=round(result["warp"].rms_px(rig.film_size) if result["warp"] else 0.0, 3))
                 registration = result["registration"]
                 if registration is not None or job.get("move") is not None:
                     # the photos' framing as registered, beside the phone's true move where the set has one
@@ -164,6 +181,8 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                     row["rotation_error_deg"] = round(abs(rig.sample_rotation_deg - job["rig"].sample_rotation_deg), 3)
                     row["family_true"] = family(truth.pattern)
                     row["pixels_per_yarn"] = round(pixels_per_yarn(truth, job["rig"]), 2)
+                    if job["phone"] is not None:
+                        row.update(warp_errors(result["warp"], job["phone"], rig.film_size))
                     if novel_light:
                         phone = job["phone"]
                         gains = (phone.gains(0), phone.gains(1)) if phone else None
@@ -192,6 +211,9 @@ def _format(row: dict) -> str:
                  f"  tiles {row['tiles_error_pct']:.2f}%  rot err {row['rotation_error_deg']:.2f}")
     if "novel_colour_l1" in row:
         text += f"  novel light: colour {row['novel_colour_l1']:.4f} spectrum {row['novel_spectrum_corr']:.3f}"
+    text += f"  spacing warp {row['warp_rms_px']:.2f} px"
+    if "warp_error_px" in row:
+        text += f" (true {row['warp_true_rms_px']:.2f}, off by {row['warp_error_px']:.2f})"
     if row.get("at_bounds"):
         text += f"  at bounds: {', '.join(row['at_bounds'])}"
     return text
@@ -224,6 +246,11 @@ def summarise(rows: list[dict]) -> dict:
             if novel:
                 section.update(novel_colour_l1=_mean(r["novel_colour_l1"] for r in novel),
                                novel_spectrum_corr=_mean(r["novel_spectrum_corr"] for r in novel))
+            warped = [r for r in truthful if "warp_error_px" in r]
+            if warped:
+                section.update(warp_true_rms_px=_mean(r["warp_true_rms_px"] for r in warped),
+                               warp_error_px=_mean(r["warp_error_px"] for r in warped))
+        section["warp_rms_px"] = _mean(r.get("warp_rms_px", 0.0) for r in group)
         out[kind] = section
     out["targets"] = TARGETS
     return out
@@ -262,6 +289,9 @@ def _format_summary(s: dict) -> str:
                         if r["pairs"] else ""))
         if "novel_colour_l1" in k:
             line += f"; novel light colour L1 {k['novel_colour_l1']}, spectrum {k['novel_spectrum_corr']}"
+        line += f"; spacing warp {k['warp_rms_px']} px"
+        if "warp_error_px" in k:
+            line += f" (true {k['warp_true_rms_px']}, off by {k['warp_error_px']})"
         lines.append(line)
     lines.append(f"  targets: {json.dumps(TARGETS)}")
     return "\n".join(lines)

@@ -101,7 +101,7 @@ def _auto_or_number(limit: float, unit: str, low: float | None = None):
 
 # The options of the fit itself, which a batch passes on to every pair's fit (FolderFitOptions' names).
 BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "camera_blur", "sample_rotation",
-                     "light_falloff", "init", "output_spp")
+                     "light_falloff", "spacing_warp", "init", "output_spp")
 
 
 def add_fit_options(p) -> None:
@@ -132,6 +132,10 @@ def add_fit_options(p) -> None:
     p.add_argument("--light-falloff", choices=("fit", "none"), default=FolderFitOptions.light_falloff,
                    help="the photos' smooth light falloff (a tilt and a bowl per photo, which the rig's point lamps "
                         "do not make): solved with the fit and kept out of the material (fit, default), or none")
+    p.add_argument("--spacing-warp", choices=("fit", "none"), default=FolderFitOptions.spacing_warp,
+                   help="the photos' uneven yarn spacing (a smooth warp of the lattice, read from the phase of its "
+                        "harmonics against the fit's renders): read with the fit and kept out of the material (fit, "
+                        "default), or none (the renders' yarns evenly spaced)")
     p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,

@@ -43,6 +43,7 @@ from ..init.network import fit_initialiser
 from ..model.memory import peak_memory_mb
 from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
+from ..model.spacing_warp import SpacingWarp
 from .gram import GramWeightsError
 from .pipeline import fit
 from .report import write_report
@@ -87,6 +88,7 @@ class FolderFitOptions:
     camera_blur: str = "auto"                    # 'auto' or film pixels
     sample_rotation: str = "auto"                # 'auto' or degrees
     light_falloff: str = "fit"                   # 'fit': solve the photos' light falloff; 'none'
+    spacing_warp: str = "fit"                    # 'fit': read the photos' uneven yarn spacing; 'none'
     output_spp: int = OUTPUT_SPP
     overwrite: bool = False
 
@@ -172,7 +174,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                            seed=options.seed, device=options.device, vgg_weights=options.vgg_weights,
                            camera_blur=_given(options.camera_blur, rig.camera_blur_px),
                            sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg),
-                           light_falloff=options.light_falloff == "fit")
+                           light_falloff=options.light_falloff == "fit", spacing_warp=options.spacing_warp == "fit")
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
@@ -188,6 +190,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds, "light_falloff": result.light.to_dict(),
+                     "spacing_warp": None if result.warp is None else result.warp.to_dict(),
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
@@ -214,7 +217,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
             return None
 
     def write_renders():
-        images = _final_renders(result.params, rig, result.light, settings.device, options.output_spp,
+        images = _final_renders(result.params, rig, result.light, result.warp, settings.device, options.output_spp,
                                 render_progress)
         framed = photos.in_own_framing(images)  # (photos, re-renders), each in its photo's framing
         for name, image in zip(("reflection", "transmission"), framed[1]):
@@ -233,7 +236,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         report = optional("report.png", lambda: write_report(
             out / "report.png", *framed, metrics, result.params, rig,
             time.perf_counter() - started, at_bounds, result.light, photos.info.get("registration"),
-            photos.seen_boxes()))
+            photos.seen_boxes(), result.warp))
         if report is not None:
             written["report"] = str(report)
     reporter.progress("report", 1, 1)
@@ -263,11 +266,12 @@ def _write_metrics(out: Path, photos, framed, result, rig: CaptureRig, settings:
     return metrics
 
 
-def _final_renders(params: FabricParams, rig: CaptureRig, light: PhotoLight, device, spp: int, progress
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The re-renders as the photos show the fabric: the fitted camera blur, rotation and light falloff."""
+def _final_renders(params: FabricParams, rig: CaptureRig, light: PhotoLight, warp: SpacingWarp | None, device,
+                   spp: int, progress) -> tuple[np.ndarray, np.ndarray]:
+    """The re-renders as the photos show the fabric: the fitted camera blur, rotation, light falloff and
+    uneven yarn spacing."""
     pair = render_pair(params, rig, size=rig.film_size, spp=spp, seed=1, device=device, progress=progress,
-                       light=light)
+                       light=light, warp=warp)
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
 

@@ -10,7 +10,9 @@
                peaks (:mod:`backend.fit.search`)
     optimise   the winner's run goes on (at the working size, from its start: see coarse to
                fine): Adam on the continuous parameters, after ``first_search`` iterations and
-               then every ``search_every`` a parabolic step on the discrete ones
+               then every ``search_every`` the photos' uneven yarn spacing read again against its
+               renders and tried (:mod:`backend.fit.warp`, :meth:`.optimise.Run.update_warp`) and
+               a parabolic step on the discrete ones
                (:mod:`backend.fit.optimise`), ending early once the best loss stops moving
                (:func:`converged`); tiles come from the lattice, which pins them to a
                fraction of a percent (the mean spacing over the whole photo,
@@ -26,12 +28,13 @@
                beside its face twin on its lattice, which the 256 px trials cannot tell from it,
                and the twin goes on instead where its loss is clearly lower (:func:`_finalist`)
     result     the best parameters seen, their loss and terms, the camera blur, the photos' light
-               falloff at those parameters, the candidates compared, the loss history and stage
-               timings
+               falloff at those parameters and their spacing warp, the candidates compared, the
+               loss history and stage timings
 
-Every render compared with the photos is made as they show the fabric: with the camera blur, and
-under the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unless
-``settings.light_falloff`` is off).
+Every render compared with the photos is made as they show the fabric: with the camera blur, under
+the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unless
+``settings.light_falloff`` is off), and, once it is read, with their uneven yarn spacing (unless
+``settings.spacing_warp`` is off).
 
 Each stage reports through ``progress(stage, iteration, total, loss, eta_s)``. Everything is
 deterministic for a given input, settings and seed (fixed jitter, no random steps).
@@ -128,12 +131,13 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     loop_started = time.perf_counter()
     steps = _optimise(run, settings, check_stop, progress, duel_steps)
     timings["optimise_s"] = time.perf_counter() - loop_started
+    timings["warp_s"] = run.warp_s  # of optimise_s
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
                      run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
-                     settings.iterations, steps)
+                     settings.iterations, steps, run.objective.renderer.warp)
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -232,15 +236,19 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
         check_stop(run)
         done = it + 1
         if search_due(settings, done):
+            if settings.spacing_warp:
+                run.update_warp()
             run.discrete_search(search_round)
             search_round += 1
         if run.best_loss < best:
             best, improved_at = run.best_loss, done
         if converged(settings, done, improved_at, search_round):
+            run.end_warp_trial()
             progress("optimise", settings.iterations, settings.iterations, value, 0.0)
             return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
         progress("optimise", done, settings.iterations, value, eta)
+    run.end_warp_trial()
     return done
 
 

@@ -1,10 +1,10 @@
 """The fit report (report.png): what the fit found and how its re-renders compare with the photos.
 
-- a header: pattern, tiles, the main parameters (warp / weft), the camera blur, sample rotation and
-  photo light falloff the fit read (the re-renders show them; the material carries none), whether
-  the photos were registered onto one framing (:mod:`backend.image.registration`), and every
-  parameter that ended at a bound of its declared range (in red: the fit wanted a value beyond the
-  range, or the images do not constrain it);
+- a header: pattern, tiles, the main parameters (warp / weft), the camera blur, sample rotation,
+  photo light falloff and uneven yarn spacing the fit read (the re-renders show them; the material
+  carries none), whether the photos were registered onto one framing
+  (:mod:`backend.image.registration`), and every parameter that ended at a bound of its declared
+  range (in red: the fit wanted a value beyond the range, or the images do not constrain it);
 - per image (reflection, transmission): photo, re-render and |error| x 4 (inferno) at 320 px, with
   FLIP, 16 x 16 colour L1 and spectrum correlation; where only part of a photo was compared (a
   registered pair's moved photo: :meth:`backend.image.photos.PhotoPair.seen_boxes`), that part is
@@ -23,6 +23,7 @@ import numpy as np
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.photo_light import PhotoLight
+from ..model.spacing_warp import SpacingWarp
 
 PANEL = 320
 CROP = 96
@@ -87,7 +88,8 @@ def _pairs(values, digits: int) -> str:
 def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], renders: tuple[np.ndarray, np.ndarray],
                  metrics: dict[str, dict[str, float]], params: FabricParams, rig: CaptureRig, wall_s: float,
                  at_bounds: list[str], light: PhotoLight = PhotoLight(), registration: dict | None = None,
-                 compared: tuple[tuple[int, int, int, int], ...] | None = None) -> Path:
+                 compared: tuple[tuple[int, int, int, int], ...] | None = None, warp: SpacingWarp | None = None
+                 ) -> Path:
     """Writes report.png (see the module docstring); ``compared``: per image the (x, y, w, h) box the
     metrics cover, None for the whole images."""
     header = [(f"pattern {params.pattern}   tiles {params.tiles[0]:.1f} x {params.tiles[1]:.1f}   "
@@ -100,6 +102,11 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
     if not light.flat:
         header.append((f"photo light falloff (x, y, r): R {_signed(light.reflection)}   T {_signed(light.transmission)}"
                        "   (in the re-renders, not in the material)", None))
+    if warp is not None:
+        dx, dy = warp.sampled(rig.film_size)
+        largest = float(np.sqrt(dx ** 2 + dy ** 2).max())
+        header.append((f"uneven yarn spacing: the lattice warped by {warp.rms_px(rig.film_size):.2f} px rms, at most "
+                       f"{largest:.2f} px   (in the re-renders, not in the material)", None))
     if registration is not None:
         header.append((f"photos registered: their lattices were {registration['magnification']:.3f}x and "
                        f"{registration['turn_deg']:+.2f} deg apart (the phone moved between the shots)   the "

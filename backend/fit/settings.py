@@ -6,6 +6,7 @@ from typing import Callable
 
 from ..core.params import PARAMETERS, FabricParams
 from ..model.photo_light import PhotoLight
+from ..model.spacing_warp import SpacingWarp
 from ..texture.features import LossWeights
 
 OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
@@ -52,6 +53,8 @@ class FitSettings:
     camera_blur: float | None = None  # film pixels; None: estimated from the photos
     sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
     light_falloff: bool = True       # solve each photo's smooth light falloff (backend.model.photo_light)
+    spacing_warp: bool = True        # read the photos' uneven yarn spacing at each discrete search (backend.fit.warp)
+    warp_trial_steps: int = 5        # steps a warp read is tried for before it is kept or undone (Run.update_warp)
 
 
 @dataclass
@@ -70,3 +73,4 @@ class FitResult:
     spp: int = 0
     iterations: int = 0
     steps: int = 0                   # of those iterations, the steps it ran (fewer where it converged)
+    warp: SpacingWarp | None = None  # the photos' uneven yarn spacing the renders show (None: even)

@@ -7,11 +7,12 @@ stratified k x k jitter, any others uniform. With a fixed ``seed`` the pattern i
 call (the optimiser's fixed jitter); the random numbers are a hash of (seed, pixel, sample), so the
 pattern does not depend on chunking.
 
-Per sample: world position (float64, for the tile lookup), ``wi`` (to the camera), and for each
-light ``wo``, the unit half vector ``h = normalize(wi + wo)`` ((0, 0, 1) where it vanishes) and
-``irradiance = intensity / distance^2``. Everything is computed in float64 and stored in the
-render dtype. Pixel-unit quantities (vignetting, glow) are in pixels of the rig's ``film_size``
-film, so a smaller render is a downsample of the full one.
+Per sample: world position (float64, for the tile lookup; moved by the photos' uneven yarn
+spacing where the camera has one, :mod:`.spacing_warp`: only where the weave is looked up moves),
+``wi`` (to the camera), and for each light ``wo``, the unit half vector ``h = normalize(wi + wo)``
+((0, 0, 1) where it vanishes) and ``irradiance = intensity / distance^2``. Everything is computed
+in float64 and stored in the render dtype. Pixel-unit quantities (vignetting, glow) are in pixels
+of the rig's ``film_size`` film, so a smaller render is a downsample of the full one.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ import torch
 from ..core.rig import CaptureRig
 from . import rng
 from .frames import dot, normalize
+from .spacing_warp import SpacingWarp
 
 
 @dataclass
@@ -56,10 +58,12 @@ class SampleChunk:
 
 
 class CameraSamples:
-    def __init__(self, rig: CaptureRig, size: int, spp: int, seed: int = 0, device="cpu", dtype=torch.float32):
+    def __init__(self, rig: CaptureRig, size: int, spp: int, seed: int = 0, device="cpu", dtype=torch.float32,
+                 warp: SpacingWarp | None = None):
         if size < 1 or spp < 1:
             raise ValueError(f"size and spp must be positive (got size {size}, spp {spp})")
         self.rig, self.size, self.spp, self.seed = rig, int(size), int(spp), int(seed)
+        self.warp = warp
         self.device, self.dtype = torch.device(device), dtype
 
     def jitter(self, row0: int, row1: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -86,7 +90,14 @@ class CameraSamples:
         rows = torch.arange(row0, row1, device=d, dtype=torch.float64)[:, None, None]
         cols = torch.arange(self.size, device=d, dtype=torch.float64)[None, :, None]
         scale = self.rig.view_size / self.size
-        return self.at_points(((cols + jx) * scale).reshape(-1), (-(rows + jy) * scale).reshape(-1), row0, row1)
+        chunk = self.at_points(((cols + jx) * scale).reshape(-1), (-(rows + jy) * scale).reshape(-1), row0, row1)
+        if self.warp is not None:  # the weave is looked up where the photos' uneven spacing puts it
+            film = self.rig.film_size / self.size  # film pixels per pixel
+            px, py = ((cols + jx) * film).reshape(-1), ((rows + jy) * film).reshape(-1)
+            dx, dy = self.warp.displacement(px, py, self.rig.film_size)
+            world = self.rig.view_size / self.rig.film_size
+            chunk.x, chunk.y = (px + dx) * world, -(py + dy) * world
+        return chunk
 
     def at_points(self, x: torch.Tensor, y: torch.Tensor, row0: int = 0, row1: int = 0) -> SampleChunk:
         """Samples at given world positions on the fabric plane (float64 x, y of shape (S,))."""

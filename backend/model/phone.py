@@ -116,6 +116,13 @@ class PhoneEffects:
         vignette = CameraSamples(rig, n, 1, dtype=image.dtype).pixel_falloff(rig.vignette_sigma_px)
         return display_transform(image.clamp_min(0), rig.gamma, rig.clamp, vignette).clamp(0, 1)
 
+    def displacement(self, x_px, y_px):
+        """d(p) = A (sin(2 pi x / L_x + phi_x), sin(2 pi y / L_y + phi_y)) (film pixels) at film pixel
+        coordinates (x across, y down; numbers or arrays): the photo shows the sample's radiance at p + d(p)."""
+        (lx, ly), (px, py) = self.warp_period_px, self.warp_phase
+        return (self.warp_px * np.sin(2 * math.pi * np.asarray(x_px) / lx + px),
+                self.warp_px * np.sin(2 * math.pi * np.asarray(y_px) / ly + py))
+
     def spacing_change(self, x_px: float, y_px: float) -> tuple[float, float]:
         """The warp's relative change of the yarn frequency at film pixel (x, y), across x and down y:
         d'(p) = 2 pi A / L cos(2 pi p / L + phi) (the photo shows the radiance at p + d(p), so its

@@ -67,6 +67,7 @@ from .layers import WeaveLookup
 from .param_tensors import ParamTensors
 from .photo_light import PhotoLight
 from .projections import SampleProjections, project
+from .spacing_warp import SpacingWarp
 
 
 @dataclass
@@ -106,9 +107,9 @@ class Renderer:
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
                  compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool = False,
-                 gradient_inputs: tuple[str, ...] | None = None):
+                 gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
-        self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype)
+        self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
         self.size, self.spp, self.block_samples = size, spp, block_samples
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
@@ -135,6 +136,20 @@ class Renderer:
         self._compiled = torch.compile(self._terms, dynamic=False) if compile else None
         # the parameters the compiled graph differentiates: as declared, else as the last render with gradients had them
         self._grad_names = None if gradient_inputs is None else frozenset(gradient_inputs)
+
+    @property
+    def warp(self) -> SpacingWarp | None:
+        """The photos' uneven yarn spacing the renders show (:mod:`.spacing_warp`; None: even)."""
+        return self.camera.warp
+
+    def set_warp(self, warp: SpacingWarp | None) -> None:
+        """Renders from now on show ``warp``: the camera samples and the geometry are made again (the
+        compiled graph stays: it sees the same shapes)."""
+        self.camera.warp = warp
+        self._chunks.clear()
+        self._geometry.clear()
+        self._bands.clear()
+        self._last_radiance = None
 
     # -- cached stages -----------------------------------------------------------------------
     def _chunk(self, rows: tuple[int, int]) -> SampleChunk:
@@ -371,10 +386,10 @@ class _Recomputed(torch.autograd.Function):
 
 def render_pair(params: FabricParams, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4,
                 seed: int = 0, options: RenderOptions = RenderOptions(), device="cpu", progress=None,
-                light: PhotoLight | None = None) -> RenderedPair:
+                light: PhotoLight | None = None, warp: SpacingWarp | None = None) -> RenderedPair:
     """One-shot render (no caching beyond this call), without gradients, the camera blur acting on
     sub-pixels where ``spp`` allows (module docstring); ``progress(done, total)``; ``light``: the
-    photos' light falloff (:mod:`.photo_light`)."""
-    renderer = Renderer(rig, size, spp, seed, options, device, cache_samples=0, subpixel_blur=True)
+    photos' light falloff (:mod:`.photo_light`); ``warp``: their uneven yarn spacing (:mod:`.spacing_warp`)."""
+    renderer = Renderer(rig, size, spp, seed, options, device, cache_samples=0, subpixel_blur=True, warp=warp)
     with torch.no_grad():
         return renderer.render(params, progress, light=light)

@@ -166,10 +166,24 @@ class _Reading:
         return placement_of(*yarn_vector_angles(*vectors))
 
 
-def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
-          ) -> _Reading:
-    """The :class:`_Reading` of the HARMONICS usable harmonics of ``signature`` at the lattice (a, b)
-    with the most power in the high-passed luminance ``y``."""
+@dataclass(frozen=True)
+class Harmonic:
+    """A lattice harmonic (m, n) as a photo shows it: its image frequency (fx, fy) (cycles per image),
+    the width ``sigma`` (pixels) of the low-pass that keeps its neighbours out of its demodulated
+    signal, and its power |Y_h|^2 in the Hann-windowed photo."""
+
+    m: int
+    n: int
+    fx: float
+    fy: float
+    sigma: float
+    power: float
+
+
+def strongest_harmonics(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float,
+                        skew_deg: float) -> list[Harmonic]:
+    """The HARMONICS usable harmonics of ``signature`` at the lattice (a, b) with the most power in the
+    high-passed luminance ``y`` (strongest first), each shown SHOWN times above the mean frequency bin."""
     size = y.shape[0]
     usable = []
     for m, n in zip(signature.m.tolist(), signature.n.tolist()):
@@ -177,19 +191,26 @@ def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg:
         if separation >= MIN_SEPARATION:
             usable.append((m, n, *turned_frequencies(m * a, n * b, rotation_deg, skew_deg), separation))
     if not usable:
-        return _Reading()
+        return []
     windowed = y * hann(size, size)
     power = np.array([abs(np.sum(_demodulated(windowed, fx, fy))) ** 2 for _, _, fx, fy, _ in usable])
     shown = power > SHOWN * np.sum(windowed ** 2)   # Parseval: the sum is the mean frequency bin's power
+    return [Harmonic(*usable[k][:4], SEPARATION_SIGMAS / (2 * math.pi) * size / usable[k][4], float(power[k]))
+            for k in np.argsort(power)[::-1][:HARMONICS] if shown[k]]
+
+
+def _read(y: np.ndarray, a: float, b: float, signature: Signature, rotation_deg: float, skew_deg: float
+          ) -> _Reading:
+    """The :class:`_Reading` of the :func:`strongest_harmonics` of ``signature`` at the lattice (a, b)
+    in the high-passed luminance ``y``."""
     reading = _Reading()
-    for k in [k for k in np.argsort(power)[::-1][:HARMONICS] if shown[k]]:
-        m, n, fx, fy, separation = usable[k]
-        even, strongest = _phase_slopes(y, fx, fy, SEPARATION_SIGMAS / (2 * math.pi) * size / separation)
-        g, g_turn = np.array([fx, fy]) + even, np.array([fx, fy]) + strongest
+    for h in strongest_harmonics(y, a, b, signature, rotation_deg, skew_deg):
+        even, strongest = _phase_slopes(y, h.fx, h.fy, h.sigma)
+        g, g_turn = np.array([h.fx, h.fy]) + even, np.array([h.fx, h.fy]) + strongest
         f1, f2 = fabric_frequencies(g[0], g[1], rotation_deg, skew_deg)
-        mn = np.array([m, n], dtype=float)
-        reading += _Reading(power[k] * np.outer(mn, mn), power[k] * np.outer(mn, g), power[k] * np.outer(mn, g_turn),
-                            power[k] * np.array([m * f1, m * m, n * f2, n * n]))
+        mn = np.array([h.m, h.n], dtype=float)
+        reading += _Reading(h.power * np.outer(mn, mn), h.power * np.outer(mn, g), h.power * np.outer(mn, g_turn),
+                            h.power * np.array([h.m * f1, h.m * h.m, h.n * f2, h.n * h.n]))
     return reading
 
 
@@ -213,14 +234,20 @@ def _demodulated(y: np.ndarray, fx: float, fy: float) -> np.ndarray:
     return y * np.outer(np.exp(-2j * np.pi * fy * centres / size), np.exp(-2j * np.pi * fx * centres / size))
 
 
-def _phase_slopes(y: np.ndarray, fx: float, fy: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """((delta_x, delta_y) read evenly, (delta_x, delta_y) weighted by |z_h|^2) of the module
-    docstring, cycles per image."""
+def phase_steps(y: np.ndarray, fx: float, fy: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The phase steps (s_x, s_y) of the module docstring: of ``y`` demodulated at (fx, fy) (cycles
+    per image) and low-passed by a Gaussian of ``sigma`` pixels, across (H, W - 1) and down (H - 1, W)."""
     z = _demodulated(y, fx, fy)
     # float32: OpenCV's wide blur is several times faster on it; the sums below are float64
     z = (cv2.GaussianBlur(z.real.astype(np.float32), (0, 0), sigma).astype(np.float64)
          + 1j * cv2.GaussianBlur(z.imag.astype(np.float32), (0, 0), sigma))
-    steps = (z[:, 1:] * np.conj(z[:, :-1]), z[1:, :] * np.conj(z[:-1, :]))  # across, down
+    return z[:, 1:] * np.conj(z[:, :-1]), z[1:, :] * np.conj(z[:-1, :])
+
+
+def _phase_slopes(y: np.ndarray, fx: float, fy: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """((delta_x, delta_y) read evenly, (delta_x, delta_y) weighted by |z_h|^2) of the module
+    docstring, cycles per image."""
+    steps = phase_steps(y, fx, fy, sigma)
     per_cycle = y.shape[0] / (2 * math.pi)
     even = np.array([np.angle(_evenly_summed(s)) for s in steps]) * per_cycle
     strongest = np.array([np.angle(np.sum(s)) for s in steps]) * per_cycle
