@@ -36,7 +36,7 @@ from ..core.params import FabricParams
 from ..core.priors import family
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from ..model.phone import PhoneEffects
-from ..model.spacing_warp import SpacingWarp, grid_centres, non_affine
+from ..model.spacing_warp import SpacingWarp, grid_centres, non_affine, rms
 from ..texture.lattice import yarns_in_view
 from .novel_light import novel_light_error
 
@@ -114,8 +114,8 @@ def warp_errors(fitted: SpacingWarp | None, phone: PhoneEffects, film_size: int)
     x, y = np.meshgrid(grid_centres(film_size), grid_centres(film_size), indexing="xy")
     true = [non_affine(d, film_size) for d in phone.displacement(x, y)]
     found = (0.0, 0.0) if fitted is None else fitted.sampled(film_size)
-    return {"warp_true_rms_px": round(float(np.sqrt(np.mean(true[0] ** 2 + true[1] ** 2))), 3),
-            "warp_error_px": round(float(np.sqrt(np.mean((true[0] - found[0]) ** 2 + (true[1] - found[1]) ** 2))), 3)}
+    return {"warp_true_rms_px": round(rms(*true), 3),
+            "warp_error_px": round(rms(true[0] - found[0], true[1] - found[1]), 3)}
 
 
 def tiles_error_pct(found, truth) -> float:

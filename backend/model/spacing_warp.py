@@ -121,11 +121,15 @@ class SpacingWarp:
 
     def rms_px(self, film_size: int) -> float:
         """The root mean square displacement over the film (film pixels)."""
-        dx, dy = self.sampled(film_size)
-        return float(np.sqrt(np.mean(dx ** 2 + dy ** 2)))
+        return rms(*self.sampled(film_size))
 
     def __add__(self, other: "SpacingWarp") -> "SpacingWarp":
         return SpacingWarp.from_grids(np.add(self.dx, other.dx), np.add(self.dy, other.dy))
+
+
+def rms(dx: np.ndarray, dy: np.ndarray) -> float:
+    """The root mean square length of displacements (dx, dy) sampled on a grid."""
+    return float(np.sqrt(np.mean(np.asarray(dx) ** 2 + np.asarray(dy) ** 2)))
 
 
 def grid_centres(film_size: float, n: int = GRID) -> np.ndarray:
