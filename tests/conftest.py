@@ -73,3 +73,10 @@ def build_module():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def pytest_collection_modifyitems(items):
+    """Tests marked ``slow`` run first (in their collected order), the rest after them: pytest-xdist
+    hands out tests in list order, so a minute-long test collected late would run alone at the end
+    while the other workers wait for it (longest first keeps the workers' finishing times close)."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

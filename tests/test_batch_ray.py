@@ -28,6 +28,10 @@ from backend.fit.folder import EXAMPLE_PARAMS
 from backend.image.png import write_png
 from backend.model.render import render_pair
 
+# One local Ray session and one first batch serve the module's tests: kept on one xdist worker
+# (pyproject's --dist loadgroup), and run first (slow: tests/conftest.py).
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("ray")]
+
 FILM = 128
 FIT = ["--size", "32", "--iterations", "2", "--output-spp", "1", "--pattern", "twill1"]
 

@@ -203,6 +203,7 @@ print(json.dumps({"path": sys.path, "torch": torch.__file__, "version": torch.__
 """
 
 
+@pytest.mark.slow
 def test_the_installed_zip_fits_with_blenders_python_and_its_own_packages_only(installed, tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()

@@ -93,6 +93,7 @@ def test_real_photos_read_soft(real_dir, name):
     assert 0.5 < photo_blur_px(pair.reflection, pair.transmission, 512) < 0.9
 
 
+@pytest.mark.slow
 def test_golden_renders_read_sharp(golden_dir, golden_cases):
     """The golden renders of the full model (the ones a fit is compared on): gain at most 2.6 a pair
     and 2.7 a photo, about half of MIN_GAIN. Of the ablations, the plain render without the glow

@@ -193,6 +193,7 @@ def test_discrete_searches_come_after_the_first_search_then_every_search_every()
     assert searches(iterations=100, search_every=0) == []
 
 
+@pytest.mark.slow
 def test_fit_estimates_the_camera_blur(twill_pair):
     # A phone photo is softer than a sharp render: the fit finds the blur (or keeps it when told).
     soft = render_pair(TWILL, CaptureRig(camera_blur_px=1.0), size=512, spp=8, seed=3)
@@ -265,6 +266,7 @@ def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
     assert rated({("twill1", wrong): 0.5, ("satin1m", satin): 0.5})[0] == [("twill1", wrong), ("satin1m", satin)]
 
 
+@pytest.mark.slow
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
     image), the rest at the working size (64 px): the winner from its start beside its face twin on
@@ -372,6 +374,7 @@ def run_fit(*args, **kwargs):
                           text=True, env=ENV, **kwargs)
 
 
+@pytest.mark.slow
 def test_fit_example_end_to_end(tmp_path):
     out = tmp_path / "example"
     result = run_fit("--example", "--out", str(out), "--iterations", "12", "--output-spp", "4", "--json-progress")
@@ -406,6 +409,7 @@ def test_fit_example_end_to_end(tmp_path):
     assert blur.returncode == 2 and "--camera-blur: must be in [0, 4] pixels" in blur.stderr
 
 
+@pytest.mark.slow
 def test_fit_cancel_keeps_the_best_so_far(tmp_path):
     out = tmp_path / "cancel"
     proc = subprocess.Popen([sys.executable, "-m", "backend", "fit", "--example", "--out", str(out), "--pattern",
@@ -461,6 +465,7 @@ def test_the_sample_rotation_is_read_from_the_spectra(twill_pair):
     assert (found.rotation_deg, found.skew_deg) == pytest.approx((0.0, 0.0), abs=0.25)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["satin1_s1", "satin1_s2"])
 def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
     # 0.7 px per yarn across: only aliased harmonics remain. At full size the sieve's strongest peaks
@@ -478,6 +483,7 @@ def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
     assert max(found, key=lambda c: c.score).pattern == "satin1"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index, pattern", [(6, "twill0"), (14, "satin1")])
 def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
     # Photo-like pairs (photolike --seed 31) at 2-3 px per yarn behind 1-2 px of blur: twill0_006
@@ -490,6 +496,7 @@ def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
                           unmirrored=True)
 
 
+@pytest.mark.slow
 def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
     # Photo-like twill0_011 of the benchmark's set (seed 7, 2-3 px per yarn behind 1.9 px of blur) is
     # turned -0.52 degrees; the summed scan's maxima placed it at -2.60 degrees with tiles 5.8 % off.
@@ -498,6 +505,7 @@ def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
     assert_placed_as_made(tmp_path, seed=7, index=11, pattern="twill0", rotation_tolerance_deg=0.4)
 
 
+@pytest.mark.slow
 def test_the_maps_read_a_turn_the_summed_sieves_miss(tmp_path):
     # Photo-like twill0_016 (seed 7, 2-3 px per yarn, unevenly spaced) is turned +3.88 degrees. Every
     # maximum of the summed sieve scan missed it (best -5.74, then unturned with tiles 12 % off); the
@@ -505,6 +513,7 @@ def test_the_maps_read_a_turn_the_summed_sieves_miss(tmp_path):
     assert_placed_as_made(tmp_path, seed=7, index=16, pattern="twill0", rotation_tolerance_deg=0.4, unmirrored=True)
 
 
+@pytest.mark.slow
 def test_the_yarn_vectors_correct_a_turn_read_from_the_centre(tmp_path):
     # Photo-like satin0_008 (seed 7) is turned -1.54 degrees; the spectra's peaks, smeared by the
     # phone's uneven yarns, placed it at -0.58. The candidates' yarn vectors, solved from their
@@ -512,12 +521,14 @@ def test_the_yarn_vectors_correct_a_turn_read_from_the_centre(tmp_path):
     assert_placed_as_made(tmp_path, seed=7, index=8, pattern="satin0", rotation_tolerance_deg=0.15, unmirrored=True)
 
 
+@pytest.mark.slow
 def test_a_mirrored_twill_is_placed_with_its_own_lattice(tmp_path):
     # Photo-like twill0m_006 (seed 7, 3.4 px per yarn behind 1.1 px of blur) is twill0 mirrored
     # left-right, turned 2.21 degrees: its twill0m candidate has the true tiles.
     assert_placed_as_made(tmp_path, seed=7, index=6, pattern="twill0m", rotation_tolerance_deg=0.15)
 
 
+@pytest.mark.slow
 def test_the_yarn_vectors_confirm_a_turn_the_combs_ruled_out(tmp_path):
     # Photo-like satin0_003 (seed 53) is turned -2.31 degrees; the placement read -1.60, and the
     # unturned sample's combs scored higher (its best satin0 tiles then 108 % off). At -1.60 the
@@ -525,6 +536,7 @@ def test_the_yarn_vectors_confirm_a_turn_the_combs_ruled_out(tmp_path):
     assert_placed_as_made(tmp_path, seed=53, index=3, pattern="satin0", rotation_tolerance_deg=0.15)
 
 
+@pytest.mark.slow
 def test_two_strong_peaks_give_a_turn_the_sieves_spacings_miss(tmp_path):
     # Photo-like plain_005 (seed 97, about 2.3 px per yarn behind 1-2 px of blur) is turned -2.93
     # degrees. The summed sieve scan peaks at -3.0, but with a spacing 1.5 times off on one axis
@@ -534,6 +546,7 @@ def test_two_strong_peaks_give_a_turn_the_sieves_spacings_miss(tmp_path):
     assert_placed_as_made(tmp_path, seed=97, index=5, pattern="plain", rotation_tolerance_deg=0.15)
 
 
+@pytest.mark.slow
 def test_agreeing_readings_with_the_reflections_help_keep_a_turn(tmp_path):
     # Photo-like plain_000 (seed 97) is turned 3.02 degrees and read at 2.97 (two strong peaks). No
     # candidate's transmission harmonics pin its yarn vectors at either placement; with the
@@ -542,6 +555,7 @@ def test_agreeing_readings_with_the_reflections_help_keep_a_turn(tmp_path):
     assert_placed_as_made(tmp_path, seed=97, index=0, pattern="plain", rotation_tolerance_deg=0.15)
 
 
+@pytest.mark.slow
 def test_the_sieves_strongest_turn_replaces_a_placement_whose_lattices_miss_the_peaks(tmp_path):
     # Photo-like twill1m_017 (seed 23) is turned -3.99 degrees. The maps preferred -0.32, where its
     # candidates' lattices made at most 0.53 of the photos' peak strength (its tiles 9 % off); the
@@ -549,6 +563,7 @@ def test_the_sieves_strongest_turn_replaces_a_placement_whose_lattices_miss_the_
     assert_placed_as_made(tmp_path, seed=23, index=17, pattern="twill1m", rotation_tolerance_deg=0.2)
 
 
+@pytest.mark.slow
 def test_the_turned_placement_replaces_an_unturned_one_whose_lattices_miss_the_peaks(tmp_path):
     # Photo-like twill1_002 (seed 53) is turned 1.90 degrees and read at 1.6; the unturned combs scored
     # higher and no yarn vectors agreed, so it was placed unturned, its tiles 5.2 % off and its

@@ -278,6 +278,7 @@ def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_
                                    "thickness_mae": 0.2, "tiles_error_pct_max": 0.5, "tiles_error_pct_mean": 0.5}
 
 
+@pytest.mark.slow
 def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_the_truth(tmp_path, capsys):
     from backend.bench.placement import summary
     from backend.cli.main import main

@@ -177,6 +177,7 @@ def test_jitter_is_stratified():
     assert (cells.sort(-1).values == torch.arange(4)).all()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not compile_available(), reason="torch.compile needs a C++ compiler, none found")
 def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     params = FabricParams.from_interchange(
