@@ -78,5 +78,6 @@ def build_module():
 def pytest_collection_modifyitems(items):
     """Tests marked ``slow`` run first (in their collected order), the rest after them: pytest-xdist
     hands out tests in list order, so a minute-long test collected late would run alone at the end
-    while the other workers wait for it (longest first keeps the workers' finishing times close)."""
+    while the other workers wait for it. Under ``-n 0`` a module's slow tests leave its other tests
+    apart, so its module-scoped fixtures are built twice (a render or two: cheaper than the idle tail)."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
