@@ -20,7 +20,7 @@ from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.imaging import display_transform, gaussian_blur, subpixel_blur
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
-from backend.model.render import Renderer, compile_available
+from backend.model.render import ALIAS_FREE_BLUR_PX, Renderer, compile_available
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
@@ -341,6 +341,21 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
         detail = lambda img: (img[1:] - img[:-1]).abs().mean().item()  # noqa: E731
         assert detail(blurred) < 0.7 * detail(a)
     assert torch.equal(gaussian_blur(sharp.reflection, 0.0), sharp.reflection)
+
+
+def test_auto_subpixel_blur_takes_the_subpixels_only_under_the_alias_free_width():
+    """subpixel_blur=None: a blur narrower than ALIAS_FREE_BLUR_PX render pixels acts on the
+    sub-pixels (as subpixel_blur=True), a wider one on the pixel means (as False)."""
+    params = FabricParams(pattern="plain", tiles=(200.0, 200.0))  # about 2 px per yarn at 64 px
+    renderers = {mode: Renderer(DEFAULT_RIG, 64, 4, subpixel_blur=mode) for mode in (None, True, False)}
+    film_px = DEFAULT_RIG.film_size / 64  # film pixels per render pixel
+    with torch.no_grad():
+        for render_px, same_as in ((0.6, True), (ALIAS_FREE_BLUR_PX - 0.05, True), (ALIAS_FREE_BLUR_PX, False),
+                                   (2.0, False)):
+            blurred = {mode: renderer.blurred(params, camera_blur_px=render_px * film_px)[0]
+                       for mode, renderer in renderers.items()}
+            assert torch.equal(blurred[None], blurred[same_as])
+            assert not torch.allclose(blurred[True], blurred[False], atol=1e-4)  # the two ways differ here
 
 
 @pytest.mark.parametrize("subpixels, images", [(False, 1), (True, 2)])

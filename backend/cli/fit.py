@@ -28,7 +28,7 @@ from pathlib import Path
 from ..core.priors import FIT_PATTERNS
 from ..core.protocol import STOP_REQUEST, Reporter
 from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
-from ..fit.folder import FolderFitOptions, fit_reporting
+from ..fit.folder import BLUR_ON, FolderFitOptions, fit_reporting
 from ..fit.settings import FitSettings
 from ..init.network import INIT_CHOICES
 
@@ -101,7 +101,7 @@ def _auto_or_number(limit: float, unit: str, low: float | None = None):
 
 # The options of the fit itself, which a batch passes on to every pair's fit (FolderFitOptions' names).
 BATCH_FIT_OPTIONS = ("pattern", "iterations", "size", "rig", "strict", "seed", "camera_blur", "sample_rotation",
-                     "light_falloff", "spacing_warp", "init", "output_spp")
+                     "light_falloff", "spacing_warp", "blur_on", "init", "output_spp")
 
 
 def add_fit_options(p) -> None:
@@ -136,6 +136,11 @@ def add_fit_options(p) -> None:
                    help="the photos' uneven yarn spacing (a smooth warp of the lattice, read from the phase of its "
                         "harmonics against the fit's renders): read with the fit and kept out of the material (fit, "
                         "default), or none (the renders' yarns evenly spaced)")
+    p.add_argument("--blur-on", choices=tuple(BLUR_ON), default=FolderFitOptions.blur_on,
+                   help="where the camera blur acts in the fit's own renders: on the pixel means (pixels, default; "
+                        "cheaper), on sub-pixels as the optics do before the sensor (subpixels: a dense weave's "
+                        "harmonics above the pixels' Nyquist frequency leave no false lattice), or on sub-pixels "
+                        "only where the blur is under 1.2 render pixels (auto)")
     p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,

@@ -70,6 +70,10 @@ class FitInputError(ValueError):
 INPUT_ERRORS = (FitInputError, PhotoError, RigError, GramWeightsError)  # exit code 2, one line naming the file
 
 
+# --blur-on: FitSettings.subpixel_blur
+BLUR_ON = {"pixels": False, "subpixels": True, "auto": None}
+
+
 @dataclass(frozen=True)
 class FolderFitOptions:
     """The fit command's options (its ``--flags``, same names and defaults)."""
@@ -89,6 +93,7 @@ class FolderFitOptions:
     sample_rotation: str = "auto"                # 'auto' or degrees
     light_falloff: str = "fit"                   # 'fit': solve the photos' light falloff; 'none'
     spacing_warp: str = "fit"                    # 'fit': read the photos' uneven yarn spacing; 'none'
+    blur_on: str = "pixels"                      # the loss's camera blur: 'pixels', 'subpixels' or 'auto'
     output_spp: int = OUTPUT_SPP
     overwrite: bool = False
 
@@ -174,7 +179,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                            seed=options.seed, device=options.device, vgg_weights=options.vgg_weights,
                            camera_blur=_given(options.camera_blur, rig.camera_blur_px),
                            sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg),
-                           light_falloff=options.light_falloff == "fit", spacing_warp=options.spacing_warp == "fit")
+                           light_falloff=options.light_falloff == "fit", spacing_warp=options.spacing_warp == "fit",
+                           subpixel_blur=BLUR_ON[options.blur_on])
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),

@@ -144,7 +144,7 @@ def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings)
     device = torch.device(settings.device)
     target = Target.from_arrays(reflection, transmission, settings.size, device)
     renderer = Renderer(rig, settings.size, settings.spp, settings.seed, device=device, compile=settings.compile,
-                        gradient_inputs=OPTIMISED)
+                        gradient_inputs=OPTIMISED, subpixel_blur=settings.subpixel_blur)
     gram = GramDescriptor.load(settings.vgg_weights, device) if settings.vgg_weights else None
     return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight,
                      settings.light_falloff)

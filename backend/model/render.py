@@ -93,6 +93,12 @@ def compiler_found() -> bool:
     return any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "c++", "clang++"))
 
 
+# Where a Renderer's subpixel_blur is None (auto), blurs of this many render pixels and wider act on
+# the pixel means: there the false lattice of an alias at 1 - f is damped to G(1 - f) (the worst,
+# f near 1, to about 0.1 / sigma of the harmonic's amplitude) while sub-pixels cost a wider kernel.
+ALIAS_FREE_BLUR_PX = 1.2
+
+
 def subpixel_size(spp: int) -> int:
     """The side k / 2 of the block of stratified samples that make one sub-pixel of the blurred
     image (module docstring): spp = k x k with k even; 0 where the samples cannot be split so."""
@@ -106,7 +112,7 @@ class Renderer:
     def __init__(self, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4, seed: int = 0,
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
-                 compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool = False,
+                 compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool | None = False,
                  gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
@@ -123,7 +129,9 @@ class Renderer:
         self.glow = (self.camera.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
                      if options.glow and rig.glow_strength > 0 else None)
         # samples per side of a sub-pixel the camera blur acts on; 0: it acts on the pixel means
-        self.subpixel = subpixel_size(spp) if subpixel_blur else 0
+        self.subpixel = subpixel_size(spp) if subpixel_blur is not False else 0
+        # None: on the sub-pixels only where a blur is too narrow to take the aliases off the pixel means
+        self._subpixel_below = ALIAS_FREE_BLUR_PX if subpixel_blur is None else math.inf
         self._glow_fine = None
         if self.glow is not None and self.subpixel:
             fine = CameraSamples(rig, 2 * size, 1, seed, self.device, dtype)
@@ -330,7 +338,7 @@ class Renderer:
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
         sigma = blur * self.size / self.rig.film_size
-        if sigma <= NO_BLUR_PX or not self.subpixel:
+        if sigma <= NO_BLUR_PX or sigma >= self._subpixel_below or not self.subpixel:
             r, t = self._radiance_once(fabric, progress)
             return gaussian_blur(r, sigma), gaussian_blur(t, sigma)
         r, t = self._radiance_once(fabric, progress, fine=True)
