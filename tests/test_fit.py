@@ -14,13 +14,15 @@ from conftest import ROOT
 from oracles import reference
 
 from backend.bench import photolike
+from backend.cli.main import build_parser
 from backend.core.params import FabricParams
 from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode
 from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.fit.folder import BLUR_ON
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
-from backend.fit.pipeline import fit
+from backend.fit.pipeline import _objective, fit
 from backend.fit.search import (
     COVERAGE_MARGIN,
     Trial,
@@ -741,3 +743,21 @@ def test_report_header_lines_fit_the_page():
     assert len(lines) > 1 and "   ".join(lines) == long
     assert all(text_width(line) <= 3 * PANEL - 20 for line in lines)
     assert wrapped("short", 100) == ["short"]
+
+
+@pytest.mark.parametrize("blur_on", ["pixels", "subpixels", "auto"])
+def test_blur_on_reaches_the_loss_renderer(blur_on):
+    """``fit --blur-on`` -> FolderFitOptions.blur_on -> FitSettings.subpixel_blur -> the loss's Renderer:
+    at a blur of 0.6 render px the loss renders are those of a Renderer made with that choice."""
+    args = build_parser().parse_args(["fit", "R.png", "T.png", "--out", "o", "--blur-on", blur_on])
+    settings = FitSettings(size=64, spp=4, compile=False, subpixel_blur=BLUR_ON[args.blur_on])
+    image = np.full((64, 64, 3), 0.5, np.float32)
+    objective = _objective(image, image, DEFAULT_RIG, settings)
+    params = FabricParams(pattern="plain", tiles=(200.0, 200.0))
+    blur = 0.6 * DEFAULT_RIG.film_size / 64
+    with torch.no_grad():
+        got = objective.renderer.blurred(params, camera_blur_px=blur)[0]
+        expected = Renderer(DEFAULT_RIG, 64, 4, subpixel_blur=BLUR_ON[blur_on]).blurred(params, camera_blur_px=blur)[0]
+        pixel_means = Renderer(DEFAULT_RIG, 64, 4).blurred(params, camera_blur_px=blur)[0]
+    assert torch.equal(got, expected)
+    assert torch.equal(got, pixel_means) == (blur_on == "pixels")
