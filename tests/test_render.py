@@ -20,7 +20,7 @@ from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.imaging import display_transform, gaussian_blur, subpixel_blur
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
-from backend.model.render import ALIAS_FREE_BLUR_PX, Renderer, compile_available
+from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, Renderer, compile_available
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
@@ -344,14 +344,14 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
 
 
 def test_auto_subpixel_blur_takes_the_subpixels_only_under_the_alias_free_width():
-    """subpixel_blur=None: a blur narrower than ALIAS_FREE_BLUR_PX render pixels acts on the
+    """subpixel_blur=None: a blur narrower than AUTO_SUBPIXEL_BELOW_PX render pixels acts on the
     sub-pixels (as subpixel_blur=True), a wider one on the pixel means (as False)."""
-    params = FabricParams(pattern="plain", tiles=(200.0, 200.0))  # about 2 px per yarn at 64 px
+    params = FabricParams(pattern="plain", tiles=(200.0, 200.0))  # 0.2 px per yarn at 64 px: the two ways differ
     renderers = {mode: Renderer(DEFAULT_RIG, 64, 4, subpixel_blur=mode) for mode in (None, True, False)}
     film_px = DEFAULT_RIG.film_size / 64  # film pixels per render pixel
     with torch.no_grad():
-        for render_px, same_as in ((0.6, True), (ALIAS_FREE_BLUR_PX - 0.05, True), (ALIAS_FREE_BLUR_PX, False),
-                                   (2.0, False)):
+        for render_px, same_as in ((0.6, True), (AUTO_SUBPIXEL_BELOW_PX - 0.05, True),
+                                   (AUTO_SUBPIXEL_BELOW_PX, False), (2.0, False)):
             blurred = {mode: renderer.blurred(params, camera_blur_px=render_px * film_px)[0]
                        for mode, renderer in renderers.items()}
             assert torch.equal(blurred[None], blurred[same_as])

@@ -31,6 +31,7 @@ from ..core.rig import MAX_CAMERA_BLUR_PX, MAX_SAMPLE_ROTATION_DEG
 from ..fit.folder import BLUR_ON, FolderFitOptions, fit_reporting
 from ..fit.settings import FitSettings
 from ..init.network import INIT_CHOICES
+from ..model.render import AUTO_SUBPIXEL_BELOW_PX
 
 
 def watch_stop_requests(stream, stop: threading.Event) -> threading.Thread:
@@ -139,9 +140,9 @@ def add_fit_options(p) -> None:
     p.add_argument("--blur-on", choices=tuple(BLUR_ON), default=FolderFitOptions.blur_on,
                    help="where the camera blur acts in the fit's own renders: on the pixel means (pixels, default), "
                         "on sub-pixels as the optics do before the sensor (subpixels), or on sub-pixels only where "
-                        "the blur is under 1.2 render pixels (auto). Measured with auto: dense plain weaves fit "
-                        "closer (photo-like plains' thickness error 1.14 -> 0.30), the dev real twills' fits no "
-                        "better and up to 40 %% slower")
+                        f"the blur is under {AUTO_SUBPIXEL_BELOW_PX:g} render pixels (auto). Measured with auto: "
+                        "dense plain weaves fit closer (photo-like plains' thickness error 1.14 -> 0.30), the dev "
+                        "real twills' fits no better and up to 40 %% slower")
     p.add_argument("--init", choices=INIT_CHOICES, default=FolderFitOptions.init,
                    help="starting parameters: the shipped network's prediction (default) or the pattern's prior")
     p.add_argument("--output-spp", type=int, default=FolderFitOptions.output_spp,

@@ -54,8 +54,8 @@ class FitSettings:
     sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
     light_falloff: bool = True       # solve each photo's smooth light falloff (backend.model.photo_light)
     subpixel_blur: bool | None = False  # the camera blur of the loss's renders on sub-pixels (True), on the pixel
-                                     # means (False), or on sub-pixels only below ALIAS_FREE_BLUR_PX (None)
-                                     # (backend.model.render)
+                                     # means (False), or on sub-pixels only below AUTO_SUBPIXEL_BELOW_PX
+                                     # (None; backend.model.render)
     spacing_warp: bool = True        # read the photos' uneven yarn spacing at each discrete search (backend.fit.warp)
     warp_trial_steps: int = 5        # steps a warp read is tried for before it is kept or undone (Run.update_warp)
 

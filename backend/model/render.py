@@ -20,7 +20,7 @@ every step a fit of the dev real twills took 42 % longer (178 -> 253 s, 196 -> 2
 three pairs' fits traded reflection for transmission (spectrum correlation .647 -> .664 and
 .649 -> .636, reflection FLIP .117 -> .121). Other sample counts blur the pixel means.
 ``subpixel_blur=None`` (``fit --blur-on auto``) takes the sub-pixels only for blurs under
-:data:`ALIAS_FREE_BLUR_PX`: on the seed-53 photo-like set's four plains (2.2-2.8 px per yarn) the
+:data:`AUTO_SUBPIXEL_BELOW_PX`: on the seed-53 photo-like set's four plains (2.2-2.8 px per yarn) the
 thickness error 1.14 -> 0.30, roughness .042 -> .031, novel-light colour .016 -> .011, and 25-45 %
 longer optimisations (on the held-out seed-7 set's plains, three of four fitted at blurs over the
 threshold and are unchanged; plain_010, fitted as satin1 on the pixel means, is fitted plain,
@@ -105,9 +105,10 @@ def compiler_found() -> bool:
 
 
 # Where a Renderer's subpixel_blur is None (auto), blurs of this many render pixels and wider act on
-# the pixel means: there the false lattice of an alias at 1 - f is damped to G(1 - f) (the worst,
-# f near 1, to about 0.1 / sigma of the harmonic's amplitude) while sub-pixels cost a wider kernel.
-ALIAS_FREE_BLUR_PX = 1.2
+# the pixel means. Not alias-free: there the false lattice of an alias at 1 - f is damped to G(1 - f)
+# (the worst, f near 1, to about 0.1 / sigma of the harmonic's amplitude), a trade against the cost
+# of the sub-pixels, whose kernel is twice as wide.
+AUTO_SUBPIXEL_BELOW_PX = 1.2
 
 
 def subpixel_size(spp: int) -> int:
@@ -141,8 +142,8 @@ class Renderer:
                      if options.glow and rig.glow_strength > 0 else None)
         # samples per side of a sub-pixel the camera blur acts on; 0: it acts on the pixel means
         self.subpixel = subpixel_size(spp) if subpixel_blur is not False else 0
-        # None: on the sub-pixels only where a blur is too narrow to take the aliases off the pixel means
-        self._subpixel_below = ALIAS_FREE_BLUR_PX if subpixel_blur is None else math.inf
+        # None: on the sub-pixels only where a blur is too narrow to damp the pixel means' aliases
+        self._subpixel_below = AUTO_SUBPIXEL_BELOW_PX if subpixel_blur is None else math.inf
         self._glow_fine = None
         if self.glow is not None and self.subpixel:
             fine = CameraSamples(rig, 2 * size, 1, seed, self.device, dtype)
