@@ -697,6 +697,39 @@ def test_a_start_on_a_lattice_chosen_would_rule_out_gets_no_trial_steps(twill_pa
     assert [len(t.run.history) for t in trials_of(lone, restarted=False)] == [2, 0]  # its steps go on in the fit
 
 
+def test_a_weave_and_its_face_twin_alone_get_no_trial_steps_where_the_winner_restarts(twill_pair):
+    """Where the eligible starts are a weave and its face twin on one lattice and the winner restarts at
+    the working size, the duel there chooses (pipeline._finalist): no trial steps, and the start with
+    the lower loss is the one the twin must beat. Any other pair of weaves, or a fit at the base size,
+    has its trials as before."""
+    from backend.fit.search import Start, trial_runs
+    objective = Objective(Target.from_arrays(*twill_pair, size=64), Renderer(DEFAULT_RIG, 64, 4, compile=False),
+                          DEFAULT_RIG)
+    settings = FitSettings(iterations=4, trial_iterations=2, size=64, spp=4, search_every=0, compile=False)
+
+    def start(k, loss, pattern, tiles=TWILL.tiles):
+        return Start(loss, k, search.Candidate(pattern, tiles, 1.0), typical(pattern).replace(tiles=tiles))
+
+    too_fine = start(2, 0.5, "twill1m", (TWILL.tiles[0], 3 * TWILL.tiles[1]))
+    coverage = {"twill1": 0.93, "twill0m": 0.95, "twill0": 0.95, "twill1m": 0.13}
+
+    def trials_of(starts, restarted=True):
+        return trial_runs(starts, objective, settings, 1.0, None, {}, lambda run: None, lambda *a: None,
+                          lambda cand: coverage[cand.pattern], restarted)
+
+    twins = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0m"), too_fine]   # twill1's face twin: twill0m
+    skipped = trials_of(twins)
+    assert [len(t.run.history) for t in skipped] == [0, 0, 0]
+    assert all(t.summary["trial_loss"] == t.start.loss and t.summary["spectrum_corr"] is None for t in skipped)
+    assert all("face twin" in t.summary["skipped"] for t in skipped[:2])
+    assert chosen(skipped).start.candidate.pattern == "twill0m"             # the lower starting loss
+    assert [len(t.run.history) for t in trials_of(twins, restarted=False)] == [2, 2, 0]  # steps go on in the fit
+    diagonals = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0"), too_fine]  # another diagonal: not twins
+    assert [len(t.run.history) for t in trials_of(diagonals)] == [2, 2, 0]
+    other_lattice = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0m", (TWILL.tiles[0] * 1.5, TWILL.tiles[1]))]
+    assert [len(t.run.history) for t in trials_of(other_lattice)] == [2, 2]
+
+
 def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on_its_lattice():
     from backend.fit.search import Start, rival, untried_rival
 

@@ -267,11 +267,24 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
     in the fit. Measured on the dev real twill2: twill1 and twill1m on a lattice three times too
     fine (coverage 0.13) beside twill0 (0.93): 60 trial steps at 256 px spared, the same parameters,
     the fit 159 -> 142 s (one session, 2 cores).
+
+    Where the winner restarts and the eligible starts are a weave and its face twin on one lattice
+    (:func:`_face_twins`), none gets steps either: the trials at BASE_SIZE cannot tell the two apart
+    (:func:`rival`), and the fit's duel at the working size chooses between them from their starts,
+    whatever the trials did (``backend.fit.pipeline._finalist``); the trials only chose which of the
+    two the twin must beat by ``duel_margin``, now the one with the lower starting loss. Measured
+    (``bench fit``, the same session): on the dev real twill1 and seven of the eight twills of
+    photo-like seed 53 (twill1_012 has one eligible start) the search at 256 px spared 40 steps,
+    and every fit came out bit-identical (the duels' losses, ``fine_trial_loss``, make the same
+    finalist go on either way); their search stage less its lattice part, two benches side by side
+    on 2 cores, 59-66 s -> 30-51 s on six of the seven (twill1m_017, whose baseline ran alone at the
+    end, 27 -> 34 s), and real twill1's fit, alone, 100 -> 79 s.
     """
     shortlisted = starts[: max(1, settings.trials)]
     coverages = [coverage_of(start.candidate) for start in shortlisted]
     eligible = _within_coverage_margin(coverages)
-    compare = sum(eligible) > 1 or (len(shortlisted) > 1 and not restarted)
+    twins = restarted and _face_twins([start.candidate for start, keep in zip(shortlisted, eligible) if keep])
+    compare = not twins and (sum(eligible) > 1 or (len(shortlisted) > 1 and not restarted))
     total = settings.iterations + settings.trial_iterations
     trials = []
     for index, (start, coverage, kept) in enumerate(zip(shortlisted, coverages, eligible)):
@@ -290,8 +303,18 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
                    "peak_coverage": coverage, "selection": selection, "probability": rated.get(id(cand))}
         if not kept:
             summary["skipped"] = "its lattice makes far less of the photos' peaks than the best start's"
+        elif twins:
+            summary["skipped"] = "a weave and its face twin: the duel at the working size chooses"
         trials.append(Trial(start, run, summary, selection, coverage))
     return trials
+
+
+def _face_twins(candidates: list[Candidate]) -> bool:
+    """Whether ``candidates`` are two: a weave and its face twin (:func:`face_twin`) on one lattice."""
+    if len(candidates) != 2:
+        return False
+    first, second = candidates
+    return face_twin(first) == second.pattern and same_lattice(first.tiles, second.tiles)
 
 
 def chosen(trials: list[Trial]) -> Trial:
