@@ -26,7 +26,9 @@
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
                reflection need the optimisation at 512 px); its first ``duel_iterations`` steps
                beside its face twin on its lattice, which the 256 px trials cannot tell from it,
-               and the twin goes on instead where its loss is clearly lower (:func:`_finalist`)
+               and the twin goes on instead where its loss is clearly lower (:func:`_finalist`;
+               where the two are the only eligible starts they get no trial steps at all,
+               :func:`search.trial_runs`)
     result     the best parameters seen, their loss and terms, the camera blur, the photos' light
                falloff at those parameters and their spacing warp, the candidates compared, the
                loss history and stage timings
