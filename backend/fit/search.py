@@ -276,9 +276,10 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
     (``bench fit``, the same session): on the dev real twill1 and seven of the eight twills of
     photo-like seed 53 (twill1_012 has one eligible start) the search at 256 px spared 40 steps,
     and every fit came out bit-identical (the duels' losses, ``fine_trial_loss``, make the same
-    finalist go on either way); their search stage less its lattice part, two benches side by side
-    on 2 cores, 59-66 s -> 30-51 s on six of the seven (twill1m_017, whose baseline ran alone at the
-    end, 27 -> 34 s), and real twill1's fit, alone, 100 -> 79 s.
+    finalist go on either way). The search stage less its lattice part, one fit alone on 2 cores:
+    real twill1 37.6 -> 18.0 s and 26.1 -> 17.8 s (two runs), photo-like twill0m_006 32.6 -> 20.4 s
+    (whole fits 100 -> 79 s, 91.5 -> 91.6 s with an optimisation 6 s slower, 117 -> 111 s: the
+    machine is noisy); two benches side by side, 59-66 s -> 30-51 s on six of the seven.
     """
     shortlisted = starts[: max(1, settings.trials)]
     coverages = [coverage_of(start.candidate) for start in shortlisted]
