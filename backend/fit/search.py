@@ -273,8 +273,9 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
     (:func:`rival`), and the fit's duel at the working size chooses between them from their starts,
     whatever the trials did (``backend.fit.pipeline._finalist``); the trials only chose which of the
     two the twin must beat by ``duel_margin``, now the one with the lower starting loss. Measured
-    (``bench fit``, the same session): on the dev real twill1 and seven of the eight twills of
-    photo-like seed 53 (twill1_012 has one eligible start) the search at 256 px spared 40 steps,
+    (``bench fit``, the same session): on the dev real twill1, the five dev golden twills and seven
+    of the eight twills of photo-like seed 53 (twill1_012 has one eligible start) the search at 256
+    px spared 40 steps,
     and every fit came out bit-identical (the duels' losses, ``fine_trial_loss``, make the same
     finalist go on either way). The search stage less its lattice part, one fit alone on 2 cores:
     real twill1 37.6 -> 18.0 s and 26.1 -> 17.8 s (two runs), photo-like twill0m_006 32.6 -> 20.4 s
