@@ -275,12 +275,12 @@ def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings,
     two the twin must beat by ``duel_margin``, now the one with the lower starting loss. Measured
     (``bench fit``, the same session): on the dev real twill1, the five dev golden twills and seven
     of the eight twills of photo-like seed 53 (twill1_012 has one eligible start) the search at 256
-    px spared 40 steps,
-    and every fit came out bit-identical (the duels' losses, ``fine_trial_loss``, make the same
-    finalist go on either way). The search stage less its lattice part, one fit alone on 2 cores:
-    real twill1 37.6 -> 18.0 s and 26.1 -> 17.8 s (two runs), photo-like twill0m_006 32.6 -> 20.4 s
-    (whole fits 100 -> 79 s, 91.5 -> 91.6 s with an optimisation 6 s slower, 117 -> 111 s: the
-    machine is noisy); two benches side by side, 59-66 s -> 30-51 s on six of the seven.
+    px spared 40 steps, and every fit came out bit-identical (the duels' losses,
+    ``fine_trial_loss``, make the same finalist go on either way). The search stage less its
+    lattice part, one fit alone on 2 cores: real twill1 37.6 -> 18.0 s and 26.1 -> 17.8 s (two
+    runs), photo-like twill0m_006 32.6 -> 20.4 s (whole fits 100 -> 79 s, 91.5 -> 91.6 s with an
+    optimisation 6 s slower, 117 -> 111 s: the machine is noisy); two benches side by side, 59-66 s
+    -> 30-51 s on six of the seven.
     """
     shortlisted = starts[: max(1, settings.trials)]
     coverages = [coverage_of(start.candidate) for start in shortlisted]
@@ -347,9 +347,7 @@ def rival(trials: list[Trial], winner: Trial) -> Trial | None:
     two (the fit's coarse to fine). Measured (photo-like seed 53, twill0m_016, 42.8 x 27.7 tiles):
     the trials at 256 px ranked its face twin twill1 first (selection 2.18 against 2.24); whole fits
     at 512 px end at 1.91 for twill1 and 1.66 for twill0m."""
-    twin = face_twin(winner.start.candidate)
-    return next((t for t in _eligible(trials) if t.start.candidate.pattern == twin
-                 and same_lattice(t.start.candidate.tiles, winner.start.candidate.tiles)), None)
+    return next((t for t in _eligible(trials) if _face_twins([winner.start.candidate, t.start.candidate])), None)
 
 
 def untried_rival(ruled_out: list[dict], winner: Candidate) -> Candidate | None:
