@@ -273,9 +273,27 @@ def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_
 
     section = summarise([row("sharp", RESOLVED_PX_PER_YARN + 0.7, True, 0.5),
                          row("aliased", RESOLVED_PX_PER_YARN - 1.3, False, 120.0)])["photolike"]
+    assert "blur_error_px_mean" not in section  # golden-like rows have no phone
     assert section["pattern_accuracy"] == 0.5 and section["tiles_error_pct_max"] == 120.0
     assert section["resolved"] == {"pairs": 1, "pattern_accuracy": 1.0, "family_accuracy": 1.0, "roughness_mae": 0.1,
                                    "thickness_mae": 0.2, "tiles_error_pct_max": 0.5, "tiles_error_pct_mean": 0.5}
+
+
+def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
+    from backend.bench.fit import blur_errors, summarise
+    from backend.model.phone import PhoneEffects
+
+    phone = PhoneEffects.draw(random.Random(3))
+    assert blur_errors(phone.blur_px + 0.27, phone) == {"phone_blur_px": round(phone.blur_px, 3),
+                                                        "blur_error_px": pytest.approx(0.27, abs=1e-3)}
+    rows = [{"kind": "photolike", "name": name, "wall_s": 1.0, "pattern_ok": True, "family_ok": True,
+             "roughness_mae": 0.1, "thickness_mae": 0.2, "tiles_error_pct": 0.1, "rotation_error_deg": 0.0,
+             "pixels_per_yarn": 3.0, "phone_blur_px": 1.0, "blur_error_px": error,
+             **{f"{m}_{t}": 0.0 for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}}
+            for name, error in (("over", 0.3), ("under", -0.1))]
+    section = summarise(rows)["photolike"]
+    assert section["blur_error_px_mean"] == pytest.approx(0.1)
+    assert section["blur_error_px_mean_abs"] == pytest.approx(0.2)
 
 
 @pytest.mark.slow
