@@ -255,6 +255,14 @@ def test_sensor_noise_is_per_phone_pixel_and_averages_to_the_drawn_level():
     assert float(photo.std()) == pytest.approx(0.04, rel=0.15)
 
 
+def _bench_row(name: str, ppy: float = 3.0, ok: bool = True, tiles_error: float = 0.1, **extra) -> dict:
+    """A photo-like row of ``bench fit`` with the keys its summary reads."""
+    return {"kind": "photolike", "name": name, "wall_s": 1.0, "pattern_ok": ok, "family_ok": ok,
+            "roughness_mae": 0.1, "thickness_mae": 0.2, "tiles_error_pct": tiles_error,
+            "rotation_error_deg": 0.0, "pixels_per_yarn": ppy,
+            **{f"{m}_{t}": 0.0 for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}, **extra}
+
+
 def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_apart():
     from backend.bench.fit import RESOLVED_PX_PER_YARN, pixels_per_yarn, summarise
     from backend.core.rig import DEFAULT_RIG
@@ -265,14 +273,8 @@ def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_
     satin = typical("satin1").replace(tiles=(175.0, 79.0))      # 5 yarns a tile: the finer axis counts
     assert pixels_per_yarn(satin, DEFAULT_RIG) == pytest.approx(512 / (5 * 175 * seen))
 
-    def row(name, ppy, ok, tiles_error):
-        return {"kind": "photolike", "name": name, "wall_s": 1.0, "pattern_ok": ok, "family_ok": ok,
-                "roughness_mae": 0.1, "thickness_mae": 0.2, "tiles_error_pct": tiles_error,
-                "rotation_error_deg": 0.0, "pixels_per_yarn": ppy,
-                **{f"{m}_{t}": 0.0 for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}}
-
-    section = summarise([row("sharp", RESOLVED_PX_PER_YARN + 0.7, True, 0.5),
-                         row("aliased", RESOLVED_PX_PER_YARN - 1.3, False, 120.0)])["photolike"]
+    section = summarise([_bench_row("sharp", RESOLVED_PX_PER_YARN + 0.7, True, 0.5),
+                         _bench_row("aliased", RESOLVED_PX_PER_YARN - 1.3, False, 120.0)])["photolike"]
     assert "blur_error_px_mean" not in section  # golden-like rows have no phone
     assert section["pattern_accuracy"] == 0.5 and section["tiles_error_pct_max"] == 120.0
     assert section["resolved"] == {"pairs": 1, "pattern_accuracy": 1.0, "family_accuracy": 1.0, "roughness_mae": 0.1,
@@ -286,12 +288,8 @@ def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
     phone = PhoneEffects.draw(random.Random(3))
     assert blur_errors(phone.blur_px + 0.27, phone) == {"phone_blur_px": round(phone.blur_px, 3),
                                                         "blur_error_px": pytest.approx(0.27, abs=1e-3)}
-    rows = [{"kind": "photolike", "name": name, "wall_s": 1.0, "pattern_ok": True, "family_ok": True,
-             "roughness_mae": 0.1, "thickness_mae": 0.2, "tiles_error_pct": 0.1, "rotation_error_deg": 0.0,
-             "pixels_per_yarn": 3.0, "phone_blur_px": 1.0, "blur_error_px": error,
-             **{f"{m}_{t}": 0.0 for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}}
-            for name, error in (("over", 0.3), ("under", -0.1))]
-    section = summarise(rows)["photolike"]
+    section = summarise([_bench_row("over", phone_blur_px=1.0, blur_error_px=0.3),
+                         _bench_row("under", phone_blur_px=1.0, blur_error_px=-0.1)])["photolike"]
     assert section["blur_error_px_mean"] == pytest.approx(0.1)
     assert section["blur_error_px_mean_abs"] == pytest.approx(0.2)
 
