@@ -230,8 +230,8 @@ def camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.
     (the phone's blur 1.04 px, the photos' reading 0.82) starts at 1.5 px and ends at 1.31 with loss
     1.19 and roughness MAE .175; the same fit started at 1.04 ends at 0.99 with loss 0.83 and MAE
     .052, and started at the reading, 0.82, with loss 0.77 and MAE .071. Yet starting every fit at the
-    reading is worse on the dev real pairs: satin1 FLIP R / T .150 / .139 -> .193 / .234 (colour L1 T
-    .051, where the three pairs' mean was .011), twill1 spectrum T .678 -> .635. A re-scan at
+    reading is worse on the dev real pairs: satin1 FLIP R / T .150 / .139 -> .193 / .234, colour L1 T
+    .015 -> .051 (final loss 3.37 -> 3.66), twill1 spectrum T .678 -> .635 (2.91 -> 2.98). A re-scan at
     the run's parameters after 25 steps keeps twill0_001's 1.31 px: by then they have followed it."""
     if settings.camera_blur is not None:
         return settings.camera_blur, None
