@@ -345,6 +345,46 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert not any("fine_trial_loss" in c for c in result.candidates)
 
 
+def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well_above_it(twill_pair, monkeypatch):
+    """Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
+    photos' reading, the winner also runs from its start at the reading for ``duel_iterations``
+    steps, before its face twin; the lower loss goes on (no margin), and the winner's summary says
+    which blurs duelled with which losses. Here the photos read 0.5 px and the scan says 1.5."""
+    import backend.fit.pipeline as pipeline
+    monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
+    monkeypatch.setattr(pipeline.search, "photo_blur_px", lambda *_: 0.5)
+    monkeypatch.setattr(pipeline.search, "best_blur", lambda *_, **__: 1.5)
+    stepped = []  # (size, camera blur) of each Adam step
+    terms = Objective.terms
+
+    def recording(self, fabric, camera_blur_px=None):
+        if torch.is_grad_enabled():
+            stepped.append((self.target.size, camera_blur_px))
+        return terms(self, fabric, camera_blur_px)
+
+    monkeypatch.setattr(Objective, "terms", recording)
+    settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=1e9, trials=1, size=64,
+                           spp=2, search_every=0, compile=False, sample_rotation=0.0)
+    result = fit(*twill_pair, settings=settings,
+                 pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
+    [winner] = [c for c in result.candidates if "blur_duel" in c]
+    duel = winner["blur_duel"]
+    assert (duel["blur_px"], duel["floor_px"]) == (1.5, 0.5)
+    fine = [blur for size, blur in stepped if size == 64]
+    # the scan's blur, the reading's, the twin's (at the scan's), then the last step at the duel's choice
+    assert fine[:6] == [1.5, 1.5, 0.5, 0.5, 1.5, 1.5]
+    chosen_blur = 0.5 if duel["floor_loss"] < duel["loss"] else 1.5
+    assert fine[6:] == [chosen_blur] and result.params.pattern == winner["pattern"]  # the margin keeps the twin out
+    assert winner["fine_trial_loss"] == min(duel["loss"], duel["floor_loss"])
+    # a scan within BLUR_DUEL_PX of the reading: no blur duel
+    stepped.clear()
+    monkeypatch.setattr(pipeline.search, "best_blur", lambda *_, **__: 0.5 + pipeline.BLUR_DUEL_PX)
+    near = fit(*twill_pair, settings=settings,
+               pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
+    assert not any("blur_duel" in c for c in near.candidates)
+    assert len([s for s in stepped if s[0] == 64]) == 5
+
+
 def test_default_iterations_follow_the_working_size():
     from backend.fit.search import iterations_for
     assert (iterations_for(256), iterations_for(128), iterations_for(512)) == (150, 150, 100)
