@@ -232,7 +232,8 @@ def camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.
     .052, and started at the reading, 0.82, with loss 0.77 and MAE .071. Yet starting every fit at the
     reading is worse on the dev real pairs: satin1 FLIP R / T .150 / .139 -> .193 / .234, colour L1 T
     .015 -> .051 (final loss 3.37 -> 3.66), twill1 spectrum T .678 -> .635 (2.91 -> 2.98). A re-scan at
-    the run's parameters after 25 steps keeps twill0_001's 1.31 px: by then they have followed it."""
+    the run's parameters after 25 steps keeps twill0_001's 1.31 px: by then they have followed it.
+    Hence a short duel of both starts at the working size (:func:`backend.fit.pipeline._finalist`)."""
     if settings.camera_blur is not None:
         return settings.camera_blur, None
     photo_blur = photo_blur_px(reflection, transmission, film_size)
