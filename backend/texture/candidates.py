@@ -85,11 +85,10 @@ SHIPPED_SIGNATURES = Path(__file__).resolve().parent.parent / "data" / "signatur
 # Which lattices a placement proposes, and their mean spacing, follow those jitters: photo-like seed
 # 53's satin1_014 (turned 4.60) gets its satin0 lattice's tiles 1.88, .90, .99, .96 and 150 % off
 # with the signatures at 4.60, 4.65, 4.69, 4.55 and 4.70 degrees, so a finer grid buys no accuracy.
-# The grid against each placement's exact turn, on `photolike --count 20 --seed 53` (`bench
-# placement`): 20 pairs in 246 s against 343 s, rotation error .044 / .046 degrees, the true
-# pattern's best lattice within 1 % on 18 of 20 in both, the best-scored lattice the true pattern's
-# on 10 / 9; whole fits (`bench fit`): pattern 20 / 20 in both, tiles error max 1.70 % (satin1_014)
-# against .89 %.
+# Measured with the grid against each placement's exact turn (`bench placement --synthetic
+# /work/pl53`): 20 pairs in 246 s against 343 s, rotation error .044 / .046 degrees, tiles of the
+# true pattern's best lattice within 1 % on 18 / 18, the best-scored lattice the true pattern's on 10
+# / 9; whole fits (`bench fit`) pattern 20 / 20 both, tiles error max 1.70 % (satin1_014) against .89 %.
 SIGNATURE_TURN_STEP_DEG = 0.1
 SHIPPED_TURN_DEG = 5.0  # the shipped turns: every step within this (the photo-like set's range)
 WEIGHT_DECIMALS = 6  # of the shipped weights (the weakest kept harmonics weigh about 1e-3)
