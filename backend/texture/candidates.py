@@ -82,13 +82,6 @@ SHIPPED_SIGNATURES = Path(__file__).resolve().parent.parent / "data" / "signatur
 # to .024 / .013 of the weights, 17 / 22 of the 24 strongest harmonics in common; at 0.05 and 0.1
 # degrees apart .018 and .048. (Fewer samples per pixel instead, 1 or 2 rather than 4, move them by
 # up to .55 / .46.)
-# Which lattices a placement proposes, and their mean spacing, follow those jitters: photo-like seed
-# 53's satin1_014 (turned 4.60) gets its satin0 lattice's tiles 1.88, .90, .99, .96 and 150 % off
-# with the signatures at 4.60, 4.65, 4.69, 4.55 and 4.70 degrees, so a finer grid buys no accuracy.
-# Measured with the grid against each placement's exact turn (`bench placement --synthetic
-# /work/pl53`): 20 pairs in 246 s against 343 s, rotation error .044 / .046 degrees, tiles of the
-# true pattern's best lattice within 1 % on 18 / 18, the best-scored lattice the true pattern's on 10
-# / 9; whole fits (`bench fit`) pattern 20 / 20 both, tiles error max 1.70 % (satin1_014) against .89 %.
 SIGNATURE_TURN_STEP_DEG = 0.1
 SHIPPED_TURN_DEG = 5.0  # the shipped turns: every step within this (the photo-like set's range)
 WEIGHT_DECIMALS = 6  # of the shipped weights (the weakest kept harmonics weigh about 1e-3)
