@@ -1,6 +1,5 @@
 """How the sample lies in the holder: rotation and skew (shear) in the renderer's geometry, in the
 lattice's frequency maps, and as the fit reads them from a photo pair."""
-import dataclasses
 import json
 import math
 
@@ -106,13 +105,12 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
     render = Renderer.render
     monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
                         or render(self, params, *args, **kwargs))
-    rig = CaptureRig(sample_rotation_deg=7.25)  # beyond the shipped turns
+    rig = CaptureRig(sample_rotation_deg=1.25)
     alone = candidates.signatures(rig, ("twill1",))  # a fit of a given pattern
     assert rendered == ["twill1"]
-    together = candidates.signatures(CaptureRig(sample_rotation_deg=7.23, sample_skew_deg=3.0), ("plain", "twill1"))
-    assert rendered == ["twill1", "plain"]  # rendered unsheared at 7.2 degrees: the skew's rig shares the entries
+    together = candidates.signatures(CaptureRig(sample_rotation_deg=1.25, sample_skew_deg=3.0), ("plain", "twill1"))
+    assert rendered == ["twill1", "plain"]  # rendered unsheared: the skew's rig shares the entries
     assert together["twill1"] is alone["twill1"]
-    assert candidates.signature_rig(rig) == CaptureRig(sample_rotation_deg=7.2)
     # ... with the numbers of a render of every pattern by one renderer, whatever was rendered with it
     monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
     every = candidates.signatures(rig)
@@ -123,43 +121,32 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
                 np.testing.assert_array_equal(getattr(mine, field), getattr(theirs, field))
 
 
-@pytest.mark.parametrize("turn", [0.0, -3.7, 5.0])
-def test_the_default_rigs_signatures_ship_with_the_backend_and_are_its_renders(monkeypatch, tmp_path, turn):
-    """Every fit's placements compare the default rig's signatures at its turn: within
-    SHIPPED_TURN_DEG (every SIGNATURE_TURN_STEP_DEG) they are read from backend/data/signatures.json,
-    not rendered, and they are what the renderer makes of them now (a change to the renderer or the
-    presets that moves them needs the file written again: candidates.write_shipped_signatures)."""
+def test_the_default_rigs_signatures_ship_with_the_backend_and_are_its_renders(monkeypatch, tmp_path):
+    """Every fit's placement compares the default rig's unturned signatures: they are read from
+    backend/data/signatures.json, not rendered, and they are what the renderer makes of them now
+    (a change to the renderer or the presets that moves them needs the file written again:
+    candidates.write_shipped_signatures)."""
     monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
     rendered = []
     render = Renderer.render
     monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
                         or render(self, params, *args, **kwargs))
-    rig = dataclasses.replace(DEFAULT_RIG, sample_rotation_deg=turn + 0.03, sample_skew_deg=1.0)
-    shipped = candidates.signatures(rig)
+    shipped = candidates.signatures(DEFAULT_RIG)
     assert rendered == [] and list(shipped) == list(priors.FIT_PATTERNS)
-    assert candidates.shipped_turns() == [k / 10 for k in range(-50, 51)]
-    key = candidates.signature_rig(rig)
-    assert key == dataclasses.replace(DEFAULT_RIG, sample_rotation_deg=turn)
-    fresh = candidates.rendered_signatures(key, priors.FIT_PATTERNS)
+    fresh = candidates.rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
     for pattern in priors.FIT_PATTERNS:
-        for mine, theirs in zip(shipped[pattern], fresh[key, pattern]):
+        for mine, theirs in zip(shipped[pattern], fresh[DEFAULT_RIG, pattern]):
             ours = {(int(m), int(n)): w for m, n, w in zip(mine.m, mine.n, mine.weight)}
             now = {(int(m), int(n)): w for m, n, w in zip(theirs.m, theirs.n, theirs.weight)}
             for harmonic in ours.keys() | now.keys():  # the weakest may trade places within rounding
                 assert ours.get(harmonic, 0.0) == pytest.approx(now.get(harmonic, 0.0), rel=1e-4, abs=1e-4), \
                     (pattern, harmonic)
-
-
-def test_a_signature_file_for_other_settings_is_not_used(tmp_path):
-    """No file, or one for another density or turn step, or missing a preset: none is read, and the
-    signatures are rendered as needed."""
+    # no file, or one for another density: rendered as before
     assert candidates.shipped_signatures(tmp_path / "missing.json") == {}
-    table = json.loads(candidates.SHIPPED_SIGNATURES.read_text())
-    assert len(candidates.shipped_signatures()) == len(table["turns"]) * len(priors.FIT_PATTERNS)
-    for change in ({"density": 2 * table["density"]}, {"turn_step": 2 * table["turn_step"]},
-                   {"turns": {turn: dict(list(patterns.items())[1:]) for turn, patterns in table["turns"].items()}}):
-        (tmp_path / "other.json").write_text(json.dumps({**table, **change}))
-        assert candidates.shipped_signatures(tmp_path / "other.json") == {}, change
+    other = json.loads(candidates.SHIPPED_SIGNATURES.read_text())
+    other["density"] = 2 * other["density"]
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    assert candidates.shipped_signatures(tmp_path / "other.json") == {}
 
 
 def reading(placement, from_transmission=True):

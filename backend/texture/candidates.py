@@ -50,56 +50,31 @@ class Candidate:
 
 def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.FIT_PATTERNS) -> dict[str, list[lattice.Signature]]:
     """Per preset of ``patterns``, the (reflection, transmission) harmonic signatures of its typical
-    parameters, rendered unsheared at the rig's rotation (to SIGNATURE_TURN_STEP_DEG:
-    :func:`signature_rig`). (A turned render's harmonics sit a little
+    parameters, rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little
     off the unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for
     the fundamentals at 2 degrees. Rendered unturned, whole fits got the pattern right on 41 of 42
     photo-like pairs instead of 40, but a dense twill turned 1.4 degrees with one surviving peak
     (tests/test_fit.py's lone-harmonic twill0) was then placed unturned, its tiles 3 % off: kept at the
     rig's rotation until that is understood.) Each is rendered once per process and placement, and
     only for the patterns asked for: a fit of a given pattern renders one, not five (0.7 s each).
-    Those of the default rig at every turn within SHIPPED_TURN_DEG, which every fit's placements
-    compare, ship with the backend (:data:`SHIPPED_SIGNATURES`, the same renders' numbers): 3.5 s
-    less per placement (a fit makes one or two)."""
-    key = signature_rig(rig)
-    missing = [pattern for pattern in patterns if (key, pattern) not in _SIGNATURES]
+    The default rig's unturned signatures, which every fit's placement compares, ship with the
+    backend (:data:`SHIPPED_SIGNATURES`, the same renders' numbers): 3.5 s less per fit."""
+    unsheared = replace(rig, sample_skew_deg=0.0)
+    missing = [pattern for pattern in patterns if (unsheared, pattern) not in _SIGNATURES]
     shipped = _shipped() if missing else {}
-    _SIGNATURES.update({(key, p): shipped[key, p] for p in missing if (key, p) in shipped})
-    missing = [pattern for pattern in missing if (key, pattern) not in shipped]
+    _SIGNATURES.update({(unsheared, p): shipped[unsheared, p] for p in missing if (unsheared, p) in shipped})
+    missing = [pattern for pattern in missing if (unsheared, pattern) not in shipped]
     if missing:
-        _SIGNATURES.update(rendered_signatures(key, missing))
+        _SIGNATURES.update(rendered_signatures(unsheared, missing))
     for pattern in patterns:
-        _SIGNATURES.move_to_end((key, pattern))
+        _SIGNATURES.move_to_end((unsheared, pattern))
     while len(_SIGNATURES) > 4 * len(priors.FIT_PATTERNS):  # the last few placements' (a fit tries two)
         _SIGNATURES.popitem(last=False)
-    return {pattern: _SIGNATURES[key, pattern] for pattern in patterns}
+    return {pattern: _SIGNATURES[unsheared, pattern] for pattern in patterns}
 
 
 _SIGNATURES: OrderedDict[tuple[CaptureRig, str], list[lattice.Signature]] = OrderedDict()
 SHIPPED_SIGNATURES = Path(__file__).resolve().parent.parent / "data" / "signatures.json"
-# The rotation grid (degrees) of the signatures. A render's harmonic weights jitter with the turn
-# more than they follow it: measured on twill0 at 2.71 / 2.70 against 2.72 degrees (0.01 apart), up
-# to .024 / .013 of the weights, 17 / 22 of the 24 strongest harmonics in common; at 0.05 and 0.1
-# degrees apart .018 and .048. (Fewer samples per pixel instead, 1 or 2 rather than 4, move them by
-# up to .55 / .46.)
-SIGNATURE_TURN_STEP_DEG = 0.1
-SHIPPED_TURN_DEG = 5.0  # the shipped turns: every step within this (the photo-like set's range)
-WEIGHT_DECIMALS = 6  # of the shipped weights (the weakest kept harmonics weigh about 1e-3)
-
-
-def signature_rig(rig: CaptureRig) -> CaptureRig:
-    """The rig the signatures of ``rig`` are rendered with and kept under: unsheared, its rotation
-    rounded to SIGNATURE_TURN_STEP_DEG."""
-    turn = round(round(rig.sample_rotation_deg / SIGNATURE_TURN_STEP_DEG) * SIGNATURE_TURN_STEP_DEG, 6) + 0.0
-    return replace(rig, sample_skew_deg=0.0, sample_rotation_deg=turn)  # + 0.0: no -0.0 key
-
-
-def shipped_turns() -> list[float]:
-    """The rotations (degrees) of the default rig whose signatures ship: -SHIPPED_TURN_DEG to
-    SHIPPED_TURN_DEG every SIGNATURE_TURN_STEP_DEG."""
-    count = round(SHIPPED_TURN_DEG / SIGNATURE_TURN_STEP_DEG)
-    return [signature_rig(replace(DEFAULT_RIG, sample_rotation_deg=k * SIGNATURE_TURN_STEP_DEG)).sample_rotation_deg
-            for k in range(-count, count + 1)]
 
 
 def rendered_signatures(rig: CaptureRig, patterns) -> dict[tuple[CaptureRig, str], list[lattice.Signature]]:
@@ -116,26 +91,16 @@ def rendered_signatures(rig: CaptureRig, patterns) -> dict[tuple[CaptureRig, str
     return out
 
 
-def write_shipped_signatures(path: Path = SHIPPED_SIGNATURES, turns: list[float] | None = None,
-                             progress=None) -> Path:
-    """Renders the default rig's signatures of every preset at ``turns`` (default
-    :func:`shipped_turns`) into ``path`` (JSON; run it after a change to the renderer, the presets'
-    typical parameters or :func:`lattice.signature`:
-    ``python -c "from backend.texture.candidates import write_shipped_signatures as w; w(progress=print)"``,
-    about 4 s per turn; tests/test_placement.py checks the file against fresh renders).
-    ``progress(done, total)`` after each turn."""
-    turns = shipped_turns() if turns is None else turns
-    table = {"rig": DEFAULT_RIG.to_dict(), "density": SIGNATURE_DENSITY, "turn_step": SIGNATURE_TURN_STEP_DEG,
-             "turns": {}}
-    for done, turn in enumerate(turns, start=1):
-        rig = signature_rig(replace(DEFAULT_RIG, sample_rotation_deg=turn))
-        rendered = rendered_signatures(rig, priors.FIT_PATTERNS)
-        table["turns"][repr(rig.sample_rotation_deg)] = {
-            pattern: [{"m": s.m.tolist(), "n": s.n.tolist(), "weight": np.round(s.weight, WEIGHT_DECIMALS).tolist()}
-                      for s in rendered[rig, pattern]] for pattern in priors.FIT_PATTERNS}
-        if progress is not None:
-            progress(done, len(turns))
-    path.write_text(json.dumps(table, separators=(",", ":")) + "\n")
+def write_shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> Path:
+    """Renders the default rig's signatures of every preset into ``path`` (JSON; run it after a
+    change to the renderer, the presets' typical parameters or :func:`lattice.signature`:
+    ``python -c "from backend.texture.candidates import write_shipped_signatures as w; w()"``;
+    tests/test_placement.py checks the file against fresh renders)."""
+    rendered = rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
+    table = {"rig": DEFAULT_RIG.to_dict(), "density": SIGNATURE_DENSITY,
+             "patterns": {pattern: [{"m": s.m.tolist(), "n": s.n.tolist(), "weight": s.weight.tolist()}
+                                    for s in rendered[DEFAULT_RIG, pattern]] for pattern in priors.FIT_PATTERNS}}
+    path.write_text(json.dumps(table) + "\n")
     return path
 
 
@@ -145,25 +110,17 @@ def _shipped() -> dict[tuple[CaptureRig, str], list[lattice.Signature]]:
 
 
 def shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> dict[tuple[CaptureRig, str], list[lattice.Signature]]:
-    """The signatures in ``path``, keyed as :func:`signatures` keeps them (none when it is missing or
-    was made for other presets, another density or another turn step: they are then rendered as
-    needed)."""
+    """The signatures in ``path`` (none when it is missing or was made for other presets or another
+    density: they are then rendered as needed)."""
     try:
         table = json.loads(path.read_text())
         rig = CaptureRig.from_dict(table["rig"])
-        if table["density"] != SIGNATURE_DENSITY or table["turn_step"] != SIGNATURE_TURN_STEP_DEG:
+        if table["density"] != SIGNATURE_DENSITY or set(table["patterns"]) != set(priors.FIT_PATTERNS):
             return {}
-        out = {}
-        for turn, patterns in table["turns"].items():
-            if set(patterns) != set(priors.FIT_PATTERNS):
-                return {}
-            turned = signature_rig(replace(rig, sample_rotation_deg=float(turn)))
-            out.update({(turned, pattern): [lattice.Signature(np.asarray(s["m"]), np.asarray(s["n"]),
-                                                              np.asarray(s["weight"], dtype=np.float64))
-                                            for s in pair]
-                        for pattern, pair in patterns.items()})
-        return out
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {(rig, pattern): [lattice.Signature(np.asarray(s["m"]), np.asarray(s["n"]),
+                                                   np.asarray(s["weight"], dtype=np.float64)) for s in pair]
+                for pattern, pair in table["patterns"].items()}
+    except (OSError, ValueError, KeyError, TypeError):
         return {}
 
 
