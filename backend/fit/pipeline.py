@@ -184,10 +184,10 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     photos' reading (``blur_floor``), the winner first also runs from its start at the reading for
     those steps, and the lower loss keeps its place (:func:`search.camera_blur`: the choice at the
     start can be a valley the fit stays in). Best loss after 10 steps at 512 px, scan's blur against
-    the reading's: photo-like seed 53 twill0_001 (phone 1.04 px) 1.5 / .82 px 1.892 / 1.882 (after 20
-    steps 1.744 / 1.562; its roughness error .175 -> .071, thickness .70 -> .41, in-sample); real
-    satin1 1.5 / .58 px 3.633 / 4.687, twill1 1.0 / .74 px 4.512 / 4.593 (the reading leads after 13
-    steps, the final losses favour the scan, 2.91 / 2.98), twill2 4.213 / 4.398: the real dev pairs
+    the reading's: photo-like seed 53 twill0_001 (phone 1.04 px) 1.5 / .82 px 1.940 / 1.882 (after 20
+    steps 1.744 / 1.562; its roughness error .175 -> .064, thickness .70 -> .34, in-sample); real
+    satin1 1.5 / .58 px 3.633 / 4.702, twill1 1.0 / .74 px 4.513 / 4.591 (the reading leads after 13
+    steps, the final losses favour the scan, 2.91 / 2.98), twill2 4.213 / 4.399: the real dev pairs
     keep the scan's blur and fit as before. The winner's summary records both (``blur_duel``).
     """
     total = settings.iterations + settings.trial_iterations
