@@ -81,18 +81,20 @@ def fabric_point(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig) -> tuple[tor
     return cx + math.cos(t1) * dx + math.sin(t1) * dy, cy - math.sin(t2) * dx + math.cos(t2) * dy
 
 
-def turned(vectors: torch.Tensor, rig: CaptureRig, warp: torch.Tensor) -> torch.Tensor:
-    """(3, S) directions of the yarns' frames in the world: R(theta_1) about z where ``warp`` (S,) is
-    true, R(theta_2) elsewhere."""
+def turned(vectors: tuple[torch.Tensor, ...], rig: CaptureRig, warp: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """(3, S) directions of the yarns' frames in the world, each of ``vectors`` (the yarn normals
+    and fiber directions at the same samples): R(theta_1) about z where ``warp`` (S,) is true,
+    R(theta_2) elsewhere."""
     warp_deg, weft_deg = rig.yarn_angles_deg
     if warp_deg == 0 and weft_deg == 0:
         return vectors
+    dtype = vectors[0].dtype
     if warp_deg == weft_deg:
-        theta = torch.tensor(math.radians(warp_deg), dtype=vectors.dtype, device=vectors.device)
+        theta = torch.tensor(math.radians(warp_deg), dtype=dtype, device=vectors[0].device)
     else:
-        theta = torch.where(warp, math.radians(warp_deg), math.radians(weft_deg)).to(vectors.dtype)
+        theta = torch.where(warp, math.radians(warp_deg), math.radians(weft_deg)).to(dtype)
     c, s = torch.cos(theta), torch.sin(theta)
-    return torch.stack((c * vectors[0] - s * vectors[1], s * vectors[0] + c * vectors[1], vectors[2]))
+    return tuple(torch.stack((c * v[0] - s * v[1], s * v[0] + c * v[1], v[2])) for v in vectors)
 
 
 def tile_coordinates(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig, tiles, lookup: WeaveLookup):
@@ -136,7 +138,7 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     for index, layer in enumerate(layers):
         n, o = local_frame(layer, twist)
         is_warp = layer.yarn == WARP
-        n, o = turned(n, rig, is_warp), turned(o, rig, is_warp)
+        n, o = turned((n, o), rig, is_warp)
         warp = is_warp.to(dtype)
         weft = (layer.yarn == WEFT).to(dtype)
         thickness_scale = (s_min + (1.0 - layer.mu) * (1.0 - s_min)).to(dtype)

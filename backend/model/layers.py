@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 
@@ -36,7 +37,8 @@ class Layer:
     """One layer at every sample: yarn id (WARP, WEFT or GAP), u, v (radians), tension mu.
 
     ``flat`` marks segments too short to bend (spec 3.2: n = o = z). ``segment`` is a per-tile id of
-    the segment (for the noise of spec 4.6); ``yarn_index`` the yarn's column or row in the tile.
+    the segment (for the noise of spec 4.6); ``yarn_index`` the yarn's column or row in the tile:
+    both picked only when read (``ids``: by the column's name), since only the noise reads them.
     """
 
     yarn: torch.Tensor
@@ -44,11 +46,15 @@ class Layer:
     v: torch.Tensor
     mu: torch.Tensor
     flat: torch.Tensor
-    segment: torch.Tensor
-    yarn_index: torch.Tensor
+    ids: Callable[[str], torch.Tensor]
 
-    def select(self, mask: torch.Tensor) -> "Layer":
-        return Layer(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
+    @property
+    def segment(self) -> torch.Tensor:
+        return self.ids("segment")
+
+    @property
+    def yarn_index(self) -> torch.Tensor:
+        return self.ids("index")
 
 
 @dataclass
@@ -165,7 +171,7 @@ class WeaveLookup:
         yarn.masked_fill_(is_warp, WARP).masked_fill_(is_weft, WEFT)
 
         def pick(key):
-            return torch.where(is_warp, warp[key], torch.where(is_weft, weft[key], torch.zeros_like(weft[key])))
+            chosen = weft[key]
+            return torch.where(is_warp, warp[key], torch.where(is_weft, chosen, chosen.new_zeros(())))
 
-        return Layer(yarn=yarn, u=pick("u"), v=pick("v"), mu=pick("mu"), flat=pick("flat"),
-                     segment=pick("segment"), yarn_index=pick("index"))
+        return Layer(yarn=yarn, u=pick("u"), v=pick("v"), mu=pick("mu"), flat=pick("flat"), ids=pick)

@@ -26,23 +26,27 @@ from .layers import GAP, WEFT, Layer
 
 
 def local_frame(layer: Layer, twist_rad: tuple[float, float]) -> tuple[torch.Tensor, torch.Tensor]:
-    """World-space (n, o), each (3, *batch), before height scaling."""
+    """World-space (n, o), each (3, *batch), before height scaling.
+
+    Each world component is picked once from the local frame's (a weft's swapped, flat segments'
+    and gaps' constants), rather than by whole-vector selects: a new discrete state of a fit computes
+    this for every sample of both layers, and these passes over memory were most of its cost."""
     u, v = layer.u, layer.v
-    psi = torch.where(layer.yarn == WEFT, twist_rad[1], twist_rad[0]).to(u.dtype)
-    su, cu, sv, cv, sp, cp = torch.sin(u), torch.cos(u), torch.sin(v), torch.cos(v), torch.sin(psi), torch.cos(psi)
-    n = torch.stack((sv, su * cv, cu * cv))
-    o = torch.stack((-cv * sp, cu * cp + su * sv * sp, -su * cp + cu * sv * sp))
     is_weft = layer.yarn == WEFT
-    n = torch.where(is_weft, torch.stack((n[1], -n[0], n[2])), n)
-    o = torch.where(is_weft, torch.stack((o[1], -o[0], o[2])), o)
-    up = torch.zeros_like(n)
-    up[2] = 1
-    along_y = torch.zeros_like(o)
-    along_y[1] = 1
-    flat = layer.flat & (layer.yarn != GAP)
+    psi = torch.where(is_weft, twist_rad[1], twist_rad[0]).to(u.dtype)
+    su, cu, sv, cv, sp, cp = torch.sin(u), torch.cos(u), torch.sin(v), torch.cos(v), torch.sin(psi), torch.cos(psi)
+    n0, n1, n2 = sv, su * cv, cu * cv
+    o0, o1, o2 = -cv * sp, cu * cp + su * sv * sp, -su * cp + cu * sv * sp
     gap = layer.yarn == GAP
-    n = torch.where(flat | gap, up, n)
-    o = torch.where(flat, up, torch.where(gap, along_y, o))
+    flat = layer.flat & ~gap
+    either = flat | gap
+    # a weft's local frame turns to the world as (x, y, z) -> (y, -x, z)
+    n = torch.stack((torch.where(either, 0.0, torch.where(is_weft, n1, n0)),
+                     torch.where(either, 0.0, torch.where(is_weft, -n0, n1)),
+                     torch.where(either, 1.0, n2)))
+    o = torch.stack((torch.where(either, 0.0, torch.where(is_weft, o1, o0)),
+                     torch.where(flat, 0.0, torch.where(gap, 1.0, torch.where(is_weft, -o0, o1))),
+                     torch.where(flat, 1.0, torch.where(gap, 0.0, o2))))
     return n, o
 
 
