@@ -20,6 +20,7 @@ from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.imaging import display_transform, gaussian_blur, subpixel_blur
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
+from backend.model.projections import project
 from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, Renderer, compile_available
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
@@ -458,6 +459,36 @@ def test_gap_and_twist_steps_reuse_the_lattice_bands_with_the_numbers_of_a_fresh
         assert len(calls) == 1 + len(steps)  # once for the kept renderer, once per fresh one
         renderer.radiance(ParamTensors.from_params(base.replace(tiles=(71.0, 90.0))))
         assert len(calls) == 2 + len(steps)  # another lattice: new bands
+
+
+@pytest.mark.parametrize("pattern, placement", [("twill1", (2.3, 1.4)), ("satin0", (0.0, 0.0))])
+def test_the_projections_are_the_float64_products_rounded_once(pattern, placement):
+    """Each cosine part a float32 render keeps (:mod:`backend.model.projections`) is the float64 value
+    rounded once to float32: the in-plane sums formed in float64, the z products in float32 (exact,
+    since the product of two floats is exact in float64)."""
+    rig = dataclasses.replace(DEFAULT_RIG, sample_rotation_deg=placement[0], sample_skew_deg=placement[1])
+    params = FabricParams(pattern=pattern, tiles=(70.0, 90.0), gap_scale=(0.8, 0.9), twist_deg=(-20.0, 10.0))
+    chunk = CameraSamples(rig, 64, 4, seed=3).chunk(0, 64)
+    key = GeometryKey(pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, True, 2)
+    geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave), rig, key)
+    projected = project(chunk, geometry)
+
+    def rounded(d, v):  # (plane, z) of d . v in float64, rounded once
+        d, v = d.double(), v.double()
+        return (d[0] * v[0] + d[1] * v[1]).float(), (d[2] * v[2]).float()
+
+    for layer, projections in zip(geometry.layers, projected.layers):
+        splits = [(chunk.wi, layer.fiber, projections.wi)]
+        for light, samples in ((projections.front, chunk.front), (projections.back, chunk.back)):
+            splits += [(samples.wo, layer.fiber, light.out), (samples.half, layer.fiber, light.half),
+                       (samples.wo, layer.normal, light.normal)]
+        for d, v, split in splits:
+            plane, z = rounded(d, v)
+            assert split.plane.dtype == split.z.dtype == torch.float32
+            assert torch.equal(split.plane, plane) and torch.equal(split.z, z)
+        for v, plane2, z2 in ((layer.fiber, projections.fiber_plane2, projections.fiber_z2),
+                              (layer.normal, projections.normal_plane2, projections.normal_z2)):
+            assert (torch.equal(plane2, rounded(v, v)[0]) and torch.equal(z2, rounded(v, v)[1]))
 
 
 def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
