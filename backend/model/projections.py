@@ -12,9 +12,9 @@ Every term but beta is fixed by the camera samples and the weave geometry: :clas
 in-plane and normal parts of d . v for wi, each light's wo and half vector, and the squared norms,
 so an iteration evaluates a cosine with two multiply-adds and no 3-vector. The in-plane sums are
 formed in float64 and stored in the render dtype; the z products are formed in the render dtype,
-which gives the same numbers (the product of two floats is exact in float64, so rounding it once to
-float is the float product) with a third of the memory traffic. The lights' factors (1 / wo_z, irradiance, the diffuse
-cosine) are folded here too.
+which gives the same numbers (the product of two floats is exact in float64, so rounding it once is
+the float product: tests/test_render.py) with a third of the memory traffic. The lights' factors
+(1 / wo_z, irradiance, the diffuse cosine) are folded here too.
 
 The rig puts the camera and the front light above the fabric and the back light below it
 (:class:`backend.core.rig.CaptureRig` refuses anything else), so wi_z > 0, wo_z > 0 for the front
