@@ -488,7 +488,8 @@ def test_the_projections_are_the_float64_products_rounded_once(pattern, placemen
             assert torch.equal(split.plane, plane) and torch.equal(split.z, z)
         for v, plane2, z2 in ((layer.fiber, projections.fiber_plane2, projections.fiber_z2),
                               (layer.normal, projections.normal_plane2, projections.normal_z2)):
-            assert (torch.equal(plane2, rounded(v, v)[0]) and torch.equal(z2, rounded(v, v)[1]))
+            plane, z = rounded(v, v)
+            assert torch.equal(plane2, plane) and torch.equal(z2, z)
 
 
 def test_camera_blur_has_a_gradient_and_matches_the_addon_preview():
