@@ -92,6 +92,22 @@ def test_the_sample_skew_is_read_from_the_spectra():
     assert (rotation, skew) == (0.5, 0.0)  # a given rotation keeps the rig's skew
 
 
+def test_the_placement_is_the_same_on_any_number_of_threads(monkeypatch):
+    # The lattice search scores patterns, angles and hypotheses on the process's threads
+    # (candidates._workers); each is independent of the others, so the numbers must not move.
+    params = priors.typical("twill1").replace(tiles=(20.0, 26.0))
+    with torch.no_grad():
+        pair = Renderer(CaptureRig(sample_rotation_deg=2.0), 512, 4, seed=5).render(params)
+    spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+    patterns = ("plain", "twill0", "twill1", "satin0")
+    found = {}
+    for workers in (1, 3):
+        monkeypatch.setattr(candidates, "_workers", lambda workers=workers: workers)
+        found[workers] = candidates.placed(spectra, CaptureRig(), patterns, None)
+    assert found[1][0] == pytest.approx((2.0, 0.0), abs=0.3)  # a turn read (both paths of placed ran)
+    assert found[1] == found[3]
+
+
 @pytest.mark.parametrize("skew", [11.0, float("nan"), "2"])
 def test_a_skew_out_of_range_is_refused_by_name(skew):
     with pytest.raises(RigError, match="sample_skew_deg"):

@@ -46,3 +46,40 @@ def test_python_m_backend_sets_the_waiting_policy_before_torch_loads():
                           timeout=120)
     assert "usage:" in done.stdout
     assert done.stderr.strip().splitlines()[-1] == repr([(SPIN_COUNT, BLOCK_TIME_MS)])
+
+
+def test_ordered_map_keeps_the_order_and_runs_on_the_threads_asked():
+    import threading
+    import time
+
+    from backend.core.threads import ordered_map
+
+    seen = set()
+    both_started = threading.Barrier(2, timeout=10)  # two calls at once, or the barrier breaks
+
+    def slow_first(k):
+        seen.add(threading.get_ident())
+        if k < 2:
+            both_started.wait()
+        time.sleep(0.02 * (5 - k))  # the later items finish first
+        return k * k
+
+    assert ordered_map(slow_first, range(5), workers=2) == [0, 1, 4, 9, 16]
+    assert len(seen) == 2 and threading.get_ident() not in seen
+    seen.clear()
+    assert ordered_map(lambda k: seen.add(threading.get_ident()) or -k, [3, 1], workers=1) == [-3, -1]
+    assert seen == {threading.get_ident()}  # one worker: this thread, no pool
+
+
+def test_ordered_map_raises_what_a_call_raised():
+    import pytest
+
+    from backend.core.threads import ordered_map
+
+    def fails_on_two(k):
+        if k == 2:
+            raise ValueError(f"bad item {k}")
+        return k
+
+    with pytest.raises(ValueError, match="bad item 2"):
+        ordered_map(fails_on_two, range(4), workers=2)

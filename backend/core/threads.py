@@ -1,4 +1,5 @@
-"""How the backend's CPU threads wait between parallel regions: briefly, so a fit shares the CPU.
+"""How the backend's CPU threads wait between parallel regions (briefly, so a fit shares the CPU),
+and a map of independent pure-Python/numpy work over a few threads (:func:`ordered_map`).
 
 PyTorch's CPU kernels (and the compiled renderer's) run in an OpenMP thread pool. A thread that has
 done its share of a parallel region waits for the others, spinning before it sleeps: GNU OpenMP
@@ -25,7 +26,11 @@ is imported (``python -m backend`` calls it first).
 from __future__ import annotations
 
 import os
-from typing import MutableMapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, MutableMapping, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 SPIN_COUNT = "10000"  # GNU OpenMP: spins before a waiting thread sleeps (default 300,000)
 BLOCK_TIME_MS = "1"   # LLVM / Intel OpenMP: milliseconds a waiting thread spins (default 200)
@@ -38,3 +43,19 @@ def wait_briefly(environ: MutableMapping[str, str] = os.environ) -> None:
         return
     environ.setdefault("GOMP_SPINCOUNT", SPIN_COUNT)
     environ.setdefault("KMP_BLOCKTIME", BLOCK_TIME_MS)
+
+
+def ordered_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
+    """``[fn(item) for item in items]``, on up to ``workers`` threads: the same results in the same
+    order, where each call is independent of the others (reads shared inputs, writes nothing shared).
+
+    For numpy work made of many mid-sized array operations (the lattice search's scoring of a
+    pattern's candidate lattices): numpy releases the GIL inside each operation, so two threads
+    overlap most of it. ``workers`` is the caller's core budget (the backend passes
+    ``torch.get_num_threads()``, which a batch job sets to its share); 1, or a single item, runs in
+    this thread. An exception of any call is raised here, as the loop would."""
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(max_workers=min(workers, len(items))) as pool:
+        return list(pool.map(fn, items))

@@ -36,6 +36,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.rig import placement_of, yarn_angles
+from ..core.threads import ordered_map
 from ..core.weave import PRESETS
 from ..image.spectrum import Peak, highpassed_luminance, peakness, shows_weave, spectral_peaks, windowed_highpass
 from ..image.tone import GAMMA, encode, resize_linear
@@ -389,11 +390,13 @@ def estimate(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[floa
 
 
 def estimates(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
-              rotation_deg: float = 0.0, skew_deg: float = 0.0) -> list[Lattice]:
+              rotation_deg: float = 0.0, skew_deg: float = 0.0, workers: int = 1) -> list[Lattice]:
     """:func:`estimate` on the photos' peaks, and on the shrunk photos' peaks when there are any
-    (two hypotheses: which one explains the peakness maps is for :func:`candidates` to say)."""
-    return [estimate(spectra, a_range, b_range, rotation_deg=rotation_deg, skew_deg=skew_deg, coarse=coarse)
-            for coarse in ((False, True) if spectra.coarse is not None else (False,))]
+    (two hypotheses: which one explains the peakness maps is for :func:`candidates` to say), on up
+    to ``workers`` threads."""
+    return ordered_map(lambda coarse: estimate(spectra, a_range, b_range, rotation_deg=rotation_deg,
+                                               skew_deg=skew_deg, coarse=coarse),
+                       (False, True) if spectra.coarse is not None else (False,), workers)
 
 
 ROTATION_SCAN_DEG = 6.0
@@ -417,7 +420,7 @@ def _generic_signature(order: int = 3) -> Signature:
 
 
 def estimate_placement(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
-                       tooth_cost: float = 1.0, reach: float = 2.5) -> "Placement":
+                       tooth_cost: float = 1.0, reach: float = 2.5, workers: int = 1) -> "Placement":
     """The sample's placement (yarn angles, so the rig's ``sample_rotation_deg`` and
     ``sample_skew_deg``) under which the photos' spectra show an axis-aligned tile lattice, with
     that lattice.
@@ -473,13 +476,15 @@ def estimate_placement(spectra: Spectra, a_range: tuple[float, float], b_range: 
        of the true spacing on one axis, which the generic harmonics then score below a wrong angle's
        lattice. The dev real twills are sheared by 1.5-4 degrees: at one angle for both axes, the
        lattice drifts by more than a cycle across the image.)
+
+    The scans and refinements, each independent of the others, run on up to ``workers`` threads.
     """
-    turned, sheared = placement_hypotheses(spectra, a_range, b_range, tooth_cost, reach)
+    turned, sheared = placement_hypotheses(spectra, a_range, b_range, tooth_cost, reach, workers)
     return sheared if sheared is not None and _shear_confirmed(spectra, sheared, turned) else turned
 
 
 def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range: tuple[float, float],
-                         tooth_cost: float = 1.0, reach: float = 2.5
+                         tooth_cost: float = 1.0, reach: float = 2.5, workers: int = 1
                          ) -> tuple["Placement", "Placement | None"]:
     """The best turned and the best sheared placement of :func:`estimate_placement` (None when no
     two axes' angles are close enough to pair), each with the turn where the summed sieve scan peaks
@@ -487,8 +492,8 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     :func:`backend.texture.candidates.placed`)."""
     peaks, images, size = spectra.all_peaks, len(spectra.peaks), spectra.size
     angles = np.arange(-ROTATION_SCAN_DEG, ROTATION_SCAN_DEG + 1e-9, 0.25)
-    scan = [_combs(peaks, images, size, (a_range, b_range), angle, 0.0, 0.003, tooth_cost, reach)
-            for angle in angles]
+    scan = ordered_map(lambda angle: _combs(peaks, images, size, (a_range, b_range), angle, 0.0, 0.003, tooth_cost,
+                                            reach), angles, workers)
     by_weft = np.array([scores[0] for _, scores in scan])   # axis 0 depends on the weft angle
     by_warp = np.array([scores[1] for _, scores in scan])   # axis 1 on the warp angle
     generic = [_generic_signature()] * images
@@ -497,28 +502,30 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     turned += [] if unturned in turned else [unturned]
 
     # each angle's sieve lattice at its multiples, best first: refined below, and scored over the maps
-    multiples = [_multiples(spectra.maps, generic, Lattice(*scan[k][0], 0.0), a_range, b_range, float(angle),
-                            float(angle), size) for k, angle in enumerate(angles)]
+    multiples = ordered_map(lambda k: _multiples(spectra.maps, generic, Lattice(*scan[k][0], 0.0), a_range, b_range,
+                                                 float(angles[k]), float(angles[k]), size), range(len(angles)), workers)
 
-    def refined_at(k: int) -> list[Placement]:
-        angle = float(angles[k])
-        return [_refine_placement(spectra.maps, generic, lat, angle, angle, size, False)
-                for lat in multiples[k][:VERIFIED_RATIOS]]
+    def refined_at(ks: list[int]) -> list[Placement]:
+        """Each angle's best VERIFIED_RATIOS multiples refined in both angles together, in order."""
+        starts = [(lat, float(angles[k])) for k in ks for lat in multiples[k][:VERIFIED_RATIOS]]
+        return ordered_map(lambda start: _refine_placement(spectra.maps, generic, start[0], start[1], start[1],
+                                                           size, False), starts, workers)
 
-    best_turned = max((p for k in turned for p in refined_at(k)), key=lambda p: p.score)
+    best_turned = max(refined_at(turned), key=lambda p: p.score)
     # The same scan read through the 2D maps: each angle's sieve lattice at its best multiple, scored
     # by the generic harmonics. Uneven spacing smears the peaks the sieves sum, so the summed score's
     # maxima can all miss the turn while the maps still show it. One wins only by RIVAL_TURN_GAIN, and
     # only where it is better on each photo alone (:func:`_beats_on_each_photo`).
     by_map = np.array([lattices[0].score for lattices in multiples])
     mapped = [k for k in _local_maxima(by_map)[:ROTATION_HYPOTHESES] if k not in turned]
-    best_mapped = max((p for k in mapped for p in refined_at(k)), key=lambda p: p.score, default=None)
+    best_mapped = max(refined_at(mapped), key=lambda p: p.score, default=None)
     # Pairs of strong peaks read as two low harmonics of one lattice: where the sieves' spacings miss
     # on one axis (aliased yarn harmonics at 2-3 px per yarn), two peaks still pin the turn.
     peaked = sorted(_peak_pair_turns(spectra, a_range, b_range),
                     key=lambda t: -float(signature_score(spectra.maps, generic, t[0], t[1], size, t[2])))
-    best_peaked = max((_refine_placement(spectra.maps, generic, Lattice(a, b, 0.0), turn, turn, size, False)
-                       for a, b, turn in peaked[:REFINED_HYPOTHESES]), key=lambda p: p.score, default=None)
+    best_peaked = max(ordered_map(lambda t: _refine_placement(spectra.maps, generic, Lattice(t[0], t[1], 0.0), t[2],
+                                                              t[2], size, False), peaked[:REFINED_HYPOTHESES],
+                                  workers), key=lambda p: p.score, default=None)
     warps, wefts = _local_maxima(by_warp)[:SHEAR_HYPOTHESES], _local_maxima(by_weft)[:SHEAR_HYPOTHESES]
     verified = []
     for i, j in sorted((i, j) for i in warps for j in wefts if i != j and abs(angles[i] - angles[j]) <= MAX_SKEW_DEG):
@@ -530,8 +537,9 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     # The paired angles also seed turned hypotheses, at their middle: each axis's own angle can place
     # the lattice where the summed scan's maxima miss it. One wins only by RIVAL_TURN_GAIN: more
     # hypotheses give the generic harmonics more chances to prefer a wrong one.
-    paired = [_refine_placement(spectra.maps, generic, lat, middle, middle, size, False)
-              for _, warp, weft, lat in verified[:REFINED_HYPOTHESES] for middle in (placement_of(warp, weft)[0],)]
+    paired = ordered_map(lambda v: _refine_placement(spectra.maps, generic, v[3], placement_of(v[1], v[2])[0],
+                                                     placement_of(v[1], v[2])[0], size, False),
+                         verified[:REFINED_HYPOTHESES], workers)
     best_paired = max(paired, key=lambda p: p.score, default=None)
     if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
         best_turned = best_paired
@@ -539,9 +547,8 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
         if (rival is not None and rival.score > RIVAL_TURN_GAIN * best_turned.score
                 and _beats_on_each_photo(spectra, rival, [best_turned])):
             best_turned = rival
-    best_sheared = max((_refine_placement(spectra.maps, generic, lat, warp, weft, size, True)
-                        for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]), key=lambda p: p.score,
-                       default=None)
+    best_sheared = max(ordered_map(lambda v: _refine_placement(spectra.maps, generic, v[3], v[1], v[2], size, True),
+                                   verified[:REFINED_HYPOTHESES], workers), key=lambda p: p.score, default=None)
     strongest = float(angles[turned[0]])
     return (replace(best_turned, sieve_turn_deg=strongest),
             None if best_sheared is None else replace(best_sheared, sieve_turn_deg=strongest))
