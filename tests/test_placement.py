@@ -98,7 +98,12 @@ def test_the_placement_is_the_same_on_any_number_of_threads(monkeypatch):
     params = priors.typical("twill1").replace(tiles=(20.0, 26.0))
     with torch.no_grad():
         pair = Renderer(CaptureRig(sample_rotation_deg=2.0), 512, 4, seed=5).render(params)
-    spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+    images = [pair.reflection.numpy(), pair.transmission.numpy()]
+    spectra = lattice.Spectra.of(images)
+    on_threads = lattice.Spectra.of(images, workers=2)  # each photo's spectrum on its own thread
+    assert on_threads.peaks == spectra.peaks and on_threads.coarse == spectra.coarse
+    for mine, theirs in zip(spectra.maps + spectra.highpassed, on_threads.maps + on_threads.highpassed):
+        assert np.array_equal(mine, theirs)
     patterns = ("plain", "twill0", "twill1", "satin0")
     found = {}
     for workers in (1, 3):

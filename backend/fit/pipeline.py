@@ -88,7 +88,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     progress = progress or (lambda *args: None)
     patterns = priors.FIT_PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
-    spectra = Spectra.of([reflection, transmission])
+    spectra = Spectra.of([reflection, transmission], workers=torch.get_num_threads())
     (rotation, skew), found = placed(spectra, rig, patterns, settings.sample_rotation)
     rig = dataclasses.replace(rig, sample_rotation_deg=rotation, sample_skew_deg=skew)
     found = found or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]

@@ -72,12 +72,17 @@ class Spectra:
     coarse: list[list["Peak"]] | None = None
 
     @classmethod
-    def of(cls, images: list[np.ndarray]) -> "Spectra":
+    def of(cls, images: list[np.ndarray], workers: int = 1) -> "Spectra":
+        """The spectra of ``images``, each photo's on one of up to ``workers`` threads."""
         images = [np.asarray(img, dtype=np.float64) for img in images]
         size = images[0].shape[0]
-        coarse = [spectral_peaks(_shrunk(img, COARSE_SIZE)) for img in images] if size > COARSE_SIZE else None
-        return cls(size, [spectral_peaks(img) for img in images], [peakness(img, blur=0.0) for img in images],
-                   [highpassed_luminance(img, size / 64) for img in images], coarse)
+
+        def read(image: np.ndarray):
+            return (spectral_peaks(image), peakness(image, blur=0.0), highpassed_luminance(image, size / 64),
+                    spectral_peaks(_shrunk(image, COARSE_SIZE)) if size > COARSE_SIZE else None)
+
+        peaks, maps, highpassed, coarse = zip(*ordered_map(read, images, workers))
+        return cls(size, list(peaks), list(maps), list(highpassed), list(coarse) if size > COARSE_SIZE else None)
 
     @property
     def all_peaks(self) -> list["Peak"]:
