@@ -66,6 +66,17 @@ def test_the_photo_showing_more_fabric_is_magnified_onto_the_others_framing(tmp_
     assert np.abs(got - want).mean() < 0.5 * np.abs(before - want).mean()
 
 
+def test_the_photos_are_loaded_alike_on_any_number_of_threads(tmp_path, pair):
+    # load_pair reads the two photos' spectra (weave check, registration) on up to ``workers`` threads:
+    # the same photos, warnings and record as on one.
+    photos, _ = loaded_moved(tmp_path, pair, 1.10, 1.0)
+    threaded = load_pair(tmp_path / "s_R.png", tmp_path / "s_T.png", workers=2)
+    assert photos.info["registration"] is not None  # the registration's reading ran
+    assert threaded.info == photos.info and threaded.warnings == photos.warnings
+    assert np.array_equal(threaded.reflection, photos.reflection)
+    assert np.array_equal(threaded.transmission, photos.transmission)
+
+
 def test_the_report_says_the_photos_were_registered(tmp_path, pair):
     metrics = {"reflection": {"flip": 0.1, "colour_l1": 0.01, "spectrum_corr": 0.5},
                "transmission": {"flip": 0.1, "colour_l1": 0.01, "spectrum_corr": 0.5}}

@@ -170,7 +170,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         reflection_path, transmission_path = Path(reflection), Path(transmission)
     reporter.progress("load", 0, 1)
     photos = load_pair(reflection_path, transmission_path, size=rig.film_size, crop=options.crop,
-                       flat_field=options.flat_field, strict=options.strict)
+                       flat_field=options.flat_field, strict=options.strict, workers=torch.get_num_threads())
     for warning in photos.warnings:
         reporter.warning(warning)
     reporter.progress("load", 1, 1)

@@ -36,6 +36,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from ..core.threads import ordered_map
 from .errors import PhotoError
 from .spectrum import chance_peakness, hann, highpass, power_spectrum, shows_weave, spectral_peaks
 from .tone import GAMMA, luminance
@@ -317,15 +318,16 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
                      "in both photos")
 
 
-def check_weave_shown(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path]
-                      ) -> tuple[list[str], dict]:
+def check_weave_shown(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path],
+                      workers: int = 1) -> tuple[list[str], dict]:
     """Warnings for the photos whose spectrum shows no peak above noise (:func:`.spectrum.shows_weave`,
     the test the yarn lattice applies: :meth:`backend.texture.lattice.Spectra.of_the_weave`), and
     each photo's strongest peakness beside the level noise alone reaches. A dense weave behind a
     phone's blur can leave the transmission, or both photos, without a visible weave: the fit then
-    reads the yarn lattice from the other photo, or has nothing to read it from."""
+    reads the yarn lattice from the other photo, or has nothing to read it from. Each photo is read
+    on one of up to ``workers`` threads."""
     size = reflection.shape[0]
-    peaks = [spectral_peaks(image, count=1) for image in (reflection, transmission)]
+    peaks = ordered_map(lambda image: spectral_peaks(image, count=1), (reflection, transmission), workers)
     strongest = [round(p[0].strength, 2) if p else 0.0 for p in peaks]
     chance = chance_peakness(size)
     info = {"reflection": strongest[0], "transmission": strongest[1], "noise_level": round(chance, 2)}

@@ -231,8 +231,9 @@ def _flat_paths(flat_field) -> tuple[PathLike | None, PathLike | None]:
 
 def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int = DEFAULT_SIZE,
               crop: Sequence[int] | None = None, flat_field=None, strict: bool = False,
-              exposure: float | None = None) -> PhotoPair:
-    """Reads, checks and prepares a reflection/transmission photo pair.
+              exposure: float | None = None, workers: int = 1) -> PhotoPair:
+    """Reads, checks and prepares a reflection/transmission photo pair (the two photos' spectra on up to
+    ``workers`` threads).
 
     ``crop`` applies to both photos (same camera, same stand). ``flat_field`` is one path for both,
     or a (reflection, transmission) pair of paths. Framing problems raise :class:`PhotoError`;
@@ -251,7 +252,7 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     check_content(image_r, reflection.path)
     check_content(image_t, transmission.path)
 
-    weave_warnings, weave_info = check_weave_shown(image_r, image_t, (reflection.path, transmission.path))
+    weave_warnings, weave_info = check_weave_shown(image_r, image_t, (reflection.path, transmission.path), workers)
     frequency_warnings, frequency_info = check_framing_frequency(image_r, image_t, (reflection.path, transmission.path),
                                                                  compare=not weave_warnings)
     warnings += frequency_warnings + weave_warnings
@@ -268,7 +269,7 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     image_r = flat_corrected(image_r, flat_r, reflection, box, size, warnings)
     image_t = flat_corrected(image_t, flat_t, transmission, box, size, warnings)
     taken = (image_r, image_t)
-    image_r, image_t, registration = register(image_r, image_t, frequency_info["scale"])
+    image_r, image_t, registration = register(image_r, image_t, frequency_info["scale"], workers)
     if registration is not None:
         m = registration.magnification
         warnings.append(f"{label}: the photos are framed differently (the transmission photo's yarn lattice is the "

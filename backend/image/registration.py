@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..core.threads import ordered_map
 from .spectrum import spectral_peaks
 
 START_TOLERANCE = 0.03
@@ -108,13 +109,13 @@ class Registration:
                 "magnification": round(self.magnification, 5), "turn_deg": round(self.turn_deg, 4)}
 
 
-def lattice_map(reflection: np.ndarray, transmission: np.ndarray, scale: float
+def lattice_map(reflection: np.ndarray, transmission: np.ndarray, scale: float, workers: int = 1
                 ) -> tuple[np.ndarray, int, float, float] | None:
     """(A, peaks matched, residual, shift): the linear map of the transmission photo's spectral peaks
     onto the reflection's (module docstring), starting from the magnification ``scale``; None when
-    fewer than three peaks match."""
-    ref = np.array([(p.fx, p.fy) for p in spectral_peaks(reflection)], dtype=float).reshape(-1, 2)
-    trans = np.array([(p.fx, p.fy) for p in spectral_peaks(transmission)], dtype=float).reshape(-1, 2)
+    fewer than three peaks match. The two photos' peaks are read on up to ``workers`` threads."""
+    ref, trans = (np.array([(p.fx, p.fy) for p in peaks], dtype=float).reshape(-1, 2)
+                  for peaks in ordered_map(spectral_peaks, (reflection, transmission), workers))
     if len(ref) < 3 or len(trans) < 3:
         return None
     matrix = scale * np.eye(2)
@@ -157,13 +158,13 @@ def magnified(image: np.ndarray, matrix: np.ndarray, interpolation: int = cv2.IN
     return out.astype(image.dtype, copy=False)
 
 
-def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | None
+def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | None, workers: int = 1
              ) -> tuple[np.ndarray, np.ndarray, Registration | None]:
     """The pair with one photo magnified onto the other's framing (module docstring), and what was
     done (None, and the photos as they are, when the evidence is not clear)."""
     if scale is None or not 1 / MAX_MAGNIFICATION <= scale <= MAX_MAGNIFICATION:
         return reflection, transmission, None
-    found = lattice_map(reflection, transmission, scale)
+    found = lattice_map(reflection, transmission, scale, workers)
     if found is None:
         return reflection, transmission, None
     matrix, matches, residual, shift = found
