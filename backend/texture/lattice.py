@@ -510,11 +510,15 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     multiples = ordered_map(lambda k: _multiples(spectra.maps, generic, Lattice(*scan[k][0], 0.0), a_range, b_range,
                                                  float(angles[k]), float(angles[k]), size), range(len(angles)), workers)
 
+    def refined(starts: list[tuple[Lattice, float, float]], sheared: bool = False) -> list[Placement]:
+        """Each (lattice, warp angle, weft angle) of ``starts`` refined (:func:`_refine_placement`), in order."""
+        return ordered_map(lambda start: _refine_placement(spectra.maps, generic, *start, size, sheared), starts,
+                           workers)
+
     def refined_at(ks: list[int]) -> list[Placement]:
         """Each angle's best VERIFIED_RATIOS multiples refined in both angles together, in order."""
-        starts = [(lat, float(angles[k])) for k in ks for lat in multiples[k][:VERIFIED_RATIOS]]
-        return ordered_map(lambda start: _refine_placement(spectra.maps, generic, start[0], start[1], start[1],
-                                                           size, False), starts, workers)
+        return refined([(lat, float(angles[k]), float(angles[k])) for k in ks
+                        for lat in multiples[k][:VERIFIED_RATIOS]])
 
     best_turned = max(refined_at(turned), key=lambda p: p.score)
     # The same scan read through the 2D maps: each angle's sieve lattice at its best multiple, scored
@@ -528,9 +532,8 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     # on one axis (aliased yarn harmonics at 2-3 px per yarn), two peaks still pin the turn.
     peaked = sorted(_peak_pair_turns(spectra, a_range, b_range),
                     key=lambda t: -float(signature_score(spectra.maps, generic, t[0], t[1], size, t[2])))
-    best_peaked = max(ordered_map(lambda t: _refine_placement(spectra.maps, generic, Lattice(t[0], t[1], 0.0), t[2],
-                                                              t[2], size, False), peaked[:REFINED_HYPOTHESES],
-                                  workers), key=lambda p: p.score, default=None)
+    best_peaked = max(refined([(Lattice(a, b, 0.0), turn, turn) for a, b, turn in peaked[:REFINED_HYPOTHESES]]),
+                      key=lambda p: p.score, default=None)
     warps, wefts = _local_maxima(by_warp)[:SHEAR_HYPOTHESES], _local_maxima(by_weft)[:SHEAR_HYPOTHESES]
     verified = []
     for i, j in sorted((i, j) for i in warps for j in wefts if i != j and abs(angles[i] - angles[j]) <= MAX_SKEW_DEG):
@@ -542,9 +545,8 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     # The paired angles also seed turned hypotheses, at their middle: each axis's own angle can place
     # the lattice where the summed scan's maxima miss it. One wins only by RIVAL_TURN_GAIN: more
     # hypotheses give the generic harmonics more chances to prefer a wrong one.
-    paired = ordered_map(lambda v: _refine_placement(spectra.maps, generic, v[3], placement_of(v[1], v[2])[0],
-                                                     placement_of(v[1], v[2])[0], size, False),
-                         verified[:REFINED_HYPOTHESES], workers)
+    paired = refined([(lat, middle, middle) for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]
+                      for middle in (placement_of(warp, weft)[0],)])
     best_paired = max(paired, key=lambda p: p.score, default=None)
     if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
         best_turned = best_paired
@@ -552,8 +554,8 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
         if (rival is not None and rival.score > RIVAL_TURN_GAIN * best_turned.score
                 and _beats_on_each_photo(spectra, rival, [best_turned])):
             best_turned = rival
-    best_sheared = max(ordered_map(lambda v: _refine_placement(spectra.maps, generic, v[3], v[1], v[2], size, True),
-                                   verified[:REFINED_HYPOTHESES], workers), key=lambda p: p.score, default=None)
+    best_sheared = max(refined([(lat, warp, weft) for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]],
+                               sheared=True), key=lambda p: p.score, default=None)
     strongest = float(angles[turned[0]])
     return (replace(best_turned, sieve_turn_deg=strongest),
             None if best_sheared is None else replace(best_sheared, sieve_turn_deg=strongest))
