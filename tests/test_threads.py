@@ -1,11 +1,15 @@
-"""The backend's OpenMP waiting policy (backend.core.threads), set before torch loads."""
+"""The backend's OpenMP waiting policy (backend.core.threads), set before torch loads, and its ordered
+map over threads."""
 import os
 import subprocess
 import sys
+import threading
+import time
 
+import pytest
 from conftest import ROOT
 
-from backend.core.threads import BLOCK_TIME_MS, SPIN_COUNT, wait_briefly
+from backend.core.threads import BLOCK_TIME_MS, SPIN_COUNT, ordered_map, wait_briefly
 
 
 def test_the_backend_spins_briefly_unless_the_user_chose_a_policy():
@@ -49,11 +53,6 @@ def test_python_m_backend_sets_the_waiting_policy_before_torch_loads():
 
 
 def test_ordered_map_keeps_the_order_and_runs_on_the_threads_asked():
-    import threading
-    import time
-
-    from backend.core.threads import ordered_map
-
     seen = set()
     both_started = threading.Barrier(2, timeout=10)  # two calls at once, or the barrier breaks
 
@@ -72,10 +71,6 @@ def test_ordered_map_keeps_the_order_and_runs_on_the_threads_asked():
 
 
 def test_ordered_map_raises_what_a_call_raised():
-    import pytest
-
-    from backend.core.threads import ordered_map
-
     def fails_on_two(k):
         if k == 2:
             raise ValueError(f"bad item {k}")

@@ -196,9 +196,9 @@ def _per_pattern(fn, patterns):
 def _workers() -> int:
     """Threads for the lattice search's numpy work: the process's core budget, which a batch job sets
     (``torch.set_num_threads``). The placement's numbers do not depend on it (tests/test_placement.py).
-    On 2 cores, :func:`placed` of six pairs (real twill1, satin1; photo-like seed 53 twill0_001,
-    plain_015, satin1m_019, twill1m_017), two rounds interleaved with the one-thread code: 224 -> 187 s
-    in all, the same placements and candidates."""
+    On 2 cores, ``Spectra.of`` (then still on one thread) and :func:`placed` of six pairs (real twill1,
+    satin1; photo-like seed 53 twill0_001, plain_015, satin1m_019, twill1m_017), two rounds interleaved
+    with the one-thread code: 224 -> 187 s in all, the same placements and candidates."""
     return torch.get_num_threads()
 
 
