@@ -101,15 +101,17 @@ class Objective:
                   for render, (photo, photo_ok) in zip(renders, self._photo_linear())]
         return PhotoLight(*solved)
 
-    def rendered(self, fabric: ParamTensors | FabricParams, camera_blur_px: float | None = None
+    def rendered(self, fabric: ParamTensors | FabricParams, camera_blur_px: float | torch.Tensor | None = None
                  ) -> tuple[RenderedPair, PhotoLight]:
         """``fabric`` rendered as the photos show it: with the camera blur ``camera_blur_px`` (film
-        pixels; None: the rig's) and under the photos' light falloff solved for that render."""
+        pixels, a float or a 0-d tensor to differentiate; None: the rig's) and under the photos' light
+        falloff solved for that render."""
         radiance = self.renderer.blurred(fabric, camera_blur_px=camera_blur_px)
         light = self.light(*radiance)
         return self.renderer.display(*radiance, light), light
 
-    def terms(self, fabric: ParamTensors, camera_blur_px: float | None = None) -> dict[str, torch.Tensor]:
+    def terms(self, fabric: ParamTensors, camera_blur_px: float | torch.Tensor | None = None
+              ) -> dict[str, torch.Tensor]:
         """Weighted loss terms (and their sum under 'loss') of ``fabric`` rendered as the photos
         show it (:meth:`rendered`)."""
         probe, (photo_r, photo_t) = self._probes(fabric.scalar("tiles"))

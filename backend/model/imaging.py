@@ -36,10 +36,14 @@ NO_BLUR_PX = 1e-3  # a Gaussian blur this narrow or narrower is none (the identi
 CONV_TAPS_PER_PIXEL = 0.1  # the convolution where a kernel's taps are at most this share of the image's side
 
 
-def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
+def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Tensor:
     """Separable Gaussian blur of an (H, W, C) image, standard deviation ``sigma`` pixels, with
     mirrored borders (differentiable; the identity for sigma <= 0): the weights
     exp(-t^2 / 2 sigma^2) / sum over |t| <= radius = ceil(3 sigma) (at most min(H, W) - 1).
+
+    A 0-d tensor ``sigma`` is differentiable too (the fit estimates the camera blur by gradient with
+    the fabric's parameters): its weights are computed in torch (:func:`gaussian_taps`) and applied
+    by the convolution; the radius follows its value and carries no gradient.
 
     Two ways to the same sums (within float rounding), whichever is cheaper:
 
@@ -58,13 +62,15 @@ def gaussian_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
         return image
     height, width = image.shape[0], image.shape[1]
     limit = min(height, width) - 1  # one radius for both axes, as the add-on's preview blur
-    radius = blur_radius(sigma, limit)
+    radius = blur_radius(float(sigma), limit)
+    if isinstance(sigma, torch.Tensor):
+        return _convolved(image, gaussian_taps(sigma, radius, image.dtype), radius)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
         return _convolved(image, gaussian_kernel(sigma, radius), radius)
     return gaussian_blur_products(image, sigma)
 
 
-def subpixel_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
+def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Tensor:
     """The camera blur of ``sigma`` pixels acting on an image of sub-pixels (2 H, 2 W, C): blurred
     there (``2 sigma`` sub-pixels, :func:`gaussian_blur`), then each pixel the mean of its 2 x 2
     (H, W, C), as a sensor integrates the light the optics blurred.
@@ -79,11 +85,14 @@ def subpixel_blur(image: torch.Tensor, sigma: float) -> torch.Tensor:
     """
     if sigma <= NO_BLUR_PX:
         return _pooled(image)
-    radius = blur_radius(2.0 * sigma, min(image.shape[0], image.shape[1]) - 1)
+    radius = blur_radius(2.0 * float(sigma), min(image.shape[0], image.shape[1]) - 1)
     # The blur and the 2 x 2 mean in one kernel (the Gaussian's taps convolved with (1/2, 1/2)),
     # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, and the whole
     # blurred sub-pixel image is never made (1024 px, 0.9 px, 2 cores: 30-60 ms forward against 90-140,
     # 100-170 ms with the backward against 290-300).
+    if isinstance(sigma, torch.Tensor):
+        taps = gaussian_taps(2.0 * sigma, radius, image.dtype)
+        return _convolved(image, 0.5 * (F.pad(taps, (1, 0)) + F.pad(taps, (0, 1))), radius, stride=2)
     return _convolved(image, np.convolve(gaussian_kernel(2.0 * sigma, radius), [0.5, 0.5]), radius, stride=2)
 
 
@@ -124,12 +133,19 @@ def gaussian_kernel(sigma: float, radius: int) -> np.ndarray:
     return kernel / kernel.sum()
 
 
-def _convolved(image: torch.Tensor, taps: np.ndarray, radius: int, stride: int = 1) -> torch.Tensor:
+def gaussian_taps(sigma: torch.Tensor, radius: int, dtype=torch.float32) -> torch.Tensor:
+    """:func:`gaussian_kernel` of a 0-d tensor ``sigma`` in torch: differentiable with respect to it."""
+    offsets = torch.arange(-radius, radius + 1, dtype=dtype, device=sigma.device)
+    kernel = torch.exp(-0.5 * (offsets / sigma.to(dtype)) ** 2)
+    return kernel / kernel.sum()
+
+
+def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int, stride: int = 1) -> torch.Tensor:
     """A depthwise convolution by ``taps`` along the rows, then the columns, of the image
     mirror-padded by ``radius`` ("reflect": the edge sample is not repeated, as in
     :func:`blur_matrix`), evaluated every ``stride`` pixels: :func:`gaussian_blur` with a Gaussian's
     taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2."""
-    kernel = torch.tensor(taps, dtype=image.dtype, device=image.device)
+    kernel = taps if isinstance(taps, torch.Tensor) else torch.tensor(taps, dtype=image.dtype, device=image.device)
     channels = image.shape[2]
     planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
     planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, stride),

@@ -344,8 +344,9 @@ class Renderer:
         return self.display(*self.blurred(fabric, progress, camera_blur_px), light)
 
     def blurred(self, fabric: ParamTensors | FabricParams, progress=None,
-                camera_blur_px: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """The linear radiance images of ``fabric`` after the camera blur (film pixels; None: the rig's)."""
+                camera_blur_px: float | torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The linear radiance images of ``fabric`` after the camera blur (film pixels, a float or a 0-d
+        tensor to differentiate; None: the rig's)."""
         if isinstance(fabric, FabricParams):
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
