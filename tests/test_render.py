@@ -401,6 +401,25 @@ def test_the_sub_pixel_blur_is_its_step_by_step_reference_with_its_gradients(siz
     assert torch.allclose(fast_grad, slow_grad, atol=1e-12)
 
 
+@pytest.mark.parametrize("blur", [imaging.gaussian_blur, imaging.subpixel_blur])
+@pytest.mark.parametrize("sigma", [0.4, 1.3, 2.7])
+def test_a_tensor_sigma_blurs_as_its_number_and_has_the_derivative_of_the_blur(blur, sigma):
+    """The fit estimates the camera blur by gradient: a 0-d tensor sigma gives the float's image
+    (the same taps, made in torch), and d(image)/d(sigma) is the finite difference of the float blurs
+    (central, 1e-5 px; float64) and passes gradcheck."""
+    torch.manual_seed(5)
+    image = torch.rand(48, 48, 3, dtype=torch.float64)
+    weights = torch.rand_like(blur(image, sigma))
+    at = torch.tensor(sigma, dtype=torch.float64, requires_grad=True)
+    assert torch.allclose(blur(image, at), blur(image, sigma), atol=1e-12)
+    (derivative,) = torch.autograd.grad((blur(image, at) * weights).sum(), at)
+    h = 1e-5
+    difference = ((blur(image, sigma + h) - blur(image, sigma - h)) * weights).sum() / (2 * h)
+    assert float(derivative) == pytest.approx(float(difference), rel=1e-6)
+    assert float(derivative) != 0.0
+    assert torch.autograd.gradcheck(lambda s: blur(image, s), (at,))
+
+
 @pytest.mark.parametrize("frequency, sigma", [(0.3, 1.2), (0.45, 0.6), (0.6, 0.8), (0.7, 0.9), (0.85, 1.0)])
 def test_the_camera_blur_on_sub_pixels_passes_what_the_optics_pass(frequency, sigma):
     """A cosine of ``frequency`` cycles per pixel, blurred by a Gaussian of ``sigma`` pixels and then

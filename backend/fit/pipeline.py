@@ -209,6 +209,7 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     duelling_blur = blur_floor is not None and runs[0].camera_blur_px > blur_floor + BLUR_DUEL_PX
     if steps == 0 or (len(runs) == 1 and not duelling_blur):
         return runs[0], 0
+    scanned_blur = runs[0].camera_blur_px  # where the winner starts: its run moves the blur from there
     if duelling_blur:  # the winner also from the photos' blur: the scan's choice can be a valley
         runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_floor, blur_floor))
     for k, run in enumerate(runs):  # one run after the other: the compiled renderer keeps to one weave at a time
@@ -218,7 +219,7 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
             progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
     if duelling_blur:
         scanned, floored = runs[0], runs.pop(1)
-        finalists[0][1]["blur_duel"] = {"blur_px": scanned.camera_blur_px, "loss": scanned.best_loss,
+        finalists[0][1]["blur_duel"] = {"blur_px": scanned_blur, "loss": scanned.best_loss,
                                         "floor_px": blur_floor, "floor_loss": floored.best_loss}
         if floored.best_loss < scanned.best_loss:
             runs[0] = floored
