@@ -12,7 +12,8 @@
                fine): Adam on the continuous parameters, after ``first_search`` iterations and
                then every ``search_every`` the photos' uneven yarn spacing read again against its
                renders and tried (:mod:`backend.fit.warp`, :meth:`.optimise.Run.update_warp`) and
-               a parabolic step on the discrete ones
+               a parabolic step on the discrete ones; where the camera blur is estimated, Adam moves
+               it with the continuous parameters, and the discrete steps too
                (:mod:`backend.fit.optimise`), ending early once the best loss stops moving
                (:func:`converged`); tiles come from the lattice, which pins them to a
                fraction of a percent (the mean spacing over the whole photo,

@@ -224,8 +224,9 @@ def camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.
                 best_start: FabricParams, objective: Objective) -> tuple[float, float | None]:
     """(camera blur to fit with, its lower bound while fitting, or None when it stays fixed).
 
-    The blur is the loss's choice at the best starting parameters, and the discrete searches move it
-    from there by parabolic steps, which the continuous parameters follow. Where the start is far
+    The blur is the loss's choice at the best starting parameters; the runs move it from there, by
+    gradient with the continuous parameters and by the discrete searches' parabolic steps
+    (:class:`backend.fit.optimise.Run`). Where the start is far
     from the photos, that choice can be a valley the fit stays in: photo-like seed 53's twill0_001
     (the phone's blur 1.04 px, the photos' reading 0.82) starts at 1.5 px and ends at 1.31 with loss
     1.19 and roughness MAE .175; the same fit started at 1.04 ends at 0.99 with loss 0.83 and MAE
