@@ -65,7 +65,7 @@ class Run:
     blur before, cannot follow. Photo-like seed 53 twill1_002 (the phone's blur 1.77 px) ended at
     the scan's 2.0 px with warp roughness .60 against .95 and loss 1.555; 60 steps from the true
     parameters at 1.77 px reach 1.471 and keep them. With the blur in Adam the same fit ends at
-    1.72 px, roughness .87 (loss 1.507).
+    1.69 px, warp roughness .88 (loss 1.504).
     """
 
     def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
@@ -108,8 +108,10 @@ class Run:
         self.optimiser = torch.optim.Adam([dict(group, lr=lr) for group, lr in zip(groups, self.base_lr)], eps=1e-6)
 
     def restart_from_best(self) -> None:
-        """Fresh tensors and Adam state at the best parameters seen (the schedule goes on)."""
+        """Fresh tensors and Adam state at the best parameters seen and their camera blur (the schedule
+        goes on)."""
         if self.history:
+            self.camera_blur_px = self.best_blur
             self._start_from(self.best)
 
     def _schedule(self):
