@@ -232,6 +232,10 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     lr = settings.lr * (MAX_CAMERA_BLUR_PX - 0.5)
     assert all(abs(b - a) <= 1.01 * lr for a, b in zip(blurs, blurs[1:]))
     assert abs(blurs[-1] - 2.5) < abs(start - 2.5) - 4 * lr
+    # a restart from the best parameters takes their blur (the last step moved it on)
+    assert run.best_blur in blurs[:-1] and run.best_blur != run.camera_blur_px
+    run.restart_from_best()
+    assert run.camera_blur_px == run.best_blur
     fixed = Run(TWILL, objective, settings, 3, start)
     for _ in range(3):
         fixed.step()
