@@ -88,7 +88,7 @@ class Run:
 
     @property
     def camera_blur_px(self) -> float:
-        return float(self._blur)
+        return float(self._blur.detach())
 
     @camera_blur_px.setter
     def camera_blur_px(self, value: float) -> None:
