@@ -395,7 +395,7 @@ def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well
 
     def recording(self, fabric, camera_blur_px=None):
         if torch.is_grad_enabled():
-            stepped.append((self.target.size, float(camera_blur_px)))
+            stepped.append((self.target.size, float(torch.as_tensor(camera_blur_px).detach())))
         return terms(self, fabric, camera_blur_px)
 
     monkeypatch.setattr(Objective, "terms", recording)
