@@ -23,18 +23,13 @@ import torch
 
 from ..core.params import SPECS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX
-from ..model.param_tensors import ParamTensors
+from ..model.param_tensors import ParamTensors, as_float
 from ..model.spacing_warp import SpacingWarp
 from .objective import Objective
 from .settings import OPTIMISED, FitSettings
 from .warp import reread
 
 LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
-
-
-def _number(value) -> float:
-    """A loss term as a float (a tensor is detached first: it may carry the graph)."""
-    return float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
 
 
 @dataclass
@@ -88,7 +83,7 @@ class Run:
 
     @property
     def camera_blur_px(self) -> float:
-        return float(self._blur.detach())
+        return as_float(self._blur)
 
     @camera_blur_px.setter
     def camera_blur_px(self, value: float) -> None:
@@ -128,12 +123,12 @@ class Run:
         loss = terms["loss"]
         value = float(loss.detach())
         if not math.isfinite(value):
-            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(_number(v)))
+            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(as_float(v)))
             raise FloatingPointError(f"the fit's loss is not finite ({bad}) at "
                                      f"{self.fabric.to_params().to_interchange()}")
         loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
-            self._keep_best(value, {k: _number(v) for k, v in terms.items()})
+            self._keep_best(value, {k: as_float(v) for k, v in terms.items()})
         self.optimiser.step()
         self.fabric.clamp_()
         if self.estimates_blur:

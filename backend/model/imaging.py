@@ -17,6 +17,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .param_tensors import as_float
+
 
 def display_transform(radiance: torch.Tensor, gamma: float, clamp: float,
                       vignette: torch.Tensor | None) -> torch.Tensor:
@@ -62,7 +64,7 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
         return image
     height, width = image.shape[0], image.shape[1]
     limit = min(height, width) - 1  # one radius for both axes, as the add-on's preview blur
-    radius = blur_radius(_number(sigma), limit)
+    radius = blur_radius(as_float(sigma), limit)
     if isinstance(sigma, torch.Tensor):
         return _convolved(image, gaussian_taps(sigma, radius, image.dtype), radius)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
@@ -85,7 +87,7 @@ def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
     """
     if sigma <= NO_BLUR_PX:
         return _pooled(image)
-    radius = blur_radius(2.0 * _number(sigma), min(image.shape[0], image.shape[1]) - 1)
+    radius = blur_radius(2.0 * as_float(sigma), min(image.shape[0], image.shape[1]) - 1)
     # The blur and the 2 x 2 mean in one kernel (the Gaussian's taps convolved with (1/2, 1/2)),
     # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, and the whole
     # blurred sub-pixel image is never made (1024 px, 0.9 px, 2 cores: 30-60 ms forward against 90-140,
@@ -131,10 +133,6 @@ def gaussian_kernel(sigma: float, radius: int) -> np.ndarray:
     offsets = np.arange(-radius, radius + 1)
     kernel = np.exp(-0.5 * (offsets / sigma) ** 2)
     return kernel / kernel.sum()
-
-
-def _number(sigma: float | torch.Tensor) -> float:
-    return float(sigma.detach()) if isinstance(sigma, torch.Tensor) else float(sigma)
 
 
 def gaussian_taps(sigma: torch.Tensor, radius: int, dtype=torch.float32) -> torch.Tensor:

@@ -13,6 +13,11 @@ import torch
 from ..core.params import PARAMETERS, SPECS, FabricParams, ParamError
 
 
+def as_float(value: float | torch.Tensor) -> float:
+    """A number that may be a 0-d tensor (one that carries a graph included: detached first), as a float."""
+    return float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
+
+
 class ParamTensors:
     """The tensors of one FabricParams plus its (non-tensor) weave."""
 
