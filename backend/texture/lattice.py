@@ -411,6 +411,7 @@ REFINED_HYPOTHESES = 8
 MAX_SKEW_DEG = 5.0
 SHEAR_GAIN = 1.15
 RIVAL_TURN_GAIN = 1.1
+SIEVE_AGREEMENT_DEG = 0.3  # a turn this close to the summed sieve scan's strongest agrees with it (its step: 0.25)
 VERIFIED_RATIOS = 2
 # p / q for p, q <= 5: a sieve may lock onto a yarn's frequency (2-5 times the tile's), an aliased
 # harmonic, or a multiple of either
@@ -550,13 +551,22 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     best_paired = max(paired, key=lambda p: p.score, default=None)
     if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
         best_turned = best_paired
+    strongest = float(angles[turned[0]])
+
+    def gain(rival: Placement) -> float:
+        """RIVAL_TURN_GAIN, or none where the rival's turn agrees with the summed sieve's strongest
+        and the turn so far does not: two readings of the peaks (their positions, and the sieve over
+        all of them) agreeing, against the generic harmonics alone."""
+        def agrees(p: Placement) -> bool:
+            return abs(p.rotation_deg - strongest) <= SIEVE_AGREEMENT_DEG
+        return 1.0 if agrees(rival) and not agrees(best_turned) else RIVAL_TURN_GAIN
+
     for rival in (best_mapped, best_peaked):  # in turn, each against the turn so far
-        if (rival is not None and rival.score > RIVAL_TURN_GAIN * best_turned.score
+        if (rival is not None and rival.score > gain(rival) * best_turned.score
                 and _beats_on_each_photo(spectra, rival, [best_turned])):
             best_turned = rival
     best_sheared = max(refined([(lat, warp, weft) for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]],
                                sheared=True), key=lambda p: p.score, default=None)
-    strongest = float(angles[turned[0]])
     return (replace(best_turned, sieve_turn_deg=strongest),
             None if best_sheared is None else replace(best_sheared, sieve_turn_deg=strongest))
 
