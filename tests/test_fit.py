@@ -307,7 +307,8 @@ def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
 @pytest.mark.slow
 def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_pair, monkeypatch):
     """The search (starts, blur, trials) runs at the base size (here 32 px, with the same samples per
-    image), the rest at the working size (64 px): the winner from its start beside its face twin on
+    image, its camera blur on sub-pixels), the rest at the working size (64 px, on the pixel means as
+    the settings say): the winner from its start beside its face twin on
     its lattice, which the network ruled out (from the twin's own start), for ``duel_iterations``
     steps each; with no margin the lower loss goes on for the remaining iterations and its best
     parameters are the result; with a margin larger than any loss, the winner. Here twill0's start
@@ -315,34 +316,38 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     a step: chosen() would rule twill0 out, and twill1, alone, starts again at the working size."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
-    seen, steps = [], []  # steps: the parameters of each Adam step
+    seen, steps, blurs_on = [], [], []  # steps: the parameters of each Adam step
     terms = Objective.terms
 
     def recording(self, fabric, camera_blur_px=None):
         seen.append((self.target.size, self.renderer.spp, torch.is_grad_enabled()))
+        blurs_on.append((self.target.size, self.renderer.subpixel))
         steps.append(fabric.to_params().to_interchange() if torch.is_grad_enabled() else None)
         return terms(self, fabric, camera_blur_px)
 
     monkeypatch.setattr(Objective, "terms", recording)
     settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=0.0, trials=2, size=64,
-                           spp=2, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0)
+                           spp=4, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0)
     given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5}  # the others, mirrored ones included: 0
 
-    def rated(candidates):  # twill1 on the true lattice only: its start beside twill0's on the too-fine one
-        return [0.0 if c.pattern == "twill1" and c.tiles != pytest.approx(TWILL.tiles, rel=0.01)
+    def rated(candidates):  # twill1 on the true lattice only, twill0 on the too-fine one only: their two starts
+        return [0.0 if (c.pattern == "twill1" and c.tiles != pytest.approx(TWILL.tiles, rel=0.01))
+                or (c.pattern == "twill0" and c.tiles[0] < 2 * TWILL.tiles[0])
                 else given.get(c.pattern, 0.0) for c in candidates]
 
     result = fit(*twill_pair, settings=settings,
                  pattern_probabilities=rated)
-    assert (result.size, result.spp, result.iterations, result.steps) == (64, 2, 3, 3)
+    assert (result.size, result.spp, result.iterations, result.steps) == (64, 4, 3, 3)
+    # 16 samples per search pixel: 2 x 2 sub-pixels of 2 x 2 samples each; the working size's pixel means
+    assert set(blurs_on) == {(32, 2), (64, 0)}
     fine = [k for k, call in enumerate(seen) if call[0] == 64]
     assert fine == list(range(fine[0], len(seen)))  # the base size first, then only the working size
     search_calls, fine_calls = seen[:fine[0]], seen[fine[0]:]
-    assert {(size, spp) for size, spp, _ in search_calls} == {(32, 8)}
+    assert {(size, spp) for size, spp, _ in search_calls} == {(32, 16)}
     assert sum(grad for *_, grad in search_calls) == 0  # no trial steps (docstring)
     skipped = [c for c in result.candidates if c.get("skipped")]
     assert [c["pattern"] for c in skipped] == ["twill0"] and skipped[0]["trial_loss"] == skipped[0]["start_loss"]
-    assert fine_calls == [(64, 2, True)] * 5            # two finalists of two steps, then the last step
+    assert fine_calls == [(64, 4, True)] * 5            # two finalists of two steps, then the last step
     [winner] = [c for c in result.candidates if "trial_loss" in c and "fine_trial_loss" in c]
     assert winner["pattern"] == "twill1" and winner["trial_loss"] == winner["start_loss"]
     twin = {"twill0": "twill1m", "twill1": "twill0m"}[winner["pattern"]]
@@ -377,7 +382,7 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
                  pattern_probabilities=rated)
-    assert {(size, spp) for size, spp, _ in seen} == {(32, 2)}
+    assert {(size, spp) for size, spp, _ in seen} == {(32, 4)}
     assert not any("fine_trial_loss" in c for c in result.candidates)
 
 
