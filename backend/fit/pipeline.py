@@ -20,8 +20,9 @@
                :mod:`backend.texture.spacing`), and stay fixed
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
-               trial fits) runs at 256 px with the same samples per image, where a step costs about
-               half as much, and only the winner's optimisation at the working size, from the
+               trial fits) runs at 256 px with the same samples per image, its camera blur on
+               sub-pixels as the photos' optics blur before their downsample (:func:`_coarse`), where
+               a step costs about half as much, and only the winner's optimisation at the working size, from the
                winner's start (not from its trial: the trial steps only chose the pattern) and
                after a fresh camera-blur scan there (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
@@ -241,9 +242,11 @@ def _coarse(settings: FitSettings) -> FitSettings:
     downsample (:mod:`backend.model.render`). Blurring the pixel means at BASE_SIZE instead keeps the
     aliases of a dense weave's yarn harmonics, which the photos' optics took off: on photo-like seed-61
     plain_005 (2.62 px per yarn at 512, blur 1.48 px) the true parameters' loss at 256 px read 10.86
-    on the pixel means and 2.29 on sub-pixels (its harmonic terms 1.77 -> 0 in the reflection), so the
-    plain's trial ended at 9.50 against satin1's 1.33 on a lattice half as dense, and the fit chose
-    satin1; with the search on sub-pixels the plain's trial ends lowest and the plain is fitted."""
+    on the pixel means and 2.29 on sub-pixels (its reflection's harmonic term 1.77 -> 0). With the
+    blur fixed at the phone's, the plain's trial ended at 9.50 against satin1's 1.33 on a lattice half
+    as dense, and the fit chose satin1; with the search on sub-pixels (the blur estimated) the plain's
+    trial ends at 0.98 against 1.04 and the plain is fitted, at 1.59 px. The working size's own
+    renders blur as the settings say (the pixel means by default: :mod:`backend.model.render`)."""
     if settings.size <= search.BASE_SIZE:
         return settings
     spp = max(1, round(settings.spp * (settings.size / search.BASE_SIZE) ** 2))

@@ -460,6 +460,15 @@ def estimate_placement(spectra: Spectra, a_range: tuple[float, float], b_range: 
        -> 2 (0.37 -> 0.27; 7 -> 6), seed 7 1 -> 1 (in-sample for the gates above; no pair moved by
        over 0.04 degrees); no pair of the three sets worse by over 0.07 degrees; the golden
        placements within 0.01 degrees, the dev real ones unchanged.
+       A map or peak-pair turn that agrees with the summed scan's strongest turn (within
+       SIEVE_AGREEMENT_DEG) where the turn so far does not needs no RIVAL_TURN_GAIN, only a higher
+       score: two readings of the peaks agree (their positions, and the sieves over all of them)
+       against the generic harmonics alone. Photo-like seed-61 plain_005 (2.62 px per yarn behind
+       1.48 px of blur, turned 2.77 degrees; its transmission shows nothing above noise) keeps only
+       its (1, 1) and (-1, 1) peaks in the reflection: they give 2.73 degrees and the scan peaks at
+       2.75, yet the generic harmonics explained the noise 1.07 times better at 4.76 degrees, and the
+       sample was placed unturned with its plain's tiles 69 % off (0.35 % now). No other pair of
+       the photo-like seeds 7, 53, 61 and 97 moved (``bench placement``).
     2. Verification: a sieve pins each axis's spacing only up to sub- and super-multiples, so each
        hypothesis's spacings times the small ROTATION_RATIOS per axis are scored against the whole 2D
        peakness maps with every low harmonic (:func:`_generic_signature`) folded exactly as the pixel
