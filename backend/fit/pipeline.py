@@ -21,10 +21,10 @@
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
                trial fits) runs at 256 px with the same samples per image, its camera blur on
-               sub-pixels as the photos' optics blur before their downsample (:func:`_coarse`), where
-               a step costs about half as much, and only the winner's optimisation at the working size, from the
-               winner's start (not from its trial: the trial steps only chose the pattern) and
-               after a fresh camera-blur scan there (100 iterations
+               sub-pixels as the photos' optics blur before their downsample (:func:`_coarse`; a
+               step there 1.39 times one on the pixel means), and only the winner's optimisation at
+               the working size, from the winner's start (not from its trial: the trial steps only
+               chose the pattern) and after a fresh camera-blur scan there (100 iterations
                instead of 150 by default: measured on the dev pairs, the colour and FLIP of the
                reflection need the optimisation at 512 px); its first ``duel_iterations`` steps
                beside its face twin on its lattice, which the 256 px trials cannot tell from it,

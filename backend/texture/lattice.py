@@ -563,9 +563,9 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     strongest = float(angles[turned[0]])
 
     def gain(rival: Placement) -> float:
-        """RIVAL_TURN_GAIN, or none where the rival's turn agrees with the summed sieve's strongest
-        and the turn so far does not: two readings of the peaks (their positions, and the sieve over
-        all of them) agreeing, against the generic harmonics alone."""
+        """RIVAL_TURN_GAIN, or 1 (a higher score alone) where the rival's turn agrees with the summed
+        sieve's strongest and the turn so far does not: two readings of the peaks (their positions,
+        and the sieve over all of them) agreeing, against the generic harmonics alone."""
         def agrees(p: Placement) -> bool:
             return abs(p.rotation_deg - strongest) <= SIEVE_AGREEMENT_DEG
         return 1.0 if agrees(rival) and not agrees(best_turned) else RIVAL_TURN_GAIN
