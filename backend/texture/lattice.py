@@ -561,23 +561,24 @@ def placement_hypotheses(spectra: Spectra, a_range: tuple[float, float], b_range
     if best_paired is not None and best_paired.score > RIVAL_TURN_GAIN * best_turned.score:
         best_turned = best_paired
     strongest = float(angles[turned[0]])
-
-    def gain(rival: Placement) -> float:
-        """RIVAL_TURN_GAIN, or 1 (a higher score alone) where the rival's turn agrees with the summed
-        sieve's strongest and the turn so far does not: two readings of the peaks (their positions,
-        and the sieve over all of them) agreeing, against the generic harmonics alone."""
-        def agrees(p: Placement) -> bool:
-            return abs(p.rotation_deg - strongest) <= SIEVE_AGREEMENT_DEG
-        return 1.0 if agrees(rival) and not agrees(best_turned) else RIVAL_TURN_GAIN
-
     for rival in (best_mapped, best_peaked):  # in turn, each against the turn so far
-        if (rival is not None and rival.score > gain(rival) * best_turned.score
+        if (rival is not None and rival.score > _rival_gain(rival, best_turned, strongest) * best_turned.score
                 and _beats_on_each_photo(spectra, rival, [best_turned])):
             best_turned = rival
     best_sheared = max(refined([(lat, warp, weft) for _, warp, weft, lat in verified[:REFINED_HYPOTHESES]],
                                sheared=True), key=lambda p: p.score, default=None)
     return (replace(best_turned, sieve_turn_deg=strongest),
             None if best_sheared is None else replace(best_sheared, sieve_turn_deg=strongest))
+
+
+def _rival_gain(rival: "Placement", current: "Placement", sieve_turn_deg: float) -> float:
+    """How many times better than ``current`` a rival turn must explain the maps: RIVAL_TURN_GAIN, or
+    1 (a higher score alone) where the rival's turn agrees with the summed sieve scan's strongest
+    (within SIEVE_AGREEMENT_DEG) and ``current``'s does not: two readings of the peaks (their
+    positions, and the sieves over all of them) agreeing, against the generic harmonics alone."""
+    def agrees(placement: "Placement") -> bool:
+        return abs(placement.rotation_deg - sieve_turn_deg) <= SIEVE_AGREEMENT_DEG
+    return 1.0 if agrees(rival) and not agrees(current) else RIVAL_TURN_GAIN
 
 
 PEAK_PAIR_PEAKS = 6
