@@ -37,7 +37,7 @@ from backend.fit.settings import FitSettings
 from backend.image import metrics
 from backend.image.photos import load_pair
 from backend.image.spectrum import Peak
-from backend.model.param_tensors import ParamTensors
+from backend.model.param_tensors import ParamTensors, as_float
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
 from backend.texture import lattice
@@ -400,7 +400,7 @@ def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well
 
     def recording(self, fabric, camera_blur_px=None):
         if torch.is_grad_enabled():
-            stepped.append((self.target.size, float(torch.as_tensor(camera_blur_px).detach())))
+            stepped.append((self.target.size, as_float(camera_blur_px)))
         return terms(self, fabric, camera_blur_px)
 
     monkeypatch.setattr(Objective, "terms", recording)
