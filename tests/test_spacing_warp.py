@@ -15,7 +15,15 @@ from backend.fit.settings import FitSettings
 from backend.fit.warp import reread
 from backend.image.spectrum import highpassed_luminance
 from backend.model.render import Renderer, render_pair
-from backend.model.spacing_warp import GRID, SpacingWarp, bspline_basis, control_abscissae, grid_centres, non_affine
+from backend.model.spacing_warp import (
+    GRID,
+    SpacingWarp,
+    affine_part,
+    bspline_basis,
+    control_abscissae,
+    grid_centres,
+    non_affine,
+)
 from backend.texture.lattice import Signature, turned_frequencies
 from backend.texture.uneven_spacing import INTERVALS, WarpReading, read_warp
 
@@ -119,7 +127,7 @@ def test_a_renderer_shows_a_new_warp_once_it_is_set():
 
 
 def test_the_warp_is_read_from_the_harmonics_phase():
-    found = read(woven(smooth_warp), woven())
+    found = read(woven(smooth_warp), woven()).warp
     truth = truth_of(smooth_warp)
     assert rms(*truth) > 0.4
     assert rms(*(t - f for t, f in zip(truth, field(found)))) < 0.15 * rms(*truth)
@@ -129,8 +137,8 @@ def test_the_warp_is_read_from_the_harmonics_phase():
 def test_only_what_the_render_does_not_show_is_read():
     # The photo's harmonics drift with the light by up to a third of a cycle; a render that drifts alike
     # leaves only the warp, and a photo with no warp beside it reads none.
-    found = read(woven(smooth_warp, drift=2.0), woven(drift=2.0))
-    assert rms(*(a - b for a, b in zip(field(found), field(read(woven(smooth_warp), woven()))))) < 0.05
+    found = read(woven(smooth_warp, drift=2.0), woven(drift=2.0)).warp
+    assert rms(*(a - b for a, b in zip(field(found), field(read(woven(smooth_warp), woven()).warp)))) < 0.05
     assert read(woven(drift=2.0), woven(drift=2.0)) is None
     assert read(woven(drift=2.0), woven()) is not None   # the drift alone would read as a warp
 
@@ -153,6 +161,28 @@ def test_a_warp_both_photos_show_alike_is_the_samples_and_one_only_is_not():
     blank = WarpReading(np.zeros((SIZE, SIZE)), np.zeros((SIZE, SIZE)), HARMONICS)  # shows no harmonic
     assert read_warp([reading(smooth_warp), blank], *LATTICE, TURN, 0.0, SIZE) is not None
     assert read_warp([reading(smooth_warp), blank], *LATTICE, TURN, 0.0, SIZE, agreeing=True) is None
+
+
+def test_the_lattice_stretched_over_the_photo_is_read_as_the_tiles_and_not_as_the_warp():
+    # the weave 0.8 % denser across the image than the render's (d = 0.008 (x - N / 2)) on top of
+    # smooth_warp, whose own affine part (least squares over the film) is the lattice's too: the
+    # yarn frequencies u (turned 2 degrees from the x axis) and v shown as (I + J)^T u and (I + J)^T v
+    def stretched(x, y):
+        dx, dy = smooth_warp(x, y)
+        return dx + 0.008 * (x - SIZE / 2), dy
+
+    x, y = np.meshgrid(grid_centres(SIZE), grid_centres(SIZE), indexing="xy")
+    shown = np.eye(2) + np.array([affine_part(d, SIZE)[1:] for d in stretched(x, y)]).T
+    u, v = (np.array(turned_frequencies(*f, TURN)) for f in ((1.0, 0.0), (0.0, 1.0)))
+    expected = (float(np.linalg.norm(shown @ u)) - 1, float(np.linalg.norm(shown @ v)) - 1)
+    assert expected[0] == pytest.approx(0.0067, abs=1e-4)   # smooth_warp's own: -0.0013
+    found = read(woven(stretched), woven())
+    assert found.stretch == pytest.approx(expected, abs=2e-4)
+    assert rms(*(a - b for a, b in zip(field(found.warp), field(read(woven(smooth_warp), woven()).warp)))) < 0.05
+    even = read(woven(lambda x, y: (0.008 * (x - SIZE / 2), 0.0 * y)), woven())   # the stretch alone
+    assert even.warp is None and even.stretch[0] == pytest.approx(0.008 * math.cos(math.radians(TURN)) ** 2, abs=2e-4)
+    # a stretch beyond what the mean spacing can miss is not the lattice's
+    assert read(woven(lambda x, y: (0.05 * (x - SIZE / 2), 0.0 * y)), woven()) is None
 
 
 def test_an_even_lattice_and_a_blank_photo_read_no_warp():
@@ -186,13 +216,26 @@ def plain_run(photos, size):
 def test_the_fit_reads_the_warp_its_renders_lack(warped_photos):
     true, *photos = warped_photos
     run = plain_run(photos, SIZE)
-    found = reread(run.objective, PLAIN, 0.0)
+    found, tiles = reread(run.objective, PLAIN, 0.0)
+    assert rms(*(a - b for a, b in zip(field(found), field(true)))) < 0.25 * true.rms_px(SIZE)
+    assert tiles == PLAIN.tiles  # the photos' lattice is the render's: no stretch
+
+
+def test_the_fit_reads_tiles_its_renders_space_otherwise(warped_photos):
+    # a run whose tiles are 1.2 % off the photos' (as the placement's mean spacing can be): the photos
+    # against its render read them back within 0.2 %
+    true, *photos = warped_photos
+    off = PLAIN.replace(tiles=tuple(1.012 * t for t in PLAIN.tiles))
+    objective = Objective(Target.from_arrays(*photos, size=SIZE), Renderer(DEFAULT_RIG, SIZE, 4, compile=False),
+                          DEFAULT_RIG)
+    found, tiles = reread(objective, off, 0.0)
+    assert tiles == pytest.approx(PLAIN.tiles, rel=2e-3)
     assert rms(*(a - b for a, b in zip(field(found), field(true)))) < 0.25 * true.rms_px(SIZE)
 
 
 def test_a_run_keeps_a_warp_only_where_its_trial_lowers_the_loss(warped_photos, monkeypatch):
     true, *photos = warped_photos
-    monkeypatch.setattr(optimise, "reread", lambda *args: true)
+    monkeypatch.setattr(optimise, "reread", lambda *args: (true, PLAIN.tiles))
     even_pair = render_pair(PLAIN, size=SIZE, spp=4, seed=3)
     for shown, pair in ((False, (even_pair.reflection.numpy(), even_pair.transmission.numpy())), (True, photos)):
         run = plain_run(pair, 256)

@@ -149,9 +149,10 @@ class Run:
 
     def update_warp(self) -> None:
         """Reads the photos' uneven yarn spacing again against a render of the best parameters
-        (:func:`backend.fit.warp.reread`) and tries it: the run goes on under it, and after
-        ``settings.warp_trial_steps`` steps keeps it where its best loss is then below the best loss
-        before it, or else goes back to the state before (warp, parameters, Adam's moments, best).
+        (:func:`backend.fit.warp.reread`: a warp, and the tiles stretched) and tries it: the run goes
+        on under it, and after ``settings.warp_trial_steps`` steps keeps it where its best loss is
+        then below the best loss before it, or else goes back to the state before (warp, parameters
+        with the tiles, Adam's moments, best).
 
         Judged after a few steps, not at once: the parameters fitted without the warp make up for
         it (a smoother transmission, a wider blur), so at them the right warp first reads worse
@@ -160,15 +161,17 @@ class Run:
         self.end_warp_trial()
         started = time.perf_counter()
         renderer = self.objective.renderer
-        warp = reread(self.objective, self.best, self.best_blur)
+        warp, tiles = reread(self.objective, self.best, self.best_blur)
         self.warp_s += time.perf_counter() - started
-        if warp is renderer.warp:
+        if warp is renderer.warp and tiles == self.best.tiles:
             return
         values = {n: v.detach().clone() for n, v in self.fabric.values.items()}
         self._warp_trial = _WarpTrial(renderer.warp, self.settings.warp_trial_steps, values,
                                       copy.deepcopy(self.optimiser.state_dict()), self.camera_blur_px,
                                       (self.best_loss, self.best, self.best_blur, self.best_terms))
         renderer.set_warp(warp)
+        with torch.no_grad():
+            self.fabric.values["tiles"].copy_(torch.tensor(tiles))
         self.best_loss = math.inf  # the best so far was under the warp before; what the trial finds is under this one
 
     def end_warp_trial(self) -> None:

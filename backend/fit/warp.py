@@ -17,8 +17,11 @@ photo-like seed 7, read at the fits' parameters: correlations of 0.77-1.00; the 
 0.27 and 0.37, or the reflection showing none: there the two photos' phases differ in more than a
 shared warp, a phone that moved between the shots or a texture the model does not make, and a
 warp read from both at once lowered the transmission's spectrum correlation, .665 -> .639), and
-the later readings refine it from both at once. Each is tried before it is kept
-(:meth:`backend.fit.optimise.Run.update_warp`).
+the later readings refine it from both at once. The same readings stretch the tiles where the photos
+show the lattice denser or sparser than the render, evenly over the photo
+(:mod:`backend.texture.uneven_spacing`: the placement's mean spacing, read from the photos alone,
+leans to where the harmonics show most and carries the light's phase drift). Each reading, warp and
+tiles together, is tried before it is kept (:meth:`backend.fit.optimise.Run.update_warp`).
 
 Measured, without against with (``bench fit --synthetic DIR --json``, both in one session, two fits
 at a time): photo-like seed 53 (``photolike --count 20 --seed 53``; not used to set the warp's
@@ -46,9 +49,11 @@ from .objective import Objective
 HIGHPASS_FRACTION = 1 / 64  # of the image's side: the high-pass of the photos' spectra (texture.lattice.Spectra)
 
 
-def reread(objective: Objective, params: FabricParams, camera_blur_px: float) -> SpacingWarp | None:
-    """The objective's warp plus what the photos show beyond a render of ``params`` under it (module
-    docstring); the objective's warp as it is where nothing more is read."""
+def reread(objective: Objective, params: FabricParams, camera_blur_px: float
+           ) -> tuple[SpacingWarp | None, tuple[float, float]]:
+    """(warp, tiles): the objective's warp plus what the photos show beyond a render of ``params``
+    under it, and ``params``' tiles stretched as the photos show them against that render (module
+    docstring); each as it is where nothing more is read."""
     warp = objective.renderer.warp
     with torch.no_grad():
         pair, _ = objective.rendered(params, camera_blur_px)
@@ -64,5 +69,8 @@ def reread(objective: Objective, params: FabricParams, camera_blur_px: float) ->
     more = read_warp(readings, a, b, rig.sample_rotation_deg, rig.sample_skew_deg, rig.film_size,
                      agreeing=warp is None)
     if more is None:
-        return warp
-    return more if warp is None else warp + more
+        return warp, params.tiles
+    tiles = tuple(t * (1.0 + s) for t, s in zip(params.tiles, more.stretch))
+    if more.warp is None:
+        return warp, tiles
+    return (more.warp if warp is None else warp + more.warp), tiles

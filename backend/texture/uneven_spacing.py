@@ -25,10 +25,22 @@ with w = min(|s| / its median, |s'| / its median, 1) times the median of |s|: wh
 shows at least as strongly as at the median pixel in both the steps weigh alike, where noise
 takes over (no steady phase) less, and a stronger harmonic's steps more (|s| ~ |z_h|^2). The
 penalty (SMOOTHNESS times the normal matrix's mean diagonal) spans what the harmonics leave open.
-Of the solution only the part that is not affine is the warp: an affine d is the lattice itself
-(tiles, rotation, skew), which the fit reads elsewhere (:mod:`.spacing`, :mod:`.candidates`); it
-is removed as it shows evenly over the photo (least squares on a uniform grid). A warp under
-NEGLIGIBLE_PX (root mean square) is none.
+Of the solution only the part that is not affine is the warp. The affine part, as it shows evenly
+over the photo (c + J p, least squares on a uniform grid), is the lattice's own: the photo shows
+the render's yarn frequency vectors u, v (:func:`.lattice.turned_frequencies`) as (I + J)^T u and
+(I + J)^T v, so the tiles are off by the *stretch*
+
+    s_u = |(I + J)^T u| / |u| - 1,   s_v likewise
+
+(J's turn and shear are left to the placement, which reads them within 0.05 degrees). This reads the
+spacing against a render, evenly over the photo, where :mod:`.spacing` reads it from the photo
+alone before any render: weighted towards where the harmonics show (a warp's denser or sparser
+part) and with the light's own phase drift in it. Photo-like seed 61 twill0m_006 (a phone warp of
+1.43 px, periods 372 and 305 px): the mean spacing read 1.26 % short on u; the photos against a
+render of the true parameters at those tiles read a stretch that puts them 0.06 % off (the true
+warp's own affine part: +0.06 %). A stretch over MAX_STRETCH is not the lattice's (the mean
+spacing is read within 1.5 %: a phase step read a cycle off), and one under NEGLIGIBLE_STRETCH is
+none. A warp under NEGLIGIBLE_PX (root mean square) is none.
 
 The photos' equations are summed (both show the sample's warp); each photo's own reading tells
 whether they agree (:func:`read_warp`'s ``agreeing``). The harmonics are the lattice's strongest
@@ -43,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.spacing_warp import SpacingWarp, affine_part, bspline_basis, control_abscissae, grid_centres
-from .lattice import Signature
+from .lattice import Signature, turned_frequencies
 from .spacing import phase_steps, strongest_harmonics
 
 INTERVALS = 12        # B-spline spans across the photo (43 px at 512): represents warps of periods >= 150 px within 3 %
@@ -52,6 +64,8 @@ SMOOTHNESS = 1e-2     # weight of the second differences of C, relative to the n
 RIDGE = 1e-6          # weight of C itself, likewise: pins what nothing else does
 NEGLIGIBLE_PX = 0.05  # root mean square displacement below which the photo has no warp
 AGREEMENT = 0.6       # correlation of two photos' own warps below which they show none of the sample's
+NEGLIGIBLE_STRETCH = 1e-3  # relative change of a yarn frequency below which the photos show the render's lattice
+MAX_STRETCH = 0.03         # ... and above which the change read is not the lattice's
 
 
 @dataclass(frozen=True)
@@ -65,24 +79,49 @@ class WarpReading:
     signature: Signature
 
 
+@dataclass(frozen=True)
+class SpacingRead:
+    """What the photos show beyond the renders (module docstring): the non-affine ``warp`` (film
+    pixels; None where negligible) and the ``stretch`` (s_u, s_v) of the lattice's yarn frequencies
+    ((0, 0) where negligible or out of reach)."""
+
+    warp: SpacingWarp | None
+    stretch: tuple[float, float]
+
+
 def read_warp(readings: list[WarpReading], a: float, b: float, rotation_deg: float, skew_deg: float,
-              film_size: int, agreeing: bool = False) -> SpacingWarp | None:
+              film_size: int, agreeing: bool = False) -> SpacingRead | None:
     """The non-affine warp (film pixels) of the lattice (a, b) (cycles per image; turned and sheared by
-    ``rotation_deg``, ``skew_deg``) that the photos show and the renders do not, read from all of them
-    at once (module docstring); None where no harmonic shows or the warp is negligible. With
-    ``agreeing``, also None unless every photo shows a warp of its own and those agree (a
-    correlation of at least AGREEMENT, pairwise)."""
+    ``rotation_deg``, ``skew_deg``) that the photos show and the renders do not, and the stretch of
+    the lattice itself, read from all of them at once (module docstring); None where no harmonic
+    shows or both are negligible. With ``agreeing``, also None unless every photo shows a warp of its
+    own and those agree (a correlation of at least AGREEMENT, pairwise)."""
     size = readings[0].photo.shape[0]
     equations = [_equations(reading, a, b, rotation_deg, skew_deg) for reading in readings]
     if agreeing and len(readings) > 1:
-        own = [None if e is None else _solved(*e, size, film_size) for e in equations]
+        own = [None if e is None else _solved(*e, size, film_size)[0] for e in equations]
         if any(w is None for w in own) or min(correlation(u, v, film_size) for k, u in enumerate(own)
                                               for v in own[k + 1:]) < AGREEMENT:
             return None
     found = [e for e in equations if e is not None]
     if not found:
         return None
-    return _solved(sum(e[0] for e in found), sum(e[1] for e in found), size, film_size)
+    warp, affine = _solved(sum(e[0] for e in found), sum(e[1] for e in found), size, film_size)
+    stretch = _stretch(affine, a, b, rotation_deg, skew_deg)
+    return None if warp is None and stretch == (0.0, 0.0) else SpacingRead(warp, stretch)
+
+
+def _stretch(affine: np.ndarray, a: float, b: float, rotation_deg: float, skew_deg: float) -> tuple[float, float]:
+    """(s_u, s_v) of the module docstring for the affine part's Jacobian ``affine`` (J, 2 x 2, rows
+    (dx, dy), columns (x, y)); (0, 0) where both are under NEGLIGIBLE_STRETCH or either over MAX_STRETCH."""
+    shown = (np.eye(2) + affine).T
+    stretch = []
+    for f1, f2 in ((a, 0.0), (0.0, b)):
+        vector = np.array(turned_frequencies(f1, f2, rotation_deg, skew_deg), dtype=np.float64)
+        stretch.append(float(np.linalg.norm(shown @ vector) / np.linalg.norm(vector) - 1.0))
+    if max(map(abs, stretch)) < NEGLIGIBLE_STRETCH or max(map(abs, stretch)) > MAX_STRETCH:
+        return 0.0, 0.0
+    return stretch[0], stretch[1]
 
 
 def correlation(u: SpacingWarp, v: SpacingWarp, film_size: int) -> float:
@@ -130,9 +169,10 @@ def _equations(reading: WarpReading, a: float, b: float, rotation_deg: float, sk
     return (normal, rhs) if harmonics and np.trace(normal) > 0 else None
 
 
-def _solved(normal: np.ndarray, rhs: np.ndarray, size: int, film_size: int) -> SpacingWarp | None:
+def _solved(normal: np.ndarray, rhs: np.ndarray, size: int, film_size: int) -> tuple[SpacingWarp | None, np.ndarray]:
     """The warp (film pixels) of the normal equations with the penalty (module docstring), less its
-    affine part; None where it is negligible."""
+    affine part (None where negligible), and that affine part's Jacobian J (2 x 2: rows dx, dy;
+    columns x, y)."""
     side = INTERVALS + 3
     unknowns = side * side
     second = np.diff(np.eye(side), 2, axis=0)
@@ -140,10 +180,12 @@ def _solved(normal: np.ndarray, rhs: np.ndarray, size: int, film_size: int) -> S
     penalty = float(np.trace(normal)) / len(normal) * (SMOOTHNESS * curvature + RIDGE * np.eye(unknowns))
     normal = normal + np.kron(np.eye(2), penalty)
     solved = np.linalg.solve(normal, rhs)
-    grids = [_without_affine(solved[i * unknowns:(i + 1) * unknowns].reshape(side, side), size) * (film_size / size)
-             for i in range(2)]
+    grids, affine = [], np.zeros((2, 2))
+    for i in range(2):
+        grid, affine[i] = _without_affine(solved[i * unknowns:(i + 1) * unknowns].reshape(side, side), size)
+        grids.append(grid * (film_size / size))
     warp = SpacingWarp.from_grids(*grids)
-    return warp if warp.rms_px(film_size) >= NEGLIGIBLE_PX else None
+    return (warp if warp.rms_px(film_size) >= NEGLIGIBLE_PX else None), affine
 
 
 def _evenly(steps: np.ndarray) -> np.ndarray:
@@ -152,10 +194,10 @@ def _evenly(steps: np.ndarray) -> np.ndarray:
     return np.minimum(strength / max(float(np.median(strength)), 1e-300), 1.0)
 
 
-def _without_affine(control: np.ndarray, size: int) -> np.ndarray:
+def _without_affine(control: np.ndarray, size: int) -> tuple[np.ndarray, tuple[float, float]]:
     """Control displacements without the affine part of the warp they make (an affine warp's control
-    values are its values at the :func:`control_abscissae`)."""
+    values are its values at the :func:`control_abscissae`), and that part's slopes (c_x, c_y)."""
     basis = bspline_basis(grid_centres(size), size, INTERVALS)
     c, cx, cy = affine_part(basis @ control @ basis.T, size)
     at = control_abscissae(size, INTERVALS)
-    return control - (c + cx * at[None, :] + cy * at[:, None])
+    return control - (c + cx * at[None, :] + cy * at[:, None]), (cx, cy)
