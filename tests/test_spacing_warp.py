@@ -205,10 +205,10 @@ def warped_photos():
     return true, pair.reflection.numpy(), pair.transmission.numpy()
 
 
-def plain_run(photos, size):
+def plain_run(photos, size, params=PLAIN):
     objective = Objective(Target.from_arrays(*photos, size=size), Renderer(DEFAULT_RIG, size, 4, compile=False),
                           DEFAULT_RIG)
-    run = Run(PLAIN, objective, FitSettings(compile=False), 10, 0.0)
+    run = Run(params, objective, FitSettings(compile=False), 10, 0.0)
     run.step()
     return run
 
@@ -251,3 +251,18 @@ def test_a_run_keeps_a_warp_only_where_its_trial_lowers_the_loss(warped_photos, 
             assert run.objective.renderer.warp is None
             assert (run.best_loss, run.best) == before[:2]
             assert torch.equal(run.optimiser.state_dict()["state"][0]["exp_avg"], before[2])
+
+
+def test_a_run_takes_the_stretched_tiles_only_where_they_lower_the_loss_at_once(warped_photos, monkeypatch):
+    true, *photos = warped_photos
+    off = PLAIN.replace(tiles=tuple(1.012 * t for t in PLAIN.tiles))
+    run = plain_run(photos, 256, off)
+    run.update_warp()   # read: the photos' tiles, and the loss is lower there
+    assert run.fabric.scalar("tiles") == pytest.approx(PLAIN.tiles, rel=2e-3)
+    assert run.objective.renderer.warp is not None
+    # a stretch read wrong (the run is at the photos' tiles): the warp goes on trial, the tiles stay
+    monkeypatch.setattr(optimise, "reread", lambda *args: (true, tuple(1.01 * t for t in PLAIN.tiles)))
+    run = plain_run(photos, 256)
+    run.update_warp()
+    assert run.objective.renderer.warp is true
+    assert run.fabric.scalar("tiles") == pytest.approx(PLAIN.tiles, rel=1e-6)
