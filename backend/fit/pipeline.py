@@ -17,7 +17,9 @@
                (:mod:`backend.fit.optimise`), ending early once the best loss stops moving
                (:func:`converged`); tiles come from the lattice, which pins them to a
                fraction of a percent (the mean spacing over the whole photo,
-               :mod:`backend.texture.spacing`), and stay fixed
+               :mod:`backend.texture.spacing`), and move only where the spacing read against
+               the renders stretches them and the loss is lower at once
+               (:meth:`.optimise.Run.update_warp`)
     coarse to fine
                with a working size above 256 px (dense weaves), the search (starts, camera blur,
                trial fits) runs at 256 px with the same samples per image, its camera blur on

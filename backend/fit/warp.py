@@ -20,8 +20,9 @@ warp read from both at once lowered the transmission's spectrum correlation, .66
 the later readings refine it from both at once. The same readings stretch the tiles where the photos
 show the lattice denser or sparser than the render, evenly over the photo
 (:mod:`backend.texture.uneven_spacing`: the placement's mean spacing, read from the photos alone,
-leans to where the harmonics show most and carries the light's phase drift). Each reading, warp and
-tiles together, is tried before it is kept (:meth:`backend.fit.optimise.Run.update_warp`).
+leans to where the harmonics show most and carries the light's phase drift). Each reading is tried
+before it is kept (:meth:`backend.fit.optimise.Run.update_warp`): the stretched tiles at once, by
+the loss at the best parameters, the warp over a few steps.
 
 Measured, without against with (``bench fit --synthetic DIR --json``, both in one session, two fits
 at a time): photo-like seed 53 (``photolike --count 20 --seed 53``; not used to set the warp's

@@ -38,7 +38,9 @@ alone before any render: weighted towards where the harmonics show (a warp's den
 part) and with the light's own phase drift in it. Photo-like seed 61 twill0m_006 (a phone warp of
 1.43 px, periods 372 and 305 px): the mean spacing read 1.26 % short on u; the photos against a
 render of the true parameters at those tiles read a stretch that puts them 0.06 % off (the true
-warp's own affine part: +0.06 %). A stretch over MAX_STRETCH is not the lattice's (the mean
+warp's own affine part: +0.06 %). Against a render of parameters still being fitted it can read a
+few tenths of a percent off (:meth:`backend.fit.optimise.Run.update_warp` keeps it only where the
+loss is lower at once). A stretch over MAX_STRETCH is not the lattice's (the mean
 spacing is read within 1.5 %: a phase step read a cycle off), and one under NEGLIGIBLE_STRETCH is
 none. A warp under NEGLIGIBLE_PX (root mean square) is none.
 
