@@ -162,23 +162,26 @@ class Run:
         started = time.perf_counter()
         renderer = self.objective.renderer
         warp, tiles = reread(self.objective, self.best, self.best_blur)
+        before = renderer.warp
+        if warp is not before:   # set before the stretch is judged under it (each set remakes the samples)
+            renderer.set_warp(warp)
         if tiles != self.best.tiles:
-            tiles = self._stretch_kept(warp, tiles)
+            tiles = self._stretch_kept(tiles)
         self.warp_s += time.perf_counter() - started
-        if warp is renderer.warp and tiles == self.best.tiles:
+        if warp is before and tiles == self.best.tiles:
             return
         values = {n: v.detach().clone() for n, v in self.fabric.values.items()}
-        self._warp_trial = _WarpTrial(renderer.warp, self.settings.warp_trial_steps, values,
+        self._warp_trial = _WarpTrial(before, self.settings.warp_trial_steps, values,
                                       copy.deepcopy(self.optimiser.state_dict()), self.camera_blur_px,
                                       (self.best_loss, self.best, self.best_blur, self.best_terms))
-        renderer.set_warp(warp)
         with torch.no_grad():
             self.fabric.values["tiles"].copy_(torch.tensor(tiles))
         self.best_loss = math.inf  # the best so far was under the warp before; what the trial finds is under this one
 
-    def _stretch_kept(self, warp: SpacingWarp | None, tiles: tuple[float, float]) -> tuple[float, float]:
+    def _stretch_kept(self, tiles: tuple[float, float]) -> tuple[float, float]:
         """``tiles`` (the best parameters' stretched, :func:`backend.fit.warp.reread`) where the best
-        parameters under ``warp`` have a lower loss at them than at their own tiles, else their own.
+        parameters, under the warp just read, have a lower loss at them than at their own tiles, else
+        their own.
 
         Judged at once, unlike the warp: nothing else in the fabric makes up for a lattice that
         drifts out of phase with the photos. And judged apart from the warp's trial, which keeps
@@ -188,13 +191,10 @@ class Run:
         the placement's tiles 0.19 % off the truth; kept by the trial, they ended 0.80 % off; at
         once, the loss was higher at each (1.141 against 1.113 at step 25), and they stay. Seed 61
         twill0m_006: read +1.29 %, to 0.02 % off the truth, loss 1.385 against 1.773)."""
-        renderer = self.objective.renderer
-        before = renderer.warp
-        renderer.set_warp(warp)
+        device = self.objective.renderer.device
         with torch.no_grad():
-            losses = [self.objective.value(ParamTensors.from_params(self.best.replace(tiles=t), renderer.device),
-                                           self.best_blur) for t in (tiles, self.best.tiles)]
-        renderer.set_warp(before)
+            losses = [self.objective.value(ParamTensors.from_params(self.best.replace(tiles=t), device), self.best_blur)
+                      for t in (tiles, self.best.tiles)]
         return tiles if losses[0] < losses[1] else self.best.tiles
 
     def end_warp_trial(self) -> None:
