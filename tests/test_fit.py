@@ -22,7 +22,7 @@ from backend.core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig
 from backend.fit.folder import BLUR_ON
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
-from backend.fit.optimise import Run
+from backend.fit.optimise import Run, parabolic_step
 from backend.fit.pipeline import _objective, fit
 from backend.fit.search import (
     COVERAGE_MARGIN,
@@ -194,6 +194,39 @@ def test_discrete_searches_come_after_the_first_search_then_every_search_every()
     assert searches(iterations=100, first_search=50, search_every=50) == [50]  # never after the last step
     assert searches(iterations=100, first_search=10, search_every=30) == [10, 40, 70]
     assert searches(iterations=100, search_every=0) == []
+
+
+def test_a_parabolic_step_evaluates_each_point_once_and_steps_as_if_it_evaluated_all():
+    def unshared(loss_at, x, current, span, clamped):  # the step with every point evaluated afresh
+        lo, hi = loss_at(clamped(x - span)), loss_at(clamped(x + span))
+        curvature = lo + hi - 2 * current
+        step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
+        step = max(-2 * span, min(2 * span, step))
+        best_dx, best = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
+        value = loss_at(clamped(x + step))
+        if value < best:
+            best_dx, best = step, value
+        return (clamped(x + best_dx), best) if best_dx != 0.0 else (x, current)
+
+    def clamped(v):
+        return min(1.0, max(0.0, v))
+
+    cases = {  # name: (loss, x, span, points evaluated)
+        "convex, its minimum inside": (lambda v: (v - 0.37) ** 2, 0.5, 0.1, 3),
+        "concave: the step lands on x - d, the lower side": (lambda v: -(v - 0.52) ** 2, 0.5, 0.1, 2),
+        "flat: the step lands on x - d": (lambda v: 1.0, 0.5, 0.1, 2),
+        "at the bound: x - d and the step clamp to x": (lambda v: (v + 0.2) ** 2, 0.0, 0.1, 1),
+        "near the bound: the step clamps onto it": (lambda v: v, 0.05, 0.1, 2),
+    }
+    for name, (loss, x, span, expected) in cases.items():
+        evaluated = []
+
+        def loss_at(v, loss=loss, evaluated=evaluated):
+            evaluated.append(v)
+            return loss(v)
+
+        assert parabolic_step(loss_at, x, loss(x), span, clamped) == unshared(loss, x, loss(x), span, clamped), name
+        assert len(evaluated) == len(set(evaluated)) == expected and x not in evaluated, (name, evaluated)
 
 
 @pytest.mark.slow

@@ -265,13 +265,24 @@ def parabolic_step(loss_at: Callable[[float], float], x: float, current: float, 
     """One deterministic step on a discrete parameter: evaluate x - d and x + d (d = ``span``),
     then the minimum of the parabola through the three losses (at most 2 d away); returns the
     best of those points and x itself (``current`` is the loss at x), as (value, loss). Every
-    value is passed through ``clamped`` before it is evaluated."""
-    lo, hi = loss_at(clamped(x - span)), loss_at(clamped(x + span))
+    value is passed through ``clamped`` before it is evaluated, and each value once: a point met
+    again (x itself where the clamp holds it, or the parabola's step where a curvature of zero or
+    less makes it +/- d) takes the loss it had (each evaluation renders the pair at the working
+    size)."""
+    seen = {x: current}
+
+    def loss_at_clamped(value: float) -> float:
+        value = clamped(value)
+        if value not in seen:
+            seen[value] = loss_at(value)
+        return seen[value]
+
+    lo, hi = loss_at_clamped(x - span), loss_at_clamped(x + span)
     curvature = lo + hi - 2 * current
     step = 0.5 * span * (lo - hi) / curvature if curvature > 1e-12 else (span if hi < lo else -span)
     step = max(-2 * span, min(2 * span, step))
     best_dx, best = min(((0.0, current), (-span, lo), (span, hi)), key=lambda t: t[1])
-    value = loss_at(clamped(x + step))
+    value = loss_at_clamped(x + step)
     if value < best:
         best_dx, best = step, value
     return (clamped(x + best_dx), best) if best_dx != 0.0 else (x, current)
