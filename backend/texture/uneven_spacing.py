@@ -44,8 +44,8 @@ loss is lower at once), and the loss can be wrong too: with MAX_STRETCH at 3 %, 
 satin0m_008's tiles went from 0.74 % to 2.84 % off the truth (its reflection FLIP .261 -> .300).
 A stretch over MAX_STRETCH (1.5 %) is not the lattice's: the placement's mean spacing is closer
 than that on the photo-like sets measured (seeds 7, 53, 61 and 97, the pairs placed on the true
-lattice: at most 1.25 %, `bench placement`). One under
-NEGLIGIBLE_STRETCH is none. A warp under NEGLIGIBLE_PX (root mean square) is none.
+lattice: at most 1.25 %, `bench placement`). One under NEGLIGIBLE_STRETCH is none. A warp under
+NEGLIGIBLE_PX (root mean square) is none.
 
 The photos' equations are summed (both show the sample's warp); each photo's own reading tells
 whether they agree (:func:`read_warp`'s ``agreeing``). The harmonics are the lattice's strongest
