@@ -88,6 +88,20 @@ def test_the_control_values_of_an_affine_warp_are_its_values_at_the_control_absc
     assert torch.allclose(dy, torch.full_like(dy, -0.25), atol=1e-12)
 
 
+def test_the_displacement_is_the_sum_of_the_basis_functions_times_the_control_values():
+    """The fast path (one flattened index per term) against the dense bases of each axis: at random
+    points, on the film's edges and off the film (clamped onto it), of any shape."""
+    rng = np.random.default_rng(3)
+    warp = SpacingWarp.from_grids(rng.normal(size=(SIDE, SIDE)), rng.normal(size=(SIDE, SIDE)))
+    x = np.concatenate((rng.uniform(0.0, SIZE, 500), [0.0, SIZE, -3.0, SIZE + 2.0, 0.0]))
+    y = np.concatenate((rng.uniform(0.0, SIZE, 500), [SIZE, 0.0, 7.0, -1.0, SIZE - 1e-12]))
+    bx, by = bspline_basis(x, SIZE, INTERVALS), bspline_basis(y, SIZE, INTERVALS)
+    dx, dy = warp.displacement(torch.tensor(x).view(5, 101), torch.tensor(y).view(5, 101), SIZE)
+    for fast, grid in ((dx, warp.dx), (dy, warp.dy)):
+        assert fast.shape == (5, 101)
+        assert np.allclose(fast.numpy().ravel(), ((by @ np.asarray(grid)) * bx).sum(1), rtol=0, atol=1e-12)
+
+
 def test_the_basis_slopes_are_the_derivatives_of_the_basis():
     coords = np.linspace(1.0, SIZE - 1.0, 301)
     step = 1e-4

