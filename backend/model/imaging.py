@@ -3,8 +3,8 @@ display transform of spec section 1, and the linear-light area downsample that c
 with a photo at a working size.
 
     blurred     = radiance convolved with a Gaussian of sigma pixels (separable, mirrored borders;
-                  by the FFT for a sigma to differentiate, else a depthwise convolution for short
-                  kernels on colour images, otherwise a product with precomputed blur matrices)
+                  a depthwise convolution for short kernels on colour images, otherwise a product
+                  with precomputed blur matrices)
     displayed   = min(radiance, clamp) ** (1 / gamma) * vignette
     downsampled = (area mean of display ** gamma) ** (1 / gamma)
 """
@@ -45,13 +45,9 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
 
     A 0-d tensor ``sigma`` is differentiable too (the fit estimates the camera blur by gradient with
     the fabric's parameters): its weights are computed in torch (:func:`gaussian_taps`) and applied
-    by the FFT (:func:`_fft_convolved`); the radius follows its value and carries no gradient.
-    Measured on (512, 512, 3) images, sigma 0.8-2.5 px, 2 cores: forward + backward 34-38 ms by the
-    depthwise convolution, 17-19 ms by the FFT; and the convolution's weight gradient, accumulated
-    in float32, put d/d sigma up to 4e-5 of its scale (the sum over the pixels of |weight x
-    d(image)/d sigma|) off float64's, the FFT up to 2e-6 (tests/test_render.py).
+    by the convolution; the radius follows its value and carries no gradient.
 
-    Two ways to the same sums (within float rounding) for a number ``sigma``, whichever is cheaper:
+    Two ways to the same sums (within float rounding), whichever is cheaper:
 
     - ``B_H @ plane @ B_W^T`` per channel with the blur matrices of :func:`blur_matrix`: its cost
       (n^3 per plane) is the same at any radius, where a convolution's grows with it (the spectrum's
@@ -70,7 +66,7 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
     limit = min(height, width) - 1  # one radius for both axes, as the add-on's preview blur
     radius = blur_radius(as_float(sigma), limit)
     if isinstance(sigma, torch.Tensor):
-        return _fft_convolved(image, gaussian_taps(sigma, radius, image.dtype), radius)
+        return _convolved(image, gaussian_taps(sigma, radius, image.dtype), radius)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
         return _convolved(image, gaussian_kernel(sigma, radius), radius)
     return gaussian_blur_products(image, sigma)
@@ -159,43 +155,6 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
                       groups=channels)
     return planes[0].permute(1, 2, 0)
-
-
-def _fft_convolved(image: torch.Tensor, taps: torch.Tensor, radius: int) -> torch.Tensor:
-    """:func:`_convolved` (stride 1) of a symmetric kernel ``taps`` (2 radius + 1), by the FFT: the
-    image mirror-padded by ``radius`` and zero-padded to FFT sizes n of small primes, times the
-    kernel's transfer function on each axis,
-
-        K(f) = k_0 + 2 sum_{t = 1..radius} k_t cos(2 pi f t / n)    (real: the kernel is symmetric),
-
-    and cropped back. The products are circular, but each kept sample needs only the ``radius``
-    samples either side of it, all within the padded image: none wraps."""
-    height, width, channels = image.shape
-    planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")[0]
-    rows, cols = _fft_size(height + 2 * radius), _fft_size(width + 2 * radius)
-    spectrum = torch.fft.rfft2(planes, s=(rows, cols))
-    transfer = _transfer(taps, radius, rows, rows)[:, None] * _transfer(taps, radius, cols, cols // 2 + 1)[None, :]
-    blurred = torch.fft.irfft2(spectrum * transfer, s=(rows, cols))
-    return blurred[:, radius:radius + height, radius:radius + width].permute(1, 2, 0)
-
-
-def _transfer(taps: torch.Tensor, radius: int, n: int, count: int) -> torch.Tensor:
-    """K(f) of :func:`_fft_convolved` at f = 0 .. count - 1 (an FFT of size n)."""
-    f = torch.arange(count, dtype=taps.dtype, device=taps.device)
-    t = torch.arange(1, radius + 1, dtype=taps.dtype, device=taps.device)
-    return taps[radius] + 2 * (taps[radius + 1:, None] * torch.cos((2 * math.pi / n) * t[:, None] * f)).sum(0)
-
-
-def _fft_size(n: int) -> int:
-    """The least size >= n whose prime factors are 2, 3 and 5 (where the FFT is fastest)."""
-    while True:
-        rest = n
-        for prime in (2, 3, 5):
-            while rest % prime == 0:
-                rest //= prime
-        if rest == 1:
-            return n
-        n += 1
 
 
 @functools.lru_cache(maxsize=32)
