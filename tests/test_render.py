@@ -457,28 +457,60 @@ def test_the_camera_blur_on_sub_pixels_passes_what_the_optics_pass(frequency, si
         assert pixel_error > 0.1
 
 
-@pytest.mark.parametrize("pattern, noise", [("plain", 3.0), ("twill1", 0.0), ("satin0", 5.0)])
-def test_gap_and_twist_steps_reuse_the_lattice_bands_with_the_numbers_of_a_fresh_render(pattern, noise, monkeypatch):
+@pytest.mark.parametrize("pattern, noise, placement", [("plain", 3.0, (0.0, 0.0)), ("twill1", 0.0, (2.5, 0.0)),
+                                                      ("satin0", 5.0, (-1.5, 2.0))])
+def test_gap_and_twist_steps_reuse_the_lattice_bands_with_the_numbers_of_a_fresh_render(pattern, noise, placement,
+                                                                                     monkeypatch):
     """A discrete search renders one lattice at several gap scales and twists: the renderer computes
-    the lattice's bands once (``tile_bands``) and each image is the one a fresh renderer makes."""
+    the lattice's bands once (``tile_bands``), a twist step computes only the fiber directions again
+    (a kept state at another twist: ``retwisted``), and each image is the one a fresh renderer makes."""
     from backend.model import render as render_module
 
+    rig = dataclasses.replace(DEFAULT_RIG, sample_rotation_deg=placement[0], sample_skew_deg=placement[1])
     base = FabricParams(pattern=pattern, tiles=(70.0, 90.0), noise=noise)
     steps = [base, base.replace(gap_scale=(0.7, 0.95)), base.replace(twist_deg=(-20.0, 10.0)),
-             base.replace(gap_scale=(0.8, 0.6), twist_deg=(5.0, -30.0))]
-    calls = []
-    tile_bands = render_module.tile_bands
-    monkeypatch.setattr(render_module, "tile_bands", lambda *args: calls.append(1) or tile_bands(*args))
-    renderer = Renderer(DEFAULT_RIG, 48, 4)
+             base.replace(gap_scale=(0.8, 0.6), twist_deg=(5.0, -30.0)),
+             base.replace(gap_scale=(0.8, 0.6), twist_deg=(5.0, 25.0))]
+    calls, made, retwisted = [], [], []
+    for name, log in (("tile_bands", calls), ("sample_geometry", made), ("retwisted", retwisted)):
+        counted = getattr(render_module, name)
+        monkeypatch.setattr(render_module, name, lambda *args, log=log, f=counted: log.append(1) or f(*args))
+    renderer = Renderer(rig, 48, 4)
     with torch.no_grad():
         for params in steps:
             kept = renderer.radiance(ParamTensors.from_params(params))
-            fresh = Renderer(DEFAULT_RIG, 48, 4).radiance(ParamTensors.from_params(params))
+            fresh = Renderer(rig, 48, 4).radiance(ParamTensors.from_params(params))
             assert torch.equal(kept[0], fresh[0]) and torch.equal(kept[1], fresh[1])
         assert len(calls) == 1 + len(steps)  # once for the kept renderer, once per fresh one
+        assert len(retwisted) == 2 and len(made) == len(steps) + 3  # the twist steps; the others, and the fresh ones
         renderer.radiance(ParamTensors.from_params(base.replace(tiles=(71.0, 90.0))))
         assert len(calls) == 2 + len(steps)  # another lattice: new bands
 
+
+def test_the_state_being_optimised_keeps_its_geometry_through_a_search_of_more_states(monkeypatch):
+    """The state of the last render with gradients keeps its geometry while renders without them try
+    more states than the renderer keeps (a discrete search), and comes back with the same numbers;
+    the states only tried are made again once evicted."""
+    from backend.model import render as render_module
+
+    made = []
+    sample_geometry = render_module.sample_geometry
+    monkeypatch.setattr(render_module, "sample_geometry", lambda *args: made.append(1) or sample_geometry(*args))
+    base = FabricParams(pattern="twill1", tiles=(70.0, 90.0))
+    tried = [base.replace(gap_scale=(0.6 + 0.05 * i, 0.9)) for i in range(3)]
+    renderer = Renderer(DEFAULT_RIG, 48, 4, geometry_cache=2)
+    fabric = ParamTensors.from_params(base)
+    fabric.values["roughness"].requires_grad_(True)
+    before = renderer.radiance(fabric)
+    with torch.no_grad():
+        for params in tried:
+            renderer.radiance(ParamTensors.from_params(params))
+        assert len(made) == 1 + len(tried)
+        again = renderer.radiance(ParamTensors.from_params(base))
+        assert len(made) == 1 + len(tried)  # kept: not made again
+        assert torch.equal(again[0], before[0].detach()) and torch.equal(again[1], before[1].detach())
+        renderer.radiance(ParamTensors.from_params(tried[0]))
+        assert len(made) == 2 + len(tried)  # only tried, and evicted by the later ones
 
 @pytest.mark.parametrize("pattern, placement", [("twill1", (2.3, 1.4)), ("satin0", (0.0, 0.0))])
 def test_the_projections_are_the_float64_products_rounded_once(pattern, placement):

@@ -33,7 +33,7 @@ from ..core.rig import CaptureRig
 from . import rng
 from .camera import SampleChunk
 from .layers import GAP, WARP, WEFT, Bands, Layer, WeaveLookup
-from .yarn import local_frame
+from .yarn import fiber_direction, local_frame
 
 
 @dataclass
@@ -130,13 +130,10 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     (the same chunk, lookup and tiles), which is most of the work."""
     found = tile_bands(chunk, lookup, rig, key.tiles) if bands is None else bands
     X, Y, tile_u, tile_v = found.X, found.Y, found.tile_u, found.tile_v
-    front, back = lookup.layers_of(found.bands, key.gap_scale)
-    layers = [front, back][: key.layers]
-    twist = tuple(math.radians(a) for a in key.twist_deg)
     s_min = lookup.weave.s_min if key.tension else 1.0
     out = []
-    for index, layer in enumerate(layers):
-        n, o = local_frame(layer, twist)
+    for index, layer in enumerate(_layers(lookup, key, found)):
+        n, o = local_frame(layer, _twist_rad(key))
         is_warp = layer.yarn == WARP
         n, o = turned((n, o), rig, is_warp)
         warp = is_warp.to(dtype)
@@ -150,6 +147,26 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     for layer in out:
         no_yarn = no_yarn * (1.0 - layer.is_yarn)
     return SampleGeometry(out, no_yarn)
+
+
+def twisted_fibers(lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey, dtype, bands: TileBands
+                   ) -> list[torch.Tensor]:
+    """Each layer's fiber direction (3, S) in the state ``key``, the numbers :func:`sample_geometry`
+    gives it: all a twist changes (:func:`backend.model.projections.retwisted`)."""
+    out = []
+    for layer in _layers(lookup, key, bands):
+        (o,) = turned((fiber_direction(layer, _twist_rad(key)),), rig, layer.yarn == WARP)
+        out.append(o.to(dtype))
+    return out
+
+
+def _layers(lookup: WeaveLookup, key: GeometryKey, bands: TileBands) -> list[Layer]:
+    front, back = lookup.layers_of(bands.bands, key.gap_scale)
+    return [front, back][: key.layers]
+
+
+def _twist_rad(key: GeometryKey) -> tuple[float, ...]:
+    return tuple(math.radians(a) for a in key.twist_deg)
 
 
 def _noise(layer: Layer, index: int, X, Y, tile_u, tile_v, lookup: WeaveLookup, key: GeometryKey, dtype):

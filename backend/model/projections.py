@@ -24,7 +24,7 @@ light and wo_z < 0 for the back light at every sample; :func:`project` checks it
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import NamedTuple
 
 import torch
@@ -119,24 +119,35 @@ def _split(direction: _Parts, vector: _Parts, dtype) -> Split:
     return Split((d[0] * v[0] + d[1] * v[1]).to(dtype), direction.z * vector.z)
 
 
-def _layer(geo: LayerGeometry, chunk: SampleChunk, dtype) -> LayerProjections:
-    fiber, normal = _parts(geo.fiber), _parts(geo.normal)
-    wi, front_wo, front_half, back_wo, back_half = (
-        _parts(v, xy) for v, xy in zip((chunk.wi, chunk.front.wo, chunk.front.half, chunk.back.wo, chunk.back.half),
-                                       chunk.wide))
+def _directions(chunk: SampleChunk) -> tuple[_Parts, ...]:
+    """wi, the front light's wo and half vector, the back light's, as :class:`_Parts`."""
+    return tuple(_parts(v, xy) for v, xy in zip((chunk.wi, chunk.front.wo, chunk.front.half, chunk.back.wo,
+                                                  chunk.back.half), chunk.wide))
 
-    def light(wo: _Parts, half: _Parts) -> LightSplits:
-        return LightSplits(_split(wo, fiber, dtype), _split(half, fiber, dtype), _split(wo, normal, dtype))
 
-    def plane2(v: _Parts):
-        return (v.xy[0] * v.xy[0] + v.xy[1] * v.xy[1]).to(dtype)
+def _plane2(v: _Parts, dtype) -> torch.Tensor:
+    return (v.xy[0] * v.xy[0] + v.xy[1] * v.xy[1]).to(dtype)
 
+
+def _on_fiber(fiber: _Parts, directions: tuple[_Parts, ...], dtype) -> dict:
+    """The fields of :class:`LayerProjections` that the fiber direction sets (the lights' as (out, half))."""
+    wi, front_wo, front_half, back_wo, back_half = directions
+    return {"fiber_plane2": _plane2(fiber, dtype), "fiber_z2": fiber.z * fiber.z, "wi": _split(wi, fiber, dtype),
+            "front": (_split(front_wo, fiber, dtype), _split(front_half, fiber, dtype)),
+            "back": (_split(back_wo, fiber, dtype), _split(back_half, fiber, dtype))}
+
+
+def _layer(geo: LayerGeometry, directions: tuple[_Parts, ...], dtype) -> LayerProjections:
+    normal = _parts(geo.normal)
+    on_fiber = _on_fiber(_parts(geo.fiber), directions, dtype)
+    front_wo, back_wo = directions[1], directions[3]
     yarn = geo.is_yarn
     return LayerProjections(
         weft=geo.weft, yarn=yarn, thickness_scale=geo.thickness_scale * yarn, albedo_scale=geo.albedo_scale,
-        height_offset=geo.height_offset, fiber_plane2=plane2(fiber), fiber_z2=fiber.z * fiber.z,
-        normal_plane2=plane2(normal), normal_z2=normal.z * normal.z,
-        wi=_split(wi, fiber, dtype), front=light(front_wo, front_half), back=light(back_wo, back_half))
+        height_offset=geo.height_offset, fiber_plane2=on_fiber["fiber_plane2"], fiber_z2=on_fiber["fiber_z2"],
+        normal_plane2=_plane2(normal, dtype), normal_z2=normal.z * normal.z, wi=on_fiber["wi"],
+        front=LightSplits(*on_fiber["front"], _split(front_wo, normal, dtype)),
+        back=LightSplits(*on_fiber["back"], _split(back_wo, normal, dtype)))
 
 
 def _light(samples: LightSamples, any_yarn: torch.Tensor) -> LightFactors:
@@ -151,6 +162,22 @@ def project(chunk: SampleChunk, geometry: SampleGeometry) -> SampleProjections:
         raise ValueError("the camera and the front light must be above the fabric, the back light below it")
     dtype = chunk.wi.dtype
     any_yarn = 1.0 - geometry.no_yarn
-    return SampleProjections(layers=[_layer(geo, chunk, dtype) for geo in geometry.layers],
+    directions = _directions(chunk)
+    return SampleProjections(layers=[_layer(geo, directions, dtype) for geo in geometry.layers],
                              inv_wi_z=1.0 / chunk.wi[2], front=_light(chunk.front, any_yarn),
                              back=_light(chunk.back, any_yarn), no_yarn=geometry.no_yarn)
+
+
+def retwisted(projections: SampleProjections, chunk: SampleChunk, fibers: list[torch.Tensor]) -> SampleProjections:
+    """The projections of the same state at another twist: ``projections`` with each layer's fiber
+    directions replaced by ``fibers`` ((3, S) each, :func:`backend.model.geometry.twisted_fibers`), the
+    numbers :func:`project` gives that state. Only the fiber's fields are computed again: a discrete
+    search's twist steps cost about half a new state each."""
+    directions, dtype = _directions(chunk), chunk.wi.dtype
+    layers = []
+    for layer, fiber in zip(projections.layers, fibers, strict=True):
+        on_fiber = _on_fiber(_parts(fiber), directions, dtype)
+        layers.append(replace(layer, fiber_plane2=on_fiber["fiber_plane2"], fiber_z2=on_fiber["fiber_z2"],
+                              wi=on_fiber["wi"], front=LightSplits(*on_fiber["front"], layer.front.normal),
+                              back=LightSplits(*on_fiber["back"], layer.back.normal)))
+    return replace(projections, layers=layers)

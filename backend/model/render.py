@@ -57,6 +57,7 @@ and 4 spp takes 123 ms against 400 ms eager (``bench render``), and a fit of the
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import shutil
@@ -72,12 +73,12 @@ from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_projected
 from .camera import CameraSamples, SampleChunk
 from .compile_cache import allow_cached_custom_gradients, use_persistent_compile_cache
-from .geometry import GeometryKey, TileBands, sample_geometry, tile_bands
+from .geometry import GeometryKey, TileBands, sample_geometry, tile_bands, twisted_fibers
 from .imaging import NO_BLUR_PX, display_transform, gaussian_blur, subpixel_blur
 from .layers import WeaveLookup
 from .param_tensors import ParamTensors
 from .photo_light import PhotoLight
-from .projections import SampleProjections, project
+from .projections import SampleProjections, project, retwisted
 from .spacing_warp import SpacingWarp
 
 
@@ -143,6 +144,7 @@ class Renderer:
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
         self._geometry: OrderedDict = OrderedDict()
+        self._pinned: dict = {}  # rows -> (key, geometry) of the last render with gradients
         self._bands: dict = {}  # rows -> (lattice, TileBands) of the last lattice rendered
         self._geometry_slots = geometry_cache if self._keep else 0
         self._lookups: dict = {}
@@ -178,6 +180,7 @@ class Renderer:
         self.camera.warp = warp
         self._chunks.clear()
         self._geometry.clear()
+        self._pinned.clear()
         self._bands.clear()
         self._last_radiance = None
 
@@ -202,19 +205,47 @@ class Renderer:
                            twist_deg=fabric.scalar("twist_deg"), noise=fabric.scalar("noise"),
                            tension=self.options.tension, layers=self.options.layers)
 
-    def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> SampleProjections:
+    def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk, pin: bool = False
+                      ) -> SampleProjections:
+        """The chunk's projections in the state ``key``: kept for the last few states rendered, and
+        (``pin``, a render with gradients) for the state being optimised, outside those few: a
+        discrete search (:meth:`backend.fit.optimise.Run.discrete_search`) renders more states than
+        are kept, and the optimisation most often goes on from the one it started from (a photo-like
+        fit remade 9 of its 76 states, about 2 s, before this was kept)."""
         cache_key = (key, rows)
+        pinned = self._pinned.get(rows)
         if cache_key in self._geometry:
             self._geometry.move_to_end(cache_key)
-            return self._geometry[cache_key]
-        with torch.no_grad():
-            geometry = project(chunk, sample_geometry(chunk, lookup, self.rig, key, self.dtype,
-                                                      self._bands_for(key, lookup, rows, chunk)))
-        if self._geometry_slots:
-            self._geometry[cache_key] = geometry
-            while len(self._geometry) > self._geometry_slots * len(self.ranges):
-                self._geometry.popitem(last=False)
+            geometry = self._geometry[cache_key]
+        elif pinned is not None and pinned[0] == key:
+            geometry = pinned[1]
+        else:
+            with torch.no_grad():
+                bands = self._bands_for(key, lookup, rows, chunk)
+                other_twist = self._kept_at_other_twist(key, rows)
+                if other_twist is not None:
+                    geometry = retwisted(other_twist, chunk, twisted_fibers(lookup, self.rig, key, self.dtype, bands))
+                else:
+                    geometry = project(chunk, sample_geometry(chunk, lookup, self.rig, key, self.dtype, bands))
+            if self._geometry_slots:
+                self._geometry[cache_key] = geometry
+                while len(self._geometry) > self._geometry_slots * len(self.ranges):
+                    self._geometry.popitem(last=False)
+        if pin and self._geometry_slots:
+            self._pinned[rows] = (key, geometry)
         return geometry
+
+    def _kept_at_other_twist(self, key: GeometryKey, rows) -> SampleProjections | None:
+        """Kept projections of the chunk in ``key``'s state at another twist, if any (a twist sets only
+        the fiber directions: :func:`.projections.retwisted`)."""
+        kept = list(self._geometry.items())
+        pinned = self._pinned.get(rows)
+        if pinned is not None:
+            kept.append(((pinned[0], rows), pinned[1]))
+        for (other, other_rows), geometry in reversed(kept):
+            if other_rows == rows and dataclasses.replace(other, twist_deg=key.twist_deg) == key:
+                return geometry
+        return None
 
     def _bands_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> TileBands:
         """The chunk's :func:`tile_bands` for the key's lattice, kept for the last lattice rendered: a
@@ -247,7 +278,7 @@ class Renderer:
         glow_field, scale = (self._glow_fine, 2) if fine else (self.glow, 1)
         pieces_r, pieces_t = [], []
         for rows in self.ranges:
-            samples = self._geometry_for(key, lookup, rows, self._chunk(rows))
+            samples = self._geometry_for(key, lookup, rows, self._chunk(rows), pin=needs_grad)
             glow = None if glow_field is None else glow_field[scale * rows[0]:scale * rows[1]]
             if needs_grad and len(self.ranges) > 1:
                 def evaluate(*tensors, samples=samples, glow=glow):
