@@ -137,3 +137,22 @@ def test_the_true_lattice_makes_the_photos_peaks_and_one_too_fine_does_not(turne
     assert lattice.peak_coverage(spectra, a, b) < true - 0.3
     # one-sided: a lattice twice too coarse has every harmonic of the true one
     assert lattice.peak_coverage(spectra, a / 2, b / 2, 2.5) == true
+
+
+@pytest.mark.parametrize("combs_cover, reading_cover, joins", [(0.06, 0.26, True), (0.06, 0.05, False),
+                                                                (0.8, 0.95, False)])
+def test_a_single_peak_reading_joins_without_the_gain_only_where_the_combs_miss_the_peaks(
+        monkeypatch, combs_cover, reading_cover, joins):
+    """A reading from a single peak that scores above the combs, but under ANCHOR_GAIN times them,
+    joins where the combs make less than ANCHOR_COVERAGE of the photos' peak strength and it makes
+    more; one above the gain always joins."""
+    comb = lattice.Lattice(90.0, 50.0, 1.0)
+    reading = lattice.Lattice(130.0, 130.0, 1.1)
+    strong = lattice.Lattice(60.0, 60.0, 1.3)
+    covers = {(comb.a, comb.b): combs_cover, (reading.a, reading.b): reading_cover, (strong.a, strong.b): 0.0}
+    monkeypatch.setattr(lattice, "anchored", lambda *args, **kwargs: [reading, strong])
+    monkeypatch.setattr(lattice, "_polished", lambda spectra, signatures, starts, *args: [
+        next(lat for lat in (reading, strong) if (lat.a, lat.b) == start) for start in starts])
+    monkeypatch.setattr(lattice, "peak_coverage", lambda spectra, a, b, *args: covers[a, b])
+    found = lattice.with_anchored(None, [comb], [], (1.0, 500.0), (1.0, 500.0), top=3)
+    assert found == ([strong, reading, comb] if joins else [strong, comb])

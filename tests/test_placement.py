@@ -1,5 +1,6 @@
 """How the sample lies in the holder: rotation and skew (shear) in the renderer's geometry, in the
 lattice's frequency maps, and as the fit reads them from a photo pair."""
+import dataclasses
 import json
 import math
 
@@ -126,12 +127,16 @@ def test_signatures_are_rendered_once_per_placement_and_only_for_the_patterns_as
     render = Renderer.render
     monkeypatch.setattr(Renderer, "render", lambda self, params, *args, **kwargs: rendered.append(params.pattern)
                         or render(self, params, *args, **kwargs))
-    rig = CaptureRig(sample_rotation_deg=1.25)
+    rig = CaptureRig(front_intensity=250.0)  # not the default rig, whose signatures ship
     alone = candidates.signatures(rig, ("twill1",))  # a fit of a given pattern
     assert rendered == ["twill1"]
-    together = candidates.signatures(CaptureRig(sample_rotation_deg=1.25, sample_skew_deg=3.0), ("plain", "twill1"))
-    assert rendered == ["twill1", "plain"]  # rendered unsheared: the skew's rig shares the entries
+    placed = dataclasses.replace(rig, sample_rotation_deg=1.25, sample_skew_deg=3.0)
+    together = candidates.signatures(placed, ("plain", "twill1"))
+    assert rendered == ["twill1", "plain"]  # rendered unturned and unsheared: a placed rig shares the entries
     assert together["twill1"] is alone["twill1"]
+    turned = candidates.signatures(dataclasses.replace(DEFAULT_RIG, sample_rotation_deg=-2.0), ("satin0",))
+    assert turned["satin0"] is candidates.signatures(DEFAULT_RIG, ("satin0",))["satin0"]
+    assert rendered == ["twill1", "plain"]  # the default rig's, turned: the shipped ones
     # ... with the numbers of a render of every pattern by one renderer, whatever was rendered with it
     monkeypatch.setattr(candidates, "_SIGNATURES", type(candidates._SIGNATURES)())
     every = candidates.signatures(rig)

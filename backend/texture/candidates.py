@@ -51,16 +51,18 @@ class Candidate:
 
 def signatures(rig: CaptureRig, patterns: tuple[str, ...] = priors.FIT_PATTERNS) -> dict[str, list[lattice.Signature]]:
     """Per preset of ``patterns``, the (reflection, transmission) harmonic signatures of its typical
-    parameters, rendered unsheared at the rig's rotation. (A turned render's harmonics sit a little
-    off the unturned lattice that :func:`backend.texture.lattice.signature` reads, up to 0.7 cycles for
-    the fundamentals at 2 degrees. Rendered unturned, whole fits got the pattern right on 41 of 42
-    photo-like pairs instead of 40, but a dense twill turned 1.4 degrees with one surviving peak
-    (tests/test_fit.py's lone-harmonic twill0) was then placed unturned, its tiles 3 % off: kept at the
-    rig's rotation until that is understood.) Each is rendered once per process and placement, and
-    only for the patterns asked for: a fit of a given pattern renders one, not five (0.7 s each).
-    The default rig's unturned signatures, which every fit's placement compares, ship with the
-    backend (:data:`SHIPPED_SIGNATURES`, the same renders' numbers): 3.5 s less per fit."""
-    unsheared = replace(rig, sample_skew_deg=0.0)
+    parameters, rendered unturned and unsheared whatever the rig's placement. The scores read a
+    placed sample's lattice at its turned frequencies (:func:`backend.texture.lattice.signature_score`),
+    so the weave's own harmonic weights are the ones to compare; :func:`backend.texture.lattice.signature`
+    reads a render at the unturned lattice, and a turned render's harmonics sit off it (up to 0.7
+    cycles for the fundamentals at 2 degrees), so its weights drift with the turn: against the
+    unturned render's, by up to 0.06-0.42 at half a degree and 0.14-0.62 at one, by pattern. Placed
+    with the unturned signatures (and :func:`placed`'s turned estimate standing), the placements of
+    PLACEMENT_FIGURES. Each rig's are rendered once per process, and only for the patterns asked for
+    (0.7 s each); the default rig's ship with the backend (:data:`SHIPPED_SIGNATURES`, the same
+    renders' numbers), so a fit with it renders none (a turned sample's placement rendered nine
+    before, about 6 s)."""
+    unsheared = replace(rig, sample_skew_deg=0.0, sample_rotation_deg=0.0)
     missing = [pattern for pattern in patterns if (unsheared, pattern) not in _SIGNATURES]
     shipped = _shipped() if missing else {}
     _SIGNATURES.update({(unsheared, p): shipped[unsheared, p] for p in missing if (unsheared, p) in shipped})
@@ -283,8 +285,11 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     yarn vectors of one's candidates agree on a turn, read from the transmission alone
     (:func:`yarn_turn`), and the other's do not, that one is kept. The harmonics of the true
     placement's lattice are where the photo shows them, so their phases pin the vectors; at a
-    placement degrees off, they are demodulated where nothing shows. Otherwise the unturned one
-    stays unless the turned one's best comb lattice scores higher. The rotation estimate verifies
+    placement degrees off, they are demodulated where nothing shows. Otherwise a turn of at least
+    RESCUE_MIN_TURN_DEG stands: the comb scores of two placements do not compare (with the unturned
+    signatures, photo-like seed-97 plain_000, turned 3.02 degrees, scored 2.90 unturned and 1.56
+    turned; seed-31 twill0_006, turned -1.36 degrees with one surviving peak, 1.84 and 1.67). Under it
+    the unturned one stays unless the turned one's best comb lattice scores higher: the rotation estimate verifies
     lattices with generic low harmonics; on a dense satin those can prefer a turn of a tenth of a
     degree by a hair, and at that turn the sieve misses the weave's own lattice (measured on the dev
     golden satin1 renders: 0.15 and 0.24 degrees). The comparison leaves out the lattices read from
@@ -322,11 +327,15 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     else:
         at = {p: _comb_lattices(spectra, _placed_rig(rig, p), patterns, per_pattern) for p in (unturned, found)}
         reads = {p: _with_anchored(spectra, _placed_rig(rig, p), at[p], per_pattern) for p in (unturned, found)}
-        shown = [p for p in reads if yarn_turn(reads[p][1], p, reflection_votes=None) is not None]
-        if not shown:
-            shown = [p for p in reads if yarn_turn(reads[p][1], p, DECIDING_REFLECTION_VOTES) is not None]
+        turns = {p: yarn_turn(reads[p][1], p, reflection_votes=None) for p in reads}
+        if all(turn is None for turn in turns.values()):
+            turns = {p: yarn_turn(reads[p][1], p, DECIDING_REFLECTION_VOTES) for p in reads}
+        shown = [p for p in reads if turns[p] is not None]
+        agreeing = len(shown) != 1 and (not shown or abs(turns[found] - turns[unturned]) <= TURN_SPREAD_DEG)
         if len(shown) == 1:
             placement = shown[0]
+        elif agreeing and abs(found[0]) >= RESCUE_MIN_TURN_DEG:
+            placement = found
         else:
             placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
         read = reads[placement]

@@ -748,12 +748,24 @@ def with_anchored(spectra: Spectra, found: list[Lattice], signatures: list[Signa
     Where the combs explain the peaks, a single peak's reading wins by a few percent at most and is
     as often a near miss (photo-like satins off by 3-9 %, the dev real satin1 read as a lattice 5
     times coarser); where they fail, it wins by 1.3-4 times (photo-like twills and satins at 2-4 px
-    per yarn behind the phone's blur)."""
-    floor = ANCHOR_GAIN * max((lat.score for lat in found), default=0.0)
+    per yarn behind the phone's blur).
+
+    Where none of ``found`` makes ANCHOR_COVERAGE of the photos' peak strength (:func:`peak_coverage`),
+    the combs have not explained the photos, and a reading that scores higher than they do and makes
+    more of the peaks joins without the gain: photo-like seed-97 plain_000 (2.2 px per yarn behind a
+    1.9-px blur, turned 3.02 degrees), whose plain comb lattice (66 % off) scores 1.15 and makes 0.06 of
+    the peak strength, and the reading from the reflection's (1, 1) peak 1.3 and 0.26."""
+    best = max((lat.score for lat in found), default=0.0)
     read = anchored(spectra, signatures, a_range, b_range, square, rotation_deg, skew_deg)
     polished = _polished(spectra, signatures, [(lat.a, lat.b) for lat in read], a_range, b_range, square,
                          rotation_deg, skew_deg)
-    return sorted(found + [lat for lat in polished if lat.score > floor], key=lambda lat: -lat.score)[:top]
+    joined = [lat for lat in polished if lat.score > ANCHOR_GAIN * best]
+    rest = [lat for lat in polished if best < lat.score <= ANCHOR_GAIN * best]
+    if rest:
+        covered = max((peak_coverage(spectra, lat.a, lat.b, rotation_deg, skew_deg) for lat in found), default=0.0)
+        if covered < ANCHOR_COVERAGE:
+            joined += [lat for lat in rest if peak_coverage(spectra, lat.a, lat.b, rotation_deg, skew_deg) > covered]
+    return sorted(found + joined, key=lambda lat: -lat.score)[:top]
 
 
 def _polished(spectra: Spectra, signatures, starts, a_range, b_range, square: bool,
@@ -773,6 +785,7 @@ def _polished(spectra: Spectra, signatures, starts, a_range, b_range, square: bo
 
 
 ANCHOR_GAIN = 1.25
+ANCHOR_COVERAGE = 0.7  # comb lattices that make less of the photos' peak strength leave the gain out (with_anchored)
 ANCHOR_PEAKS = 4
 ANCHOR_HARMONICS = 4
 
