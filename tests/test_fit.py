@@ -745,6 +745,34 @@ def test_only_a_placement_whose_lattices_miss_the_peaks_gives_way_and_only_to_on
     assert rescued((-3.6, 2.0), [missing])[0] == (turn, 0.0)
 
 
+@pytest.mark.parametrize("estimate, unturned_turn, turned_turn, placed_at", [
+    (1.5, 1.40, 1.45, 1.45),    # both placements' yarn vectors show the turn: the turned one stands
+    (1.5, None, None, 1.5),     # neither shows one: the turned estimate stands all the same
+    (5.0, 0.03, 4.88, 0.03),    # they disagree (the dev real satin1): the scores decide
+    (0.3, None, None, 0.0),     # a turn under RESCUE_MIN_TURN_DEG: the scores decide
+    (1.5, 0.2, None, 0.2),      # only one shows a turn: that one
+])
+def test_a_turned_estimate_stands_where_the_yarn_vectors_do_not_contradict_it(monkeypatch, estimate, unturned_turn,
+                                                                             turned_turn, placed_at):
+    """search.placed between the unturned sample and the estimate's turn, its comb lattices scoring
+    higher unturned (the scores of two placements do not compare; the unturned signatures score a
+    turned sample's photos as well unturned): which placement it keeps, and the turn it returns."""
+    unturned, turned = (0.0, 0.0), (estimate, 0.0)
+    turns = {unturned: unturned_turn, turned: turned_turn}
+    scores = {unturned: 2.9, turned: 1.6}
+    monkeypatch.setattr(search, "sample_placement", lambda *args: lattice.Placement(
+        1.0, estimate, estimate, lattice.Lattice(40.0, 50.0, 1.0), sieve_turn_deg=None))  # yarn angles
+    monkeypatch.setattr(search, "_comb_lattices", lambda spectra, rig, *args: {"twill1": [lattice.Lattice(
+        40.0, 50.0, scores[rig.sample_rotation_deg, rig.sample_skew_deg])]})
+    monkeypatch.setattr(search, "_with_anchored", lambda spectra, rig, combs, per_pattern: (
+        [search.Candidate("twill1", (40.0, 50.0), 1.0)], [(rig.sample_rotation_deg, rig.sample_skew_deg)]))
+    monkeypatch.setattr(search, "yarn_turn", lambda readings, placement, reflection_votes=1: turns[readings[0]])
+    monkeypatch.setattr(search, "_rescued", lambda spectra, rig, patterns, per_pattern, estimate, placement, read,
+                        rivals: (placement, read))
+    (rotation, skew), _ = search.placed(None, DEFAULT_RIG, ("twill1",), None)
+    assert (rotation, skew) == (placed_at, 0.0)
+
+
 def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float,
                           unmirrored: bool = False) -> None:
     """Photo-like item ``index`` of set ``seed`` (of ``pattern``), placed as the fit places it: its
