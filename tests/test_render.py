@@ -487,31 +487,6 @@ def test_gap_and_twist_steps_reuse_the_lattice_bands_with_the_numbers_of_a_fresh
         assert len(calls) == 2 + len(steps)  # another lattice: new bands
 
 
-def test_the_state_being_optimised_keeps_its_geometry_through_a_search_of_more_states(monkeypatch):
-    """The state of the last render with gradients keeps its geometry while renders without them try
-    more states than the renderer keeps (a discrete search), and comes back with the same numbers;
-    the states only tried are made again once evicted."""
-    from backend.model import render as render_module
-
-    made = []
-    sample_geometry = render_module.sample_geometry
-    monkeypatch.setattr(render_module, "sample_geometry", lambda *args: made.append(1) or sample_geometry(*args))
-    base = FabricParams(pattern="twill1", tiles=(70.0, 90.0))
-    tried = [base.replace(gap_scale=(0.6 + 0.05 * i, 0.9)) for i in range(3)]
-    renderer = Renderer(DEFAULT_RIG, 48, 4, geometry_cache=2)
-    fabric = ParamTensors.from_params(base)
-    fabric.values["roughness"].requires_grad_(True)
-    before = renderer.radiance(fabric)
-    with torch.no_grad():
-        for params in tried:
-            renderer.radiance(ParamTensors.from_params(params))
-        assert len(made) == 1 + len(tried)
-        again = renderer.radiance(ParamTensors.from_params(base))
-        assert len(made) == 1 + len(tried)  # kept: not made again
-        assert torch.equal(again[0], before[0].detach()) and torch.equal(again[1], before[1].detach())
-        renderer.radiance(ParamTensors.from_params(tried[0]))
-        assert len(made) == 2 + len(tried)  # only tried, and evicted by the later ones
-
 @pytest.mark.parametrize("pattern, placement", [("twill1", (2.3, 1.4)), ("satin0", (0.0, 0.0))])
 def test_the_projections_are_the_float64_products_rounded_once(pattern, placement):
     """Each cosine part a float32 render keeps (:mod:`backend.model.projections`) is the float64 value
