@@ -144,7 +144,7 @@ def test_the_true_lattice_makes_the_photos_peaks_and_one_too_fine_does_not(turne
 def test_a_single_peak_reading_joins_without_the_gain_only_where_the_combs_miss_the_peaks(
         monkeypatch, combs_cover, reading_cover, joins):
     """A reading from a single peak that scores above the combs, but under ANCHOR_GAIN times them,
-    joins where the combs make less than ANCHOR_COVERAGE of the photos' peak strength and it makes
+    joins where the combs make less than LOW_COVERAGE of the photos' peak strength and it makes
     more; one above the gain always joins."""
     comb = lattice.Lattice(90.0, 50.0, 1.0)
     reading = lattice.Lattice(130.0, 130.0, 1.1)

@@ -131,9 +131,10 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     found = tile_bands(chunk, lookup, rig, key.tiles) if bands is None else bands
     X, Y, tile_u, tile_v = found.X, found.Y, found.tile_u, found.tile_v
     s_min = lookup.weave.s_min if key.tension else 1.0
+    twist = _twist_rad(key)
     out = []
     for index, layer in enumerate(_layers(lookup, key, found)):
-        n, o = local_frame(layer, _twist_rad(key))
+        n, o = local_frame(layer, twist)
         is_warp = layer.yarn == WARP
         n, o = turned((n, o), rig, is_warp)
         warp = is_warp.to(dtype)
@@ -153,9 +154,10 @@ def twisted_fibers(lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey, dtype
                    ) -> list[torch.Tensor]:
     """Each layer's fiber direction (3, S) in the state ``key``, the numbers :func:`sample_geometry`
     gives it: all a twist changes (:func:`backend.model.projections.retwisted`)."""
+    twist = _twist_rad(key)
     out = []
     for layer in _layers(lookup, key, bands):
-        (o,) = turned((fiber_direction(layer, _twist_rad(key)),), rig, layer.yarn == WARP)
+        (o,) = turned((fiber_direction(layer, twist),), rig, layer.yarn == WARP)
         out.append(o.to(dtype))
     return out
 

@@ -339,10 +339,10 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
         if all(turn is None for turn in turns.values()):
             turns = {p: yarn_turn(reads[p][1], p, DECIDING_REFLECTION_VOTES) for p in reads}
         shown = [p for p in reads if turns[p] is not None]
-        agreeing = len(shown) != 1 and (not shown or abs(turns[found] - turns[unturned]) <= TURN_SPREAD_DEG)
         if len(shown) == 1:
             placement = shown[0]
-        elif agreeing and abs(found[0]) >= RESCUE_MIN_TURN_DEG:
+        elif abs(found[0]) >= RESCUE_MIN_TURN_DEG and (not shown or
+                                                      abs(turns[found] - turns[unturned]) <= TURN_SPREAD_DEG):
             placement = found
         else:
             placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
@@ -354,7 +354,7 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     return (placement[0] if turn is None else turn, placement[1]), candidates
 
 
-LOW_COVERAGE = 0.7         # a placement whose lattices all make less of the photos' peak strength than this ...
+LOW_COVERAGE = lattice.LOW_COVERAGE  # a placement whose lattices all make less of the peak strength ...
 RESCUE_GAIN = 0.3          # ... gives way to a rival whose lattices make this much more
 RESCUE_MIN_TURN_DEG = 0.5  # (a turn this close to an unsheared placement is the same placement)
 

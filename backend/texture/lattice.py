@@ -202,6 +202,7 @@ def fabric_frequencies(fx, fy, rotation_deg: float, skew_deg: float = 0.0):
 COVERAGE_PEAKS = 8             # the strongest peaks of each photo that :func:`peak_coverage` weighs
 COVERAGE_TOLERANCE = (3.0, 0.02)  # a peak is on a harmonic within 3 cycles per image + 2 % of its frequency
 COVERAGE_REACH = 1.6           # harmonics up to 1.6 times the Nyquist frequency fold into the image
+LOW_COVERAGE = 0.7             # lattices that make less of the photos' peak strength have not explained them
 
 
 def peak_coverage(spectra: Spectra, a: float, b: float, rotation_deg: float = 0.0, skew_deg: float = 0.0) -> float:
@@ -750,7 +751,7 @@ def with_anchored(spectra: Spectra, found: list[Lattice], signatures: list[Signa
     times coarser); where they fail, it wins by 1.3-4 times (photo-like twills and satins at 2-4 px
     per yarn behind the phone's blur).
 
-    Where none of ``found`` makes ANCHOR_COVERAGE of the photos' peak strength (:func:`peak_coverage`),
+    Where none of ``found`` makes LOW_COVERAGE of the photos' peak strength (:func:`peak_coverage`),
     the combs have not explained the photos, and a reading that scores higher than they do and makes
     more of the peaks joins without the gain: photo-like seed-97 plain_000 (2.2 px per yarn behind a
     1.9-px blur, turned 3.02 degrees), whose plain comb lattice (66 % off) scores 1.15 and makes 0.06 of
@@ -763,7 +764,7 @@ def with_anchored(spectra: Spectra, found: list[Lattice], signatures: list[Signa
     rest = [lat for lat in polished if best < lat.score <= ANCHOR_GAIN * best]
     if rest:
         covered = max((peak_coverage(spectra, lat.a, lat.b, rotation_deg, skew_deg) for lat in found), default=0.0)
-        if covered < ANCHOR_COVERAGE:
+        if covered < LOW_COVERAGE:
             joined += [lat for lat in rest if peak_coverage(spectra, lat.a, lat.b, rotation_deg, skew_deg) > covered]
     return sorted(found + joined, key=lambda lat: -lat.score)[:top]
 
@@ -785,7 +786,6 @@ def _polished(spectra: Spectra, signatures, starts, a_range, b_range, square: bo
 
 
 ANCHOR_GAIN = 1.25
-ANCHOR_COVERAGE = 0.7  # comb lattices that make less of the photos' peak strength leave the gain out (with_anchored)
 ANCHOR_PEAKS = 4
 ANCHOR_HARMONICS = 4
 
