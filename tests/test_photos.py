@@ -585,13 +585,23 @@ def test_a_pair_without_any_yarn_pattern_is_refused_and_one_without_is_a_warning
     assert max(info["reflection"], info["transmission"]) < info["noise_level"]
 
 
-@pytest.mark.parametrize("problem", ["black", "overexposed"])
-def test_a_black_or_overexposed_photo_is_refused_and_named(tmp_path, problem):
+@pytest.mark.parametrize("problem", ["black", "overexposed", "featureless"])
+def test_a_black_overexposed_or_featureless_photo_is_refused_and_named(tmp_path, problem):
     r, t = synthetic_pair(tmp_path)
-    value = 0 if problem == "black" else 65535
+    value = {"black": 0, "overexposed": 65535, "featureless": 32768}[problem]
     bad = write(tmp_path / "bad_R.png", np.full((256, 256, 3), value, np.uint16))
     with pytest.raises(PhotoError, match=f"bad_R.png: the photo is {problem}"):
         load_pair(bad, t, size=128)
+
+
+def test_a_flat_but_noisy_photo_is_not_featureless(tmp_path):
+    """Sensor noise alone (1 % of the level, as a phone's at mid-grey) is something the featureless
+    check lets through: its refusal is for images with nothing in them."""
+    r, t = synthetic_pair(tmp_path)
+    noisy = 0.5 * (1 + 0.01 * np.random.default_rng(3).standard_normal((256, 256, 1)))
+    flat = write(tmp_path / "flat_R.png", (np.repeat(noisy, 3, axis=2) * 65535).round().astype(np.uint16))
+    pair = load_pair(flat, t, size=128)
+    assert pair.reflection.shape == (128, 128, 3)
 
 
 def test_pair_shared_crop_and_flat_fields(tmp_path):

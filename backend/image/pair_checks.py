@@ -5,7 +5,9 @@ Computed on the working images (before any flat-field division) by :func:`.photo
 Content
     A photo that cannot show a fabric is refused (:func:`check_content`): black (even its brightest
     pixels, the 99.9th percentile of linear luminance, under 0.2 % of full scale: a covered lens or a
-    lamp that did not fire), or overexposed (more than half of its pixels clipped in some channel).
+    lamp that did not fire), overexposed (more than half of its pixels clipped in some channel), or
+    featureless (its linear luminance spans under FEATURELESS_SPREAD of its mean between the 1st
+    and 99th percentiles: a uniform fill shows neither yarns nor noise nor the rig's light falloff).
     A pair in which neither photo shows a yarn pattern (:func:`yarn_peaks` finds no peak in either
     spectrum: a blank wall, a photo out of focus) is refused too; one photo without is a warning
     (a transmission photo of a dense fabric may show little). A photo whose sharpest spectral peak
@@ -44,6 +46,11 @@ from .tone import GAMMA, luminance
 BLACK_LEVEL = 0.002      # linear; the darkest usable photo seen (twill2_T) has 99.9 % of its pixels above 0.04
 CLIPPED_LEVEL = 0.995    # display value of a clipped channel
 MAX_CLIPPED = 0.5        # the photos seen clip at most 2.3 % of their pixels
+# A photo whose linear luminance spans (1st to 99th percentile) less than this share of its mean shows
+# nothing: no texture, no sensor noise, not even the rig's light falloff (a uniform fill, a blank). Of
+# the 80 photos of the dev real, golden and photo-like pairs, the flattest spans 0.73 of its mean
+# (golden example_twill1_no_vignette, transmission); 8-bit levels 127-129 alone span about 0.035.
+FEATURELESS_SPREAD = 0.02
 # The rules and the values measured on real and rendered pairs are in check_order,
 # check_framing_frequency and yarn_peaks.
 TOP_BIAS_THRESHOLD = 0.35
@@ -253,9 +260,11 @@ def _describe_peak(peak) -> str:
 
 
 def check_content(image: np.ndarray, path: Path) -> None:
-    """Refuses a working image that is black or overexposed (:class:`PhotoError` naming ``path``)."""
+    """Refuses a working image that is black, overexposed or featureless (:class:`PhotoError` naming
+    ``path``)."""
     image = np.asarray(image, dtype=np.float32)
-    bright = float(np.percentile(luminance(np.clip(image, 0, 1) ** np.float32(GAMMA)), 99.9))
+    linear = luminance(np.clip(image, 0, 1) ** np.float32(GAMMA))
+    bright = float(np.percentile(linear, 99.9))
     if bright < BLACK_LEVEL:
         raise PhotoError(f"{path}: the photo is black (its brightest pixels reach {bright:.2%} of full scale): "
                          "check that the lamp was on and the lens uncovered")
@@ -263,6 +272,12 @@ def check_content(image: np.ndarray, path: Path) -> None:
     if clipped > MAX_CLIPPED:
         raise PhotoError(f"{path}: the photo is overexposed ({clipped:.0%} of its pixels are clipped): "
                          "lower the exposure so the fabric's highlights stay below white")
+    low, high = np.percentile(linear, (1, 99))
+    spread = float(high - low) / max(float(linear.mean()), 1e-12)
+    if spread < FEATURELESS_SPREAD:
+        raise PhotoError(f"{path}: the photo is featureless (its pixels' brightness spans {spread:.1%} of its "
+                         "mean: no yarns, no noise, no light falloff): check that it is a photo of the sample, "
+                         "not a blank or filled image")
 
 
 def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, names: tuple[Path, Path],
