@@ -21,7 +21,7 @@ import torch
 from conftest import ROOT, SHARED, golden_case_names, require_path
 
 from backend.core.params import load_params
-from backend.image import metrics
+from backend.image import metrics, pair_checks
 from backend.image.containers import apply_orientation
 from backend.image.pair_checks import (
     check_order,
@@ -743,3 +743,22 @@ def test_the_framing_check_knows_a_lattice_by_its_other_harmonics():
     assert with_lattice_combinations(reflection[:1]) == reflection[:1]  # one peak: no second direction
     parallel = [(40.0, 30.0, 1.0), (80.5, 60.0, 0.5)]  # a harmonic of the first: not a second direction
     assert with_lattice_combinations(parallel) == parallel
+
+
+@pytest.mark.parametrize("matching", [2, 3])
+def test_a_framing_ratio_is_refused_only_where_three_peaks_agree_on_it(monkeypatch, matching):
+    """Two peaks agreeing on a ratio far from 1 can be a harmonic of the lattice moved with the phone
+    (photo-like seed 137 --moved plain_005: 0.54x = 0.5 x its 1.076x move): a warning. Three are a
+    framing the same stand cannot give: refused."""
+    reflection = [(80.0, 60.0, 1.0), (-60.0, 80.0, 0.8), (0.0, 150.0, 0.6)][:matching]
+    transmission = [(fx / 1.4, fy / 1.4, power) for fx, fy, power in reflection]
+    monkeypatch.setattr(pair_checks, "yarn_peaks", lambda image: reflection if image == "R" else transmission)
+    names = (Path("a_R.png"), Path("a_T.png"))
+    if matching < pair_checks.REFUSE_MATCHES:
+        [warning], info = pair_checks.check_framing_frequency("R", "T", names)
+        assert "magnified 1.40x (2 matching peaks" in warning and "the evidence is weak" in warning
+        assert info["scale"] == pytest.approx(1.4)
+    else:
+        with pytest.raises(PhotoError, match=r"a_R\.png / a_T\.png: the photos are framed differently: .* "
+                                             r"magnified 1\.40x \(3 matching peaks"):
+            pair_checks.check_framing_frequency("R", "T", names)
