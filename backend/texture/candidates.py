@@ -317,9 +317,10 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     estimate's 5-degree turn shows one such reading (plain, 4.2 degrees, with wrong lattices at
     that turn), and the unturned comb stays.
 
-    Where none of the placement's candidates makes LOW_COVERAGE of the photos' peak strength, the
-    placement compared with it and the sample at the turn where the summed sieve scan peaks are
-    rivals, and the best of them is kept where its candidates make RESCUE_GAIN more (:func:`_rescued`).
+    Where none of the placement's candidates makes :data:`lattice.LOW_COVERAGE` of the photos' peak
+    strength, the placement compared with it and the sample at the turn where the summed sieve scan
+    peaks are rivals, and the best of them is kept where its candidates make RESCUE_GAIN more
+    (:func:`_rescued`).
 
     The turn is then the candidates' yarn vectors' (:func:`yarn_turn`) where they agree on one."""
     if rotation is not None:
@@ -354,8 +355,8 @@ def placed(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...],
     return (placement[0] if turn is None else turn, placement[1]), candidates
 
 
-LOW_COVERAGE = lattice.LOW_COVERAGE  # a placement whose lattices all make less of the peak strength ...
-RESCUE_GAIN = 0.3          # ... gives way to a rival whose lattices make this much more
+# a placement whose lattices all make less of the peak strength than lattice.LOW_COVERAGE gives way
+RESCUE_GAIN = 0.3          # to a rival whose lattices make this much more
 RESCUE_MIN_TURN_DEG = 0.5  # (a turn this close to an unsheared placement is the same placement)
 
 Read = tuple[list[Candidate], list[spacing.MeanSpacing]]  # a placement's candidates and their readings
@@ -365,8 +366,8 @@ def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...
              estimate: lattice.Placement, placement: tuple[float, float], read: Read,
              rivals: dict[tuple[float, float], Read]) -> tuple[tuple[float, float], Read]:
     """(placement, its candidates and readings): the one given, or, where none of its candidates
-    makes LOW_COVERAGE of the photos' peak strength (:func:`lattice.peak_coverage`), the rival whose
-    best candidate makes the most, where that is RESCUE_GAIN more. The rivals: ``rivals`` (the other
+    makes :data:`lattice.LOW_COVERAGE` of the photos' peak strength (:func:`lattice.peak_coverage`), the
+    rival whose best candidate makes the most, where that is RESCUE_GAIN more. The rivals: ``rivals`` (the other
     placement :func:`placed` compared, already read) and the unsheared sample at the turn where the
     summed sieve scan peaks (``estimate.sieve_turn_deg``), read here.
 
@@ -384,7 +385,7 @@ def _rescued(spectra: lattice.Spectra, rig: CaptureRig, patterns: tuple[str, ...
     one-sided (a lattice too coarse makes every peak), hence the gain asked of a rival, and the
     rivals are few."""
     covered = _best_coverage(spectra, rig, placement, read[0])
-    if covered >= LOW_COVERAGE:
+    if covered >= lattice.LOW_COVERAGE:
         return placement, read
     rivals = dict(rivals)
     turn = estimate.sieve_turn_deg
