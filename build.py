@@ -27,10 +27,9 @@ without asking an index (``--refresh`` asks again). Missing ones come from pip's
 indexes and find-links (``pip download``), and Linux's CPU PyTorch, if not found there, from
 PyTorch's CPU index.
 
-Only what runs in the add-on is bundled: the backend's development tools (benchmarks, the network's
-dataset and training, their commands; :data:`DEVELOPMENT_ONLY`) are left out, and so are caches,
-compiled files and tests. Entries are sorted and time-stamped alike so that two builds of the same
-tree (and wheels) are identical.
+Whole folders are bundled: the add-on, ``backend/`` and ``shaders/``; the developer tools live in
+``devtools/`` beside them and never ship. Caches, compiled files and tests are left out. Entries
+are sorted and time-stamped alike so that two builds of the same tree (and wheels) are identical.
 
 (No ``from __future__ import annotations``: the tests load this file without registering it as a
 module, and dataclasses with string annotations need that.)
@@ -49,12 +48,6 @@ ADDON = ROOT / "blender_addon"
 BUNDLED = ("backend", "shaders")
 SKIPPED_DIRS = {"__pycache__", ".pytest_cache", "tests"}
 SKIPPED_SUFFIXES = {".pyc", ".pyo", ".blend1"}
-# Development tools of the backend (paths in the zip; a folder ends with "/"): the command line lists
-# a development command only where its module is present (backend/cli/main.py).
-DEVELOPMENT_ONLY = ("backend/bench/", "backend/init/dataset.py", "backend/init/train.py",
-                    "backend/cli/bench.py", "backend/cli/dataset.py", "backend/cli/train.py",
-                    "backend/cli/evaluate_init.py", "backend/cli/photolike.py",
-                    "backend/batch/", "backend/cli/batch.py")  # the batch runs on Ray, which the add-on lacks
 # Without these the add-on installs but cannot make materials: the build warns (a test fails).
 EXPECTED = ("shaders/woven_fabric.osl", "scene/node_group.py")
 FIXED_TIME = (2024, 1, 1, 0, 0, 0)
@@ -124,18 +117,13 @@ def _files(folder: Path):
             yield path, relative
 
 
-def _development_only(name: str) -> bool:
-    return any(name.startswith(entry) if entry.endswith("/") else name == entry for entry in DEVELOPMENT_ONLY)
-
-
 def entries() -> list[tuple[Path, str]]:
     """(source file, name in the zip) for everything the extension contains."""
     found = [(path, relative.as_posix()) for path, relative in _files(ADDON)]
     for name in BUNDLED:
         folder = ROOT / name
         if folder.is_dir():
-            found += [(path, f"{name}/{relative.as_posix()}") for path, relative in _files(folder)
-                      if not _development_only(f"{name}/{relative.as_posix()}")]
+            found += [(path, f"{name}/{relative.as_posix()}") for path, relative in _files(folder)]
     if not any(name == "backend/__init__.py" for _, name in found):
         raise SystemExit(f"build.py: {ROOT / 'backend'} is missing")
     names = {name for _, name in found}

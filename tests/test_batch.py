@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fake_backend import fake_params  # noqa: E402
 
-from backend.batch import catalogue, output, scheduler  # noqa: E402
-from backend.batch.job import FitJob, FitOutcome, run_fit_job  # noqa: E402
-from backend.batch.ray_executor import FitResources, RayConnection  # noqa: E402
-from backend.cli.main import main  # noqa: E402
+from backend.app.batch import catalogue, output, scheduler  # noqa: E402
+from backend.app.batch.job import FitJob, FitOutcome, run_fit_job  # noqa: E402
+from backend.app.batch.ray_executor import FitResources, RayConnection  # noqa: E402
+from backend.app.cli.main import main  # noqa: E402
 from backend.core.pairs import PhotoFiles  # noqa: E402
 from backend.core.protocol import ProtocolError, Reporter, decode, failed_exit_code  # noqa: E402
 from backend.core.results import RESULT_FILES, is_complete, missing_files  # noqa: E402
@@ -329,7 +329,7 @@ def test_ray_is_imported_in_one_place_and_only_when_the_batch_runs():
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             if any(name == "ray" or name.startswith("ray.") for name in names):
                 found.append((path.relative_to(ROOT).as_posix(), node.col_offset > 0))
-    assert found == [("backend/batch/ray_executor.py", True)]  # inside connect(), not at the top
+    assert found == [("backend/app/batch/ray_executor.py", True)]  # inside connect(), not at the top
 
 
 def test_the_batch_refuses_bad_input_before_starting_ray(tmp_path, monkeypatch, capsys):

@@ -17,16 +17,16 @@ from pathlib import Path
 
 import pytest
 
-from backend.batch import scheduler
-from backend.batch.ray_executor import FitResources, connect
-from backend.bench.batch import small_fabric, small_rig
-from backend.cli.main import main
+from backend.app.batch import scheduler
+from backend.app.batch.ray_executor import FitResources, connect
+from backend.app.cli.main import main
+from backend.app.folder import EXAMPLE_PARAMS
 from backend.core.params import FabricParams
 from backend.core.protocol import Reporter, decode
 from backend.core.results import RESULT_FILES
-from backend.fit.folder import EXAMPLE_PARAMS
 from backend.image.png import write_png
 from backend.model.render import render_pair
+from devtools.bench.batch import small_fabric, small_rig
 
 # One local Ray session and one first batch serve the module's tests: kept on one xdist worker
 # (pyproject's --dist loadgroup), and run first (slow: tests/conftest.py).

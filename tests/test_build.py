@@ -1,12 +1,11 @@
-"""build.py bundles what runs in the add-on and nothing else: the bundled backend fits, its
-development tools (benchmarks, dataset, training) are left out and their commands are gone."""
+"""build.py bundles whole folders (the add-on, backend/, shaders/) and nothing else: the developer
+tools live in devtools/, which never ships, and the bundled backend runs without them."""
 import os
 import subprocess
 import sys
 import zipfile
 
 import pytest
-from conftest import ROOT
 
 
 @pytest.fixture(scope="module")
@@ -17,25 +16,33 @@ def unpacked(build_module, tmp_path_factory):
     return folder
 
 
-def test_every_development_only_entry_exists(build_module):
-    # A stale entry would silently bundle a renamed tool.
-    for entry in build_module.DEVELOPMENT_ONLY:
-        assert (ROOT / entry.rstrip("/")).exists(), entry
-
-
-def test_the_bundle_leaves_the_development_tools_out(build_module, unpacked):
+def test_the_bundle_is_the_shipped_folders_whole(unpacked):
     names = {p.relative_to(unpacked).as_posix() for p in unpacked.rglob("*") if p.is_file()}
-    assert "backend/cli/fit.py" in names and "backend/data/init_net.pt" in names
-    assert not [n for n in names if build_module._development_only(n)]
-    assert not [n for n in names if n.startswith("tests/") or "__pycache__" in n]
+    assert "backend/app/cli/fit.py" in names and "backend/data/init_net.pt" in names
+    assert "shaders/woven_fabric.osl" in names and "blender_manifest.toml" in names
+    assert not [n for n in names if n.startswith(("devtools/", "tests/")) or "__pycache__" in n]
 
 
-def test_the_bundled_backend_runs_without_its_development_commands(unpacked):
+def test_the_bundled_backend_imports_every_module_without_the_developer_tools(unpacked):
+    env = {**os.environ, "PYTHONPATH": str(unpacked)}
+    script = ("import importlib, pathlib, sys\n"
+              "names = sorted('.'.join(p.with_suffix('').parts) for p in pathlib.Path('backend').rglob('*.py')\n"
+              "               if p.name not in ('__main__.py',))\n"
+              "for name in names:\n"
+              "    importlib.import_module(name.removesuffix('.__init__'))\n"
+              "assert 'devtools' not in sys.modules\n"
+              "print(len(names))\n")
+    result = subprocess.run([sys.executable, "-c", script], cwd=unpacked, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout) > 50
+
+
+def test_the_bundled_command_line_has_the_users_commands_only(unpacked):
     env = {**os.environ, "PYTHONPATH": str(unpacked)}
     result = subprocess.run([sys.executable, "-m", "backend", "--help"], cwd=unpacked, env=env,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert "{render,render-cases,fit}" in result.stdout
+    assert "{render,render-cases,fit,batch}" in result.stdout
     refused = subprocess.run([sys.executable, "-m", "backend", "bench", "render"], cwd=unpacked, env=env,
                              capture_output=True, text=True)
     assert refused.returncode == 2 and "invalid choice: 'bench'" in refused.stderr

@@ -3,14 +3,14 @@ import cv2
 import numpy as np
 import pytest
 
-from backend.bench.photolike import item_rng
 from backend.core.params import FabricParams
 from backend.core.priors import PATTERNS
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.image.camera_blur import MIN_GAIN, SOFT_PHOTO_PX, photo_blur_px, read_blur
 from backend.image.photos import load_pair
-from backend.init.photo_like import photograph
 from backend.model.render import render_pair
+from devtools.bench.photolike import item_rng
+from devtools.photo_like import photograph
 
 
 def noise_image(seed=0, size=512):

@@ -13,13 +13,12 @@ import torch
 from conftest import ROOT
 from oracles import reference
 
-from backend.bench import photolike
-from backend.cli.main import build_parser
+from backend.app.cli.main import build_parser
+from backend.app.folder import BLUR_ON
 from backend.core.params import FabricParams
 from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode
 from backend.core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig
-from backend.fit.folder import BLUR_ON
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.optimise import Run, parabolic_step
@@ -42,6 +41,7 @@ from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
 from backend.texture import lattice
 from backend.texture.features import LatticeProbe, describe, descriptor_terms, log_spectrum
+from devtools.bench import photolike
 
 TWILL = FabricParams.from_interchange(
     "twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -927,7 +927,7 @@ def test_any_working_size_gives_a_clear_error_or_a_fit(tmp_path, size, needle):
 
 
 def test_report_header_lines_fit_the_page():
-    from backend.fit.report import PANEL, text_width, wrapped
+    from backend.app.report import PANEL, text_width, wrapped
     long = "   ".join(f"roughness {k} 0.12 / 0.34" for k in range(12))
     lines = wrapped(long, 3 * PANEL - 20)
     assert len(lines) > 1 and "   ".join(lines) == long

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
+from backend.app.folder import EXAMPLE_PARAMS
 from backend.core import priors
 from backend.core.params import FabricParams
 from backend.core.protocol import EXIT_CANCELLED, STOP_REQUEST, decode
 from backend.core.rig import DEFAULT_RIG
-from backend.fit.folder import EXAMPLE_PARAMS
 from backend.image.png import write_png
 from backend.model.render import render_pair
 
@@ -31,8 +31,8 @@ HANG_S = 120  # a liveness bound, not a timing
 # string, default the example's]}; the rest: the fit command.
 STAND_IN = textwrap.dedent("""
     import json, sys, time
-    import backend.fit.folder as command
-    from backend.cli.main import main
+    import backend.app.folder as command
+    from backend.app.cli.main import main
     from backend.core.params import FabricParams
     from backend.fit.settings import FitCancelled, FitResult
 

@@ -8,7 +8,7 @@ import sys
 import pytest
 from conftest import golden_case_names
 
-from backend.cli.render import parse_case, render_and_save
+from backend.app.cli.render import parse_case, render_and_save
 from backend.core.rig import DEFAULT_RIG
 
 

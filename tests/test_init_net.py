@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 import torch
 
-from backend.cli.fit import add_parser
+from backend.app.cli.fit import add_parser
 from backend.core import priors
 from backend.core.params import FabricParams
 from backend.core.rig import DEFAULT_RIG
-from backend.init import dataset, train
 from backend.init import network as init_net
 from backend.model.render import render_pair
 from backend.texture import lattice
 from backend.texture.candidates import Candidate
+from devtools import dataset, train
 
 TINY = dataset.DatasetSettings(size=32, spp=1, seed=3)
 
@@ -36,7 +36,7 @@ def trivial_signatures():
 
 def test_shipped_weights_load_with_weights_only_and_are_small():
     path = init_net.DEFAULT_WEIGHTS
-    assert path.is_file(), f"{path} is missing: run `python -m backend train DATASET --out {path}`"
+    assert path.is_file(), f"{path} is missing: run `python -m devtools train DATASET --out {path}`"
     assert path.stat().st_size < 20e6
     blob = torch.load(path, map_location="cpu", weights_only=True)
     header = json.loads(blob["header"])
@@ -173,8 +173,8 @@ def test_a_tiny_training_run_reduces_its_loss(tiny_dataset):
 
 
 def test_photo_like_items_are_photographed_turned_samples(tmp_path, trivial_signatures):
-    from backend.init.photo_like import MAX_ROTATION_DEG, PIXELS_PER_YARN
     from backend.texture.lattice import yarns_in_view
+    from devtools.photo_like import MAX_ROTATION_DEG, PIXELS_PER_YARN
     photo = dataset.DatasetSettings(seed=3, photo_scale=1)
     quiet = open("/dev/null", "w")
     assert dataset.generate(tmp_path / "a", 1, settings=photo, compile=False, patterns=("twill0",),
@@ -194,7 +194,7 @@ def test_photo_like_items_are_photographed_turned_samples(tmp_path, trivial_sign
     photo_image = dataset._from_uint16(item["reflection"]).numpy()
     assert np.abs(photo_image - clean).mean() > 0.01
     # The item is the shot of its seed: the same draws as photo_like.photograph with that seed.
-    from backend.init.photo_like import photograph
+    from devtools.photo_like import photograph
     shot = photograph("twill0", random.Random(dataset.item_seed(3, "twill0", 0)), DEFAULT_RIG, 1)
     assert shot.params == truth and abs(shot.rig.sample_rotation_deg) <= MAX_ROTATION_DEG
     with pytest.raises(ValueError, match="working size"):

@@ -1,8 +1,10 @@
 """The backend's sub-packages import one way (the add-on's rule is tests/test_addon_bridge.py's).
 
-core <- image (a leaf beside the model) ; core <- model <- texture <- init ; fit uses all of those;
-batch runs fits; cli and bench are the tops. Read from the source (every ``from ..x`` and
-``from backend.x``), so a new module that breaks the rule fails here before anything runs it.
+core <- image (a leaf beside the model) ; core <- model <- texture <- init ; fit uses all of those
+(the library: values in, values out); app, the edge (cli, the fit-a-folder job, report, batch), is
+the top. The shipped backend never imports the developer tools (devtools/). Read from the source
+(every ``from ..x`` and ``from backend.x``), so a new module that breaks the rule fails here before
+anything runs it.
 """
 import ast
 from pathlib import Path
@@ -17,9 +19,7 @@ ALLOWED = {
     "texture": {"core", "image", "model"},
     "init": {"core", "model", "texture"},
     "fit": {"core", "image", "model", "texture", "init"},
-    "batch": {"core", "fit"},
-    "bench": {"core", "image", "model", "texture", "init", "fit", "batch"},
-    "cli": {"core", "image", "model", "texture", "init", "fit", "batch", "bench"},
+    "app": {"core", "image", "model", "texture", "init", "fit"},
 }
 
 
@@ -58,5 +58,15 @@ def test_the_backend_layers_import_one_way():
 
 def test_the_rule_is_checked_on_real_imports():
     """The reader itself: a module known to import across layers is seen doing so."""
-    assert imported_packages(BACKEND / "fit" / "folder.py") >= {"core", "image", "model", "init"}
+    assert imported_packages(BACKEND / "app" / "folder.py") >= {"core", "image", "model", "init"}
     assert imported_packages(BACKEND / "core" / "protocol.py") == set()  # `from .. import __version__` only
+
+
+def test_the_backend_never_imports_the_developer_tools():
+    wrong = []
+    for path in sorted(BACKEND.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            wrong += [f"{path.relative_to(ROOT)} imports {n}" for n in names if n.split(".")[0] == "devtools"]
+    assert not wrong, "\n".join(wrong)

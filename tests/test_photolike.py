@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 import torch
 
-from backend.bench import photolike
-from backend.bench.novel_light import NOVEL_LIGHTS, novel_light_error
 from backend.core.params import FabricParams
 from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig
-from backend.init import photo_like
 from backend.model.imaging import display_transform
-from backend.model.phone import EFFECTS, PhoneEffects
 from backend.model.render import Renderer
+from devtools import photo_like
+from devtools.bench import photolike
+from devtools.bench.novel_light import NOVEL_LIGHTS, novel_light_error
+from devtools.phone import EFFECTS, PhoneEffects
 
 SMALL = CaptureRig(film_size=64)  # every effect is in film pixels: a small film keeps the test fast
 
@@ -57,7 +57,7 @@ def test_a_moved_set_moves_only_the_reflection_photo(tmp_path):
     assert (tmp_path / "m" / f"{name}_T.png").read_bytes() == (tmp_path / "a" / f"{name}_T.png").read_bytes()
     assert (tmp_path / "m" / f"{name}_R.png").read_bytes() != (tmp_path / "a" / f"{name}_R.png").read_bytes()
     # the fit benchmark carries the move to its rows (beside the registration the fit made)
-    from backend.bench.fit import pair_jobs
+    from devtools.bench.fit import pair_jobs
     for folder, case in (("a", still), ("m", moved)):
         (tmp_path / folder / "cases.json").write_text(json.dumps([case]))
     assert [job["move"] for job in pair_jobs([str(tmp_path / "a"), str(tmp_path / "m")], [], None)] == [
@@ -109,7 +109,7 @@ def test_a_set_without_a_phone_effect_differs_from_the_full_set_in_that_effect_a
 
 
 def test_the_photolike_command_takes_effects_away_by_name(tmp_path, capsys):
-    from backend.cli.main import main
+    from devtools.cli.main import main
     assert main(["photolike", "--out", str(tmp_path), "--count", "1", "--seed", "4", "--without", "noise",
                  "jpeg"]) == 0
     [case] = json.loads((tmp_path / "cases.json").read_text())
@@ -199,7 +199,7 @@ def test_novel_light_error_tells_a_wrong_parameter_and_applies_the_cameras_gains
 
 
 def test_the_phones_jpeg_is_a_deterministic_lossy_copy_at_the_film_size():
-    from backend.model.phone import phone_jpeg
+    from devtools.phone import phone_jpeg
     rng = np.random.default_rng(3)
     image = np.clip(0.5 + 0.1 * rng.standard_normal((128, 128, 3)), 0, 1)
     phone = phone_jpeg(image, 75, 32)
@@ -264,8 +264,8 @@ def _bench_row(name: str, ppy: float = 3.0, ok: bool = True, tiles_error: float 
 
 
 def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_apart():
-    from backend.bench.fit import RESOLVED_PX_PER_YARN, pixels_per_yarn, summarise
     from backend.core.rig import DEFAULT_RIG
+    from devtools.bench.fit import RESOLVED_PX_PER_YARN, pixels_per_yarn, summarise
 
     seen = DEFAULT_RIG.view_size / DEFAULT_RIG.plane_size      # of the plane's tiles, this share is in view
     plain = typical("plain").replace(tiles=(100.0, 100.0))       # 79.8 tiles of 2 yarns across 512 px
@@ -282,8 +282,8 @@ def test_the_fit_benchmark_counts_pixels_per_yarn_and_scores_the_resolved_pairs_
 
 
 def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
-    from backend.bench.fit import blur_errors, summarise
-    from backend.model.phone import PhoneEffects
+    from devtools.bench.fit import blur_errors, summarise
+    from devtools.phone import PhoneEffects
 
     phone = PhoneEffects.draw(random.Random(3))
     assert blur_errors(phone.blur_px + 0.27, phone) == {"phone_blur_px": round(phone.blur_px, 3),
@@ -296,8 +296,8 @@ def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
 
 @pytest.mark.slow
 def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_the_truth(tmp_path, capsys):
-    from backend.bench.placement import summary
-    from backend.cli.main import main
+    from devtools.cli.main import main
+    from devtools.bench.placement import summary
 
     # Seed 31's satin1_014: a few low oblique peaks at 2-3 px per yarn (tests/test_fit.py's lone
     # harmonic case), turned 0.15 degrees.

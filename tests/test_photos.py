@@ -700,7 +700,7 @@ def test_metrics_match_the_team_checker(shared_tools):
 
 def seed_31_photo_like_pair(tmp_path, index: int):
     """Item ``index`` of the photo-like set of seed 31, made in ``tmp_path`` and loaded as the fit loads it."""
-    from backend.bench.photolike import make_item
+    from devtools.bench.photolike import make_item
     name = make_item(tmp_path, seed=31, index=index)["name"]
     return load_pair(tmp_path / f"{name}_R.png", tmp_path / f"{name}_T.png")
 

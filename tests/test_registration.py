@@ -5,9 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
+from backend.app.report import write_report
 from backend.core import priors
 from backend.core.rig import DEFAULT_RIG
-from backend.fit.report import write_report
 from backend.image.photos import load_pair
 from backend.image.png import write_png
 from backend.image.registration import Registration, magnified, register

@@ -11,7 +11,7 @@ from pathlib import Path
 
 PARAMS_FILE = "params.json"
 METRICS_FILE = "metrics.json"
-# Everything a finished fit leaves in its folder (backend/cli/fit.py writes them; a test keeps the two in step).
+# Everything a finished fit leaves in its folder (backend/app/cli/fit.py writes them; a test keeps the two in step).
 RESULT_FILES = (PARAMS_FILE, METRICS_FILE, "reflection.png", "transmission.png", "report.png")
 
 

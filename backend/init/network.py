@@ -34,8 +34,8 @@ the pattern's prior, noise is 0.
 Weights: ``backend/data/init_net.pt`` (about 2 MB), a plain dict ``{"header": JSON text,
 "state_dict": tensors}`` read with ``torch.load(..., weights_only=True)``; the header carries the
 feature version and sizes, so a file that does not match this code is refused rather than misread.
-``python -m backend train`` reproduces it from ``python -m backend dataset`` (:mod:`backend.init.train`,
-:mod:`backend.init.dataset`).
+``python -m devtools train`` reproduces it from ``python -m devtools dataset`` (:mod:`devtools.train`,
+:mod:`devtools.dataset`).
 
 Use in the fit: :class:`NetworkStart` is the ``initial_for`` hook of :func:`backend.fit.pipeline.fit`, and its
 ``pattern_probabilities`` the fit's ``pattern_probabilities`` hook: candidates the network gives

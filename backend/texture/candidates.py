@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from ..core import priors
-from ..core.rig import DEFAULT_RIG, CaptureRig
+from ..core.rig import CaptureRig
 from ..core.threads import ordered_map
 from ..core.weave import PRESETS
 from ..model.render import Renderer
@@ -97,19 +97,6 @@ def rendered_signatures(rig: CaptureRig, patterns) -> dict[tuple[CaptureRig, str
         out[rig, pattern] = [lattice.signature(img.numpy(), SIGNATURE_DENSITY, SIGNATURE_DENSITY)
                              for img in (pair.reflection, pair.transmission)]
     return out
-
-
-def write_shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> Path:
-    """Renders the default rig's signatures of every preset into ``path`` (JSON; run it after a
-    change to the renderer, the presets' typical parameters or :func:`lattice.signature`:
-    ``python -c "from backend.texture.candidates import write_shipped_signatures as w; w()"``;
-    tests/test_placement.py checks the file against fresh renders)."""
-    rendered = rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
-    table = {"rig": DEFAULT_RIG.to_dict(), "density": SIGNATURE_DENSITY,
-             "patterns": {pattern: [{"m": s.m.tolist(), "n": s.n.tolist(), "weight": s.weight.tolist()}
-                                    for s in rendered[DEFAULT_RIG, pattern]] for pattern in priors.FIT_PATTERNS}}
-    path.write_text(json.dumps(table) + "\n")
-    return path
 
 
 @functools.lru_cache(maxsize=1)

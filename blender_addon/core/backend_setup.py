@@ -121,7 +121,7 @@ try:
     import backend
     out["backend"] = getattr(backend, "__version__", "?")
     if not out["errors"]:  # the fit command's module imports everything a fit runs (an old backend has none)
-        import backend.cli.fit
+        import backend.app.cli.fit
         out["fit"] = True
 except Exception as exc:
     out["errors"]["backend"] = f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,79 @@
+"""Placement benchmark: ``python -m devtools bench placement --synthetic DIR ... [--cases ...] [--json]``.
+
+The fit's first stage alone, run as the fit runs it: the photos loaded at the default rig's film
+size, then :func:`backend.texture.candidates.placed`. For each golden or photo-like pair (folders
+with ``cases.json``, as for ``bench fit``): the sample's rotation and skew found against the true
+ones, the worst-axis tiles error (%) of the true pattern's best lattice candidate, and whether the
+best-scoring candidate is of the true pattern (scores compare within a pattern only, so this is a
+hint, not the fit's choice: the fit's trial fits choose, :mod:`backend.fit.search`).
+
+The placement and the tiles stay fixed through the fit (:mod:`backend.fit.pipeline`), so these
+errors are the fit's. At about 10 s a pair (the first also renders the patterns' signatures, about
+15 s) against 2-3 minutes for ``bench fit``, this is the loop for work on the lattice and the
+placement. Prints one line per pair and a summary against the fit issue's tiles target.
+"""
+from __future__ import annotations
+
+import json
+import statistics
+import time
+
+from backend.core.priors import FIT_PATTERNS
+from backend.core.rig import DEFAULT_RIG
+from backend.image.photos import load_pair
+from backend.texture.candidates import placed
+from backend.texture.lattice import Spectra
+
+from .fit import TARGETS, pair_jobs, tiles_error_pct
+
+ROTATION_ERROR_DEG = 0.5  # the summary counts the pairs placed further off than this
+
+
+def place(job: dict) -> dict:
+    """One pair's placement and candidates against its truth (a :func:`devtools.bench.fit.pair_jobs` job)."""
+    started = time.perf_counter()
+    photos = load_pair(job["reflection"], job["transmission"], size=DEFAULT_RIG.film_size)
+    spectra = Spectra.of([photos.reflection, photos.transmission])
+    (rotation, skew), found = placed(spectra, DEFAULT_RIG, FIT_PATTERNS, None)
+    truth, rig = job["truth"], job["rig"]
+    own = [c for c in found if c.pattern == truth.pattern]  # best first within a pattern
+    return {"kind": job["kind"], "name": job["name"], "rotation_deg": rotation, "skew_deg": skew,
+            "true_rotation_deg": round(rig.sample_rotation_deg, 3), "true_skew_deg": round(rig.sample_skew_deg, 3),
+            "rotation_error_deg": round(abs(rotation - rig.sample_rotation_deg), 3),
+            "tiles_error_pct": round(tiles_error_pct(own[0].tiles, truth.tiles), 2) if own else None,
+            "best_scored_is_true": max(found, key=lambda c: c.score).pattern == truth.pattern if found else False,
+            "candidates": [[c.pattern, [round(t, 2) for t in c.tiles]] for c in found],
+            "seconds": round(time.perf_counter() - started, 1)}
+
+
+def summary(rows: list[dict]) -> dict:
+    """Means, medians and counts over the pairs (a pair without a candidate of its pattern counts as
+    off by more than the target)."""
+    rotation = [r["rotation_error_deg"] for r in rows]
+    tiles = [r["tiles_error_pct"] for r in rows if r["tiles_error_pct"] is not None]
+    limit = TARGETS["photolike"]["tiles_error_pct_max"]
+    return {"summary": "placement", "pairs": len(rows),
+            "rotation_error_mean_deg": round(statistics.fmean(rotation), 3) if rows else None,
+            "rotation_error_median_deg": round(statistics.median(rotation), 3) if rows else None,
+            f"rotation_error_over_{ROTATION_ERROR_DEG}_deg": sum(e > ROTATION_ERROR_DEG for e in rotation),
+            "tiles_error_mean_pct": round(statistics.fmean(tiles), 2) if tiles else None,
+            "tiles_error_median_pct": round(statistics.median(tiles), 2) if tiles else None,
+            f"tiles_error_over_{limit:g}_pct": sum(e > limit for e in tiles) + (len(rows) - len(tiles)),
+            "seconds": round(sum(r["seconds"] for r in rows), 1)}
+
+
+def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool) -> int:
+    rows = []
+    for job in pair_jobs(synthetic, [], names):
+        row = place(job)
+        rows.append(row)
+        if as_json:
+            print(json.dumps(row), flush=True)
+        else:
+            tiles = "none of its pattern" if row["tiles_error_pct"] is None else f"{row['tiles_error_pct']:.2f} %"
+            print(f"{row['kind']} {row['name']}: rotation {row['rotation_deg']:+.2f} (true "
+                  f"{row['true_rotation_deg']:+.2f}, off {row['rotation_error_deg']:.2f}) skew {row['skew_deg']:+.2f}; "
+                  f"tiles of the true pattern off {tiles}; {row['seconds']:.1f} s", flush=True)
+    result = summary(rows)
+    print(json.dumps(result) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    return 0

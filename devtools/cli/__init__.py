@@ -1,0 +1,1 @@
+"""``python -m devtools``: the developer commands."""

@@ -1,0 +1,85 @@
+"""``python -m devtools bench render|fit|placement|fit-speed|batch``: performance figures (never timed tests).
+
+    bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
+    bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
+        [--no-novel-light] [--fit-args "EXTRA FIT ARGUMENTS"]
+    bench placement --synthetic DIR ... [--cases ...] [--json]     (the fit's placement and lattice only)
+    bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
+    bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
+        [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
+"""
+from __future__ import annotations
+
+import shlex
+
+from backend.app.batch.scheduler import BatchError
+from backend.app.cli.common import InputError, device, positive_int
+
+from ..bench.batch import bench_batch
+from ..bench.fit import bench_fit
+from ..bench.fit_speed import bench_fit_speed
+from ..bench.placement import bench_placement
+from ..bench.render import bench_render
+
+
+def run_bench(args) -> int:
+    extra = ["--iterations", str(args.iterations)] if args.iterations else []
+    if args.what == "fit":
+        synthetic = args.synthetic + args.golden
+        if not synthetic and not args.real:
+            raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
+        return bench_fit(synthetic, args.real, args.cases, extra + shlex.split(args.fit_args), args.json,
+                         keep=args.keep, novel_light=not args.no_novel_light)
+    if args.what == "placement":
+        if not args.synthetic + args.golden:
+            raise InputError("bench placement: give --synthetic DIR (golden or photo-like: the truth is needed)")
+        return bench_placement(args.synthetic + args.golden, args.cases, args.json)
+    if args.what == "fit-speed":
+        if args.fit_size:
+            extra += ["--size", str(args.fit_size)]
+        reflection, transmission = args.pair or (None, None)
+        return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json)
+    if args.what == "batch":
+        try:
+            return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
+                               args.workers, args.sequential_threads, args.subprocess, args.rounds or 1, args.json)
+        except BatchError as exc:  # no Ray
+            raise InputError(f"bench batch: {exc}") from None
+    return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json,
+                        device=device(args.device))
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("bench", help="print performance figures")
+    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "batch"])
+    p.add_argument("--json", action="store_true", help="JSON lines")
+    p.add_argument("--synthetic", nargs="*", default=[],
+                   help="fit, placement: folders with cases.json and <name>_R/_T images (golden renders, "
+                        "photo-like sets)")
+    p.add_argument("--golden", nargs="*", default=[], help="fit, placement: the same as --synthetic")
+    p.add_argument("--real", nargs="*", default=[], help="fit: folders of <name>_R.* / <name>_T.* photo pairs")
+    p.add_argument("--keep", help="fit: keep every fit's results in this folder (<kind>_<name>/)")
+    p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
+    p.add_argument("--fit-args", default="", help='fit: extra arguments of every fit, one string ("--size 512")')
+    p.add_argument("--cases", nargs="*", help="fit, placement: only these names")
+    p.add_argument("--iterations", type=positive_int,
+                   help="iterations per fit (fit, fit-speed: the fit's default; batch: 20)")
+    p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
+                   help="fit-speed: the photo pair (default: the bundled example)")
+    p.add_argument("--fit-size", type=positive_int, help="fit-speed: the fit's --size (default: the fit's default)")
+    p.add_argument("--rounds", type=positive_int,
+                   help="fit-speed: compiled + eager rounds (default 2); batch: how often the ways take turns "
+                        "(default 1)")
+    p.add_argument("--size", type=positive_int, help="render: image size (default 512); batch: the fits' working "
+                                                     "size (default 64)")
+    p.add_argument("--spp", type=positive_int, default=4)
+    p.add_argument("--runs", type=positive_int, default=5)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--pairs", type=positive_int, default=4, help="batch: synthetic pairs (default 4)")
+    p.add_argument("--film", type=positive_int, default=128, help="batch: the pairs' film size (default 128)")
+    p.add_argument("--cpus-per-fit", type=positive_int, default=1, help="batch: threads of each Ray fit (default 1)")
+    p.add_argument("--workers", type=positive_int, help="batch: Ray fits at once (default: cores / cpus-per-fit)")
+    p.add_argument("--sequential-threads", type=positive_int, help="batch: threads of each sequential fit "
+                                                                   "(default: every core)")
+    p.add_argument("--subprocess", action="store_true", help="batch: also one python -m backend fit per pair")
+    p.set_defaults(run=run_bench)

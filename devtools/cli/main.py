@@ -1,0 +1,40 @@
+"""Command line: ``python -m devtools <command> ...`` (developers only; not in the extension).
+
+    dataset --out DIR --per-pattern N [...]              (devtools/cli/dataset.py)
+    train DATASET --out WEIGHTS [...]                    (devtools/cli/train.py)
+    evaluate-init [--heldout DIR] [--golden DIR] [...]   (devtools/cli/evaluate_init.py)
+    photolike --out DIR --count N [--seed S] [--moved]   (devtools/cli/photolike.py)
+    bench render|fit|placement|batch|fit-speed [...]     (devtools/cli/bench.py)
+    signatures                                           (devtools/cli/signatures.py)
+
+Bad input ends as the backend's commands do: exit code 2 and one line naming the file and the problem.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from backend.app.cli.common import INPUT_ERRORS, input_error_message
+from backend.core.protocol import EXIT_CANCELLED, EXIT_INPUT
+
+from . import bench, dataset, evaluate_init, photolike, signatures, train
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m devtools", description="Woven fabric capture: developer tools")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in (dataset, train, evaluate_init, photolike, bench, signatures):
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except INPUT_ERRORS as exc:
+        print(f"error: {input_error_message(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("cancelled", file=sys.stderr)
+        return EXIT_CANCELLED
