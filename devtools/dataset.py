@@ -10,8 +10,8 @@ fit would propose for that pair:
 - the true pattern at the true tiles times a small random error (relative, normal, s.d. 0.3 %,
   clipped at 1 %: the lattice estimator's typical error), and once more at the exact tiles;
 - every other preset at the lattice the estimator would give it: the true lattice times the ratio
-  pair (1/3 .. 3 per axis, :data:`backend.texture.lattice.RATIOS`) that lies in that preset's density range
-  and best matches its harmonic signature (what :func:`backend.texture.lattice.candidates` does), with the
+  pair (1/3 .. 3 per axis, :data:`backend.texture.GATES.ratios`) that lies in that preset's density range
+  and best matches its harmonic signature (what :func:`backend.texture.candidates.comb_lattices` does), with the
   same small error. Those rows teach the network which candidate is the photos' weave.
 
 Photo-like items (``--photo-scale K``): the sample is drawn, framed, turned and photographed by a
@@ -58,10 +58,13 @@ import torch
 from backend.core import priors
 from backend.core.params import FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.image.spectrum import peakness
 from backend.init import network as init_net
 from backend.model import rng
 from backend.model.render import Renderer
 from backend.texture import candidates, lattice
+from backend.texture.gates import GATES
+from backend.texture.signatures import signatures
 
 from .photo_like import photograph
 
@@ -104,8 +107,8 @@ def confusable_tiles(maps: list[np.ndarray], signature, true_tiles, pattern: str
     scale = rig.view_size / rig.plane_size
     (ulo, uhi), (vlo, vhi) = candidates.tile_range(pattern, rig)
     best = None
-    for ra in lattice.RATIOS:
-        for rb in lattice.RATIOS:
+    for ra in GATES.ratios:
+        for rb in GATES.ratios:
             tu, tv = true_tiles[0] * ra, true_tiles[1] * rb
             if not (ulo <= tu <= uhi and vlo <= tv <= vhi):
                 continue
@@ -121,7 +124,7 @@ def candidate_rows(pair: init_net.WorkingPair, params: FabricParams, rig: Captur
                    rnd: random.Random) -> tuple[np.ndarray, np.ndarray]:
     """Features (6, FEATURE_DIM) and tiles (6, 2): one candidate per preset, then the exact truth."""
     images = [pair.reflection.numpy().astype(np.float64), pair.transmission.numpy().astype(np.float64)]
-    maps = [lattice.peakness(img, blur=0.0) for img in images]
+    maps = [peakness(img, blur=0.0) for img in images]
     tiles = []
     for pattern in priors.PATTERNS:
         if pattern == params.pattern:
@@ -246,7 +249,7 @@ def _shard_main() -> None:
     """Entry point of a worker process: its job list and settings come as JSON on stdin."""
     job = json.loads(sys.stdin.read())
     make_items(Path(job["out"]), [tuple(j) for j in job["jobs"]], DatasetSettings(**job["settings"]),
-               candidates.signatures(DEFAULT_RIG), job["compile"])
+               signatures(DEFAULT_RIG), job["compile"])
 
 
 def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: int, report) -> None:
@@ -330,7 +333,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
     """Makes the missing items of a dataset folder; returns how many were made.
 
     ``patterns`` limits the presets drawn (every preset is still a candidate); ``signatures`` (the
-    presets' harmonic signatures, :func:`backend.texture.candidates.signatures`) may be given to an in-process
+    presets' harmonic signatures, :func:`backend.texture.signatures.signatures`) may be given to an in-process
     run (``workers`` 1) to skip measuring them.
     """
     out = Path(out)
@@ -363,7 +366,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
                   f"eta {eta / 60:.1f} min", file=log, flush=True)
 
     if workers <= 1:
-            make_items(out, jobs, settings, signatures or candidates.signatures(DEFAULT_RIG), compile, report)
+            make_items(out, jobs, settings, signatures or signatures(DEFAULT_RIG), compile, report)
     else:
         _run_shards(out, jobs, settings, compile, workers, report)
     return done

@@ -36,7 +36,7 @@ from backend.core import priors
 from backend.core.params import FabricParams
 from backend.core.rig import CaptureRig
 from backend.model.render import Renderer
-from backend.texture.lattice import yarns_in_view
+from backend.texture.frequencies import yarns_in_view
 
 from .phone import PhoneEffects, phone_jpeg
 

@@ -11,14 +11,11 @@ from pathlib import Path
 
 from backend.core import priors
 from backend.core.rig import DEFAULT_RIG
-from backend.texture.candidates import SHIPPED_SIGNATURES, SIGNATURE_DENSITY, rendered_signatures
+from backend.texture.signatures import SHIPPED_SIGNATURES, rendered_signatures, to_json
 
 
 def write_shipped_signatures(path: Path = SHIPPED_SIGNATURES) -> Path:
     """Renders the default rig's signatures of every preset into ``path`` (JSON)."""
     rendered = rendered_signatures(DEFAULT_RIG, priors.FIT_PATTERNS)
-    table = {"rig": DEFAULT_RIG.to_dict(), "density": SIGNATURE_DENSITY,
-             "patterns": {pattern: [{"m": s.m.tolist(), "n": s.n.tolist(), "weight": s.weight.tolist()}
-                                    for s in rendered[DEFAULT_RIG, pattern]] for pattern in priors.FIT_PATTERNS}}
-    path.write_text(json.dumps(table) + "\n")
+    path.write_text(json.dumps(to_json(DEFAULT_RIG, rendered)) + "\n")
     return path

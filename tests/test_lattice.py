@@ -1,4 +1,4 @@
-"""The lattice search's scores (backend.texture.lattice) against slow references written from their
+"""The lattice reading's scores (texture.lattice, .sieve, .candidates) against slow references written from their
 definitions: the fast paths evaluate every harmonic, tooth and lattice at once."""
 import numpy as np
 import pytest
@@ -7,7 +7,9 @@ from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig, placement_of
 from backend.image.spectrum import Peak
 from backend.model.render import render_pair
-from backend.texture import lattice
+from backend.texture import candidates, frequencies, lattice, sieve
+from backend.texture.gates import GATES
+from backend.texture.spectra import Spectra
 
 
 def reference_signature_score(maps, signatures, a, b, size, rotation_deg, skew_deg):
@@ -17,9 +19,9 @@ def reference_signature_score(maps, signatures, a, b, size, rotation_deg, skew_d
     for q, sig in zip(maps, signatures):
         weights = np.sqrt(sig.weight) / np.sqrt(sig.weight).sum()
         for m, n, weight in zip(sig.m, sig.n, weights):
-            fx, fy = lattice.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
+            fx, fy = frequencies.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
             folded = (np.abs(fx) > size / 2) | (np.abs(fy) > size / 2)
-            fx, fy = np.broadcast_arrays(lattice.fold(fx, size), lattice.fold(fy, size))
+            fx, fy = np.broadcast_arrays(frequencies.fold(fx, size), frequencies.fold(fy, size))
             looked_up = lattice._lookup(q, fx.ravel(), fy.ravel(), size).reshape(fx.shape)
             total = total + weight * np.where(folded, 0.5, 1.0) * looked_up
     return total
@@ -29,7 +31,7 @@ def reference_comb_scores(freqs, strengths, periods, size, sigma=0.35, reach=1.6
     """Each peak's strength times its best Gaussian hit over every tooth m * spacing within reach."""
     scores = np.zeros(len(periods))
     for g, period in enumerate(periods):
-        teeth = np.abs(lattice.fold(np.arange(1, int(reach * size / period) + 1) * period, size))
+        teeth = np.abs(frequencies.fold(np.arange(1, int(reach * size / period) + 1) * period, size))
         for f, s in zip(freqs, strengths):
             scores[g] += s * np.exp(-0.5 * ((teeth - abs(f)) / sigma) ** 2).max()
     return scores
@@ -75,7 +77,7 @@ def test_comb_scores_match_their_reference():
     size = 256
     freqs, strengths = rng.uniform(-120, 120, 12), rng.uniform(1, 5, 12)
     periods = np.exp(np.linspace(np.log(6.0), np.log(90.0), 200))
-    fast = lattice.comb_scores(freqs, strengths, periods, size, reach=2.5)
+    fast = sieve.comb_scores(freqs, strengths, periods, size, reach=2.5)
     np.testing.assert_allclose(fast, reference_comb_scores(freqs, strengths, periods, size, reach=2.5), rtol=1e-12)
     assert fast.max() > 0.5 * strengths.max()   # something lines up: the check is not all zeros
 
@@ -83,18 +85,18 @@ def test_comb_scores_match_their_reference():
 def reference_peak_coverage(spectra, a, b, rotation_deg, skew_deg):
     """One peak and one harmonic (m, n) at a time: the strength of the peaks (or their mirror images)
     within the tolerance of a turned harmonic folded by the sampling, over the strength of all."""
-    size, reach = spectra.size, lattice.COVERAGE_REACH * spectra.size / 2
-    peaks = [p for image in spectra.peaks for p in image[: lattice.COVERAGE_PEAKS]]
+    size, reach = spectra.size, GATES.coverage_reach * spectra.size / 2
+    peaks = [p for image in spectra.peaks for p in image[: GATES.coverage_peaks]]
     explained = 0.0
     for p in peaks:
-        tolerance = lattice.COVERAGE_TOLERANCE[0] + lattice.COVERAGE_TOLERANCE[1] * np.hypot(p.fx, p.fy)
+        tolerance = GATES.coverage_tolerance[0] + GATES.coverage_tolerance[1] * np.hypot(p.fx, p.fy)
         hit = False
         for m in range(-int(reach / a) - 1, int(reach / a) + 2):
             for n in range(-int(reach / b) - 1, int(reach / b) + 2):
-                fx, fy = lattice.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
+                fx, fy = frequencies.turned_frequencies(m * a, n * b, rotation_deg, skew_deg)
                 if abs(fx) > reach or abs(fy) > reach:
                     continue
-                fx, fy = lattice.fold(fx, size), lattice.fold(fy, size)
+                fx, fy = frequencies.fold(fx, size), frequencies.fold(fy, size)
                 hit |= min(np.hypot(fx - p.fx, fy - p.fy), np.hypot(fx + p.fx, fy + p.fy)) <= tolerance
         explained += p.strength * hit
     return explained / sum(p.strength for p in peaks)
@@ -107,12 +109,12 @@ def test_peak_coverage_matches_its_reference(rotation, skew):
     a, b = 37.3, 52.9
     # half the peaks on (turned, folded) harmonics, nudged within the tolerance; half anywhere
     m, n = rng.integers(-9, 10, 10), rng.integers(-7, 8, 10)
-    fx, fy = lattice.turned_frequencies(m * a, n * b, rotation, skew)
-    fx, fy = lattice.fold(fx, size) + rng.normal(0, 1, 10), lattice.fold(fy, size) + rng.normal(0, 1, 10)
+    fx, fy = frequencies.turned_frequencies(m * a, n * b, rotation, skew)
+    fx, fy = frequencies.fold(fx, size) + rng.normal(0, 1, 10), frequencies.fold(fy, size) + rng.normal(0, 1, 10)
     on = [Peak(float(x), float(y), float(s)) for x, y, s in zip(fx, fy, rng.uniform(3, 8, 10))]
     off = [Peak(float(x), float(y), float(s)) for x, y, s in
            zip(rng.uniform(-250, 250, 10), rng.uniform(0, 250, 10), rng.uniform(3, 8, 10))]
-    spectra = lattice.Spectra(size, [on[:5] + off[:5], on[5:] + off[5:]], [], [])
+    spectra = Spectra(size, [on[:5] + off[:5], on[5:] + off[5:]], [], [])
     fast = lattice.peak_coverage(spectra, a, b, rotation, skew)
     assert fast == pytest.approx(reference_peak_coverage(spectra, a, b, rotation, skew), abs=1e-12)
     assert 0.4 < fast < 1.0
@@ -122,8 +124,8 @@ def test_peak_coverage_matches_its_reference(rotation, skew):
 def turned_satin():
     params = typical("satin0").replace(tiles=(60.0, 30.0))
     pair = render_pair(params, CaptureRig(sample_rotation_deg=2.5), size=512, spp=4, seed=1)
-    spectra = lattice.Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
-    return spectra, lattice.lattice_of(params.tiles, DEFAULT_RIG)
+    spectra = Spectra.of([pair.reflection.numpy(), pair.transmission.numpy()])
+    return spectra, frequencies.lattice_of(params.tiles, DEFAULT_RIG)
 
 
 def test_the_true_lattice_makes_the_photos_peaks_and_one_too_fine_does_not(turned_satin):
@@ -143,16 +145,16 @@ def test_the_true_lattice_makes_the_photos_peaks_and_one_too_fine_does_not(turne
                                                                 (0.8, 0.95, False)])
 def test_a_single_peak_reading_joins_without_the_gain_only_where_the_combs_miss_the_peaks(
         monkeypatch, combs_cover, reading_cover, joins):
-    """A reading from a single peak that scores above the combs, but under ANCHOR_GAIN times them,
-    joins where the combs make less than LOW_COVERAGE of the photos' peak strength and it makes
+    """A reading from a single peak that scores above the combs, but under anchor_gain times them,
+    joins where the combs make less than low_coverage of the photos' peak strength and it makes
     more; one above the gain always joins."""
     comb = lattice.Lattice(90.0, 50.0, 1.0)
     reading = lattice.Lattice(130.0, 130.0, 1.1)
     strong = lattice.Lattice(60.0, 60.0, 1.3)
     covers = {(comb.a, comb.b): combs_cover, (reading.a, reading.b): reading_cover, (strong.a, strong.b): 0.0}
-    monkeypatch.setattr(lattice, "anchored", lambda *args, **kwargs: [reading, strong])
-    monkeypatch.setattr(lattice, "_polished", lambda spectra, signatures, starts, *args: [
+    monkeypatch.setattr(candidates, "anchored", lambda *args, **kwargs: [reading, strong])
+    monkeypatch.setattr(candidates, "_polished", lambda spectra, signatures, starts, *args: [
         next(lat for lat in (reading, strong) if (lat.a, lat.b) == start) for start in starts])
-    monkeypatch.setattr(lattice, "peak_coverage", lambda spectra, a, b, *args: covers[a, b])
-    found = lattice.with_anchored(None, [comb], [], (1.0, 500.0), (1.0, 500.0), top=3)
+    monkeypatch.setattr(candidates, "peak_coverage", lambda spectra, a, b, *args: covers[a, b])
+    found = candidates.with_anchored(None, [comb], [], (1.0, 500.0), (1.0, 500.0), 3, 0.0, 0.0)
     assert found == ([strong, reading, comb] if joins else [strong, comb])

@@ -31,7 +31,7 @@ from ..model.param_tensors import ParamTensors
 from ..model.photo_light import PhotoLight, linear_photo, solve
 from ..model.render import RenderedPair, Renderer
 from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms, luminance
-from ..texture.lattice import lattice_of
+from ..texture.frequencies import lattice_of
 from .gram import gram_loss
 
 

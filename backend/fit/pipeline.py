@@ -60,8 +60,11 @@ from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
-from ..texture.candidates import Candidate, placed
-from ..texture.lattice import Spectra, lattice_of, peak_coverage
+from ..texture.candidates import Candidate
+from ..texture.frequencies import lattice_of
+from ..texture.lattice import peak_coverage
+from ..texture.placement import place
+from ..texture.spectra import Spectra
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
@@ -93,7 +96,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     patterns = priors.FIT_PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
     spectra = Spectra.of([reflection, transmission], workers=torch.get_num_threads())
-    (rotation, skew), found = placed(spectra, rig, patterns, settings.sample_rotation)
+    (rotation, skew), found = place(spectra, rig, patterns, settings.sample_rotation,
+                                   workers=torch.get_num_threads())
     rig = dataclasses.replace(rig, sample_rotation_deg=rotation, sample_skew_deg=skew)
     found = found or [Candidate(p, priors.typical(p).tiles, 0.0) for p in patterns]
 

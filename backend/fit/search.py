@@ -34,7 +34,7 @@ from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from ..image.metrics import spectrum_corr
 from ..texture.candidates import Candidate, tile_range
-from ..texture.lattice import yarns_in_view
+from ..texture.frequencies import yarns_in_view
 from .objective import Objective
 from .optimise import Run
 from .settings import FitSettings

@@ -42,8 +42,8 @@ import torch
 from ..core.params import FabricParams
 from ..image.spectrum import highpassed_luminance
 from ..model.spacing_warp import SpacingWarp
-from ..texture.candidates import signatures
-from ..texture.lattice import lattice_of
+from ..texture.frequencies import lattice_of
+from ..texture.signatures import signatures
 from ..texture.uneven_spacing import WarpReading, read_warp
 from .objective import Objective
 

@@ -63,7 +63,7 @@ from ..core.rig import CaptureRig
 from ..core.weave import is_mirrored, paper_preset
 from ..model.imaging import downsample_linear
 from ..texture.features import LatticeProbe, luminance_quantiles
-from ..texture.lattice import lattice_of
+from ..texture.frequencies import lattice_of
 
 FEATURE_VERSION = 2
 WORK_SIZE = 256          # the fit's working size: features are read where the fit compares

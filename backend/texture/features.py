@@ -39,7 +39,7 @@ import torch.nn.functional as F
 from ..image.metrics import SPECTRUM_DC_HALF, SPECTRUM_HIGHPASS_PX, SPECTRUM_KEEP, SPECTRUM_POWER_BLUR
 from ..image.tone import LUMA
 from ..model.imaging import blur_matrix, gaussian_blur
-from .lattice import turned_frequencies
+from .frequencies import turned_frequencies
 
 QUANTILES = 24
 ORDER = 4

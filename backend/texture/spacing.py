@@ -72,7 +72,8 @@ import numpy as np
 
 from ..core.rig import placement_of
 from ..image.spectrum import hann
-from .lattice import Lattice, Signature, fabric_frequencies, fold, turned_frequencies, yarn_vector_angles
+from .frequencies import fabric_frequencies, fold, turned_frequencies, yarn_vector_angles
+from .lattice import Lattice, Signature
 
 HARMONICS = 4            # the strongest usable harmonics of a photo that are read
 MIN_SEPARATION = 5.0     # cycles per image to the nearest other lattice harmonic

@@ -60,7 +60,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.spacing_warp import SpacingWarp, affine_part, bspline_basis, control_abscissae, grid_centres
-from .lattice import Signature, turned_frequencies
+from .frequencies import turned_frequencies
+from .lattice import Signature
 from .spacing import phase_steps, strongest_harmonics
 
 INTERVALS = 12        # B-spline spans across the photo (43 px at 512): represents warps of periods >= 150 px within 3 %

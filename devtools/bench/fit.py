@@ -37,7 +37,7 @@ from backend.core.params import FabricParams
 from backend.core.priors import family
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model.spacing_warp import SpacingWarp, grid_centres, non_affine, rms
-from backend.texture.lattice import yarns_in_view
+from backend.texture.frequencies import yarns_in_view
 
 from ..phone import PhoneEffects
 from .novel_light import novel_light_error

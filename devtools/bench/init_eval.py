@@ -33,7 +33,7 @@ from backend.fit.settings import FitSettings
 from backend.image.photos import load_pair
 from backend.init import network as init_net
 from backend.texture.candidates import propose
-from backend.texture.lattice import Spectra
+from backend.texture.spectra import Spectra
 
 from ..train import EXACT_ROW, load_arrays
 

@@ -18,11 +18,13 @@ import json
 import statistics
 import time
 
+import torch
+
 from backend.core.priors import FIT_PATTERNS
 from backend.core.rig import DEFAULT_RIG
 from backend.image.photos import load_pair
-from backend.texture.candidates import placed
-from backend.texture.lattice import Spectra
+from backend.texture import placement
+from backend.texture.spectra import Spectra
 
 from .fit import TARGETS, pair_jobs, tiles_error_pct
 
@@ -34,7 +36,8 @@ def place(job: dict) -> dict:
     started = time.perf_counter()
     photos = load_pair(job["reflection"], job["transmission"], size=DEFAULT_RIG.film_size)
     spectra = Spectra.of([photos.reflection, photos.transmission])
-    (rotation, skew), found = placed(spectra, DEFAULT_RIG, FIT_PATTERNS, None)
+    (rotation, skew), found = placement.place(spectra, DEFAULT_RIG, FIT_PATTERNS, None,
+                                                workers=torch.get_num_threads())
     truth, rig = job["truth"], job["rig"]
     own = [c for c in found if c.pattern == truth.pattern]  # best first within a pattern
     return {"kind": job["kind"], "name": job["name"], "rotation_deg": rotation, "skew_deg": skew,
