@@ -21,14 +21,9 @@ the true (axis-aligned) lattice as above, so the network learns the features of 
 noisy, unevenly lit photos. The renders then have no ``--spp``: one sample per phone pixel.
 
 Resolution and samples: 256 x 256 (the working size of the fit, where the features are read) with
-16 samples per pixel on a fixed stratified jitter (the fit's own renders use the same). Measured
-against 512 x 64-spp renders area-downsampled to 256 (10 prior draws, all presets), the mean
-absolute feature error is, for 4 / 8 / 16 spp: log harmonics 0.087 / 0.064 / 0.041 (eps 0.03;
-spread across fabrics 0.17), 16 x 16 colours 0.004 / 0.0025 / 0.0026 (spread 0.08), luminance
-quantiles 0.012 / 0.0075 / 0.0041 (spread 0.06); an independent 16-spp render is as far from the
-reference as ours, so at 16 spp what remains is the sampling noise the fit sees too. With the
-compiled renderer a pair takes about 0.45 s on one core, so 5 x 1000 items take about 20 minutes
-with two workers.
+16 samples per pixel on a fixed stratified jitter (the fit's own renders use the same). Against
+renders of many more samples, what remains of the features' error at 16 spp is the sampling noise
+the fit sees too: an independent 16-spp render is as far from the reference.
 
 Files: ``DIR/dataset.json`` (the settings; a resumed run must use the same ones) and one
 ``DIR/<pattern>_<index>.npz`` per item (arrays: 16-bit ``reflection`` and ``transmission``,

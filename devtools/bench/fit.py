@@ -123,8 +123,7 @@ def warp_errors(fitted: SpacingWarp | None, phone: PhoneEffects, film_size: int)
 def blur_errors(fitted_px: float, phone: PhoneEffects) -> dict:
     """The camera blur the fit used against the phone's (film pixels). Not a truth to the last
     hundredth (the sensor's pixels, the JPEG and the resize soften a photo a little more), but a fit
-    far from it has the rest wrong with it: photo-like seed 53's twill0_001 fitted at 1.31 px against
-    the phone's 1.04 has roughness MAE .175 and loss 1.19; held at 1.04 from the start, .048 and 0.85."""
+    far from it has the rest wrong with it: its roughness and its loss too."""
     return {"phone_blur_px": round(phone.blur_px, 3), "blur_error_px": round(fitted_px - phone.blur_px, 3)}
 
 
