@@ -248,6 +248,21 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
     """Splits the jobs over ``workers`` Python processes (plain subprocesses: the command line's
     ``__main__`` must not be re-run the way multiprocessing's spawn would) and reports progress by
     watching the finished files appear."""
+    procs = _start_workers(out, jobs, settings, compile, workers)
+    try:
+        missing = _watch(out, jobs, procs, report)
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.terminate()
+            proc.wait()
+    failed = [p.returncode for p in procs if p.returncode]
+    if failed or missing:
+        raise RuntimeError(f"dataset: {missing} item(s) not made; worker exit codes {failed}")
+
+
+def _start_workers(out: Path, jobs, settings: DatasetSettings, compile, workers: int) -> list[subprocess.Popen]:
+    """One worker process per non-empty shard (every ``workers``-th job), its jobs sent on stdin."""
     root = str(Path(__file__).resolve().parents[2])  # holds the backend package
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     procs = []
@@ -261,6 +276,12 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
                                      "compile": compile}))
         proc.stdin.close()
         procs.append(proc)
+    return procs
+
+
+def _watch(out: Path, jobs, procs: list[subprocess.Popen], report) -> int:
+    """Reports each item file as it appears, until all have or every worker has ended; returns how
+    many are missing."""
     waiting = {f"{item_name(p, i)}.npz" for p, i in jobs}
     started = time.time() - 1.0
 
@@ -270,24 +291,16 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
         except FileNotFoundError:
             return False
 
-    try:
-        while waiting:
-            finished = {name for name in waiting if written(name)}
-            for name in sorted(finished):
-                report(name[:-4])
-            waiting -= finished
-            if all(p.poll() is not None for p in procs):
-                waiting = {name for name in waiting if not written(name)}
-                break
-            time.sleep(1.0)
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-            proc.wait()
-    failed = [p.returncode for p in procs if p.returncode]
-    if failed or waiting:
-        raise RuntimeError(f"dataset: {len(waiting)} item(s) not made; worker exit codes {failed}")
+    while waiting:
+        finished = {name for name in waiting if written(name)}
+        for name in sorted(finished):
+            report(name[:-4])
+        waiting -= finished
+        if all(p.poll() is not None for p in procs):
+            waiting = {name for name in waiting if not written(name)}
+            break
+        time.sleep(1.0)
+    return len(waiting)
 
 
 def recorded_settings(folder: str | Path) -> dict | None:
