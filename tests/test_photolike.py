@@ -294,14 +294,14 @@ def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
 
 @pytest.mark.slow
 def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_the_truth(tmp_path, capsys):
-    from devtools.cli.main import main
     from devtools.bench.placement import summary
+    from devtools.cli.main import main
 
     # A satin whose photos show a few low oblique peaks at 2-3 px per yarn (tests/test_fit.py's lone
     # harmonic case), turned 0.15 degrees.
     case = photolike.make_item(tmp_path, seed=31, index=14)
     (tmp_path / "cases.json").write_text(json.dumps([case]))
-    assert main(["bench", "placement", "--synthetic", str(tmp_path), "--json"]) == 0
+    assert main(["bench", "placement", "--synthetic", str(tmp_path), "--json", "--no-record"]) == 0
     row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
     assert row["name"] == case["name"] and row["true_rotation_deg"] == pytest.approx(0.15, abs=0.01)
     assert row["rotation_error_deg"] == pytest.approx(abs(row["rotation_deg"] - row["true_rotation_deg"]), abs=1e-3)
