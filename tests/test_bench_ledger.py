@@ -11,7 +11,7 @@ from devtools.bench import fit, ledger, placement
 from devtools.bench.ledger import Ledger
 from devtools.cli.main import main
 
-RUN_FIELDS = {"bench", "date", "commit", "dirty", "command", "machine", "datasets", "kind", "data"}
+RUN_FIELDS = {"bench", "date", "commit", "dirty", "command", "environment", "machine", "datasets", "kind", "data"}
 
 
 def _records(path):
@@ -37,7 +37,11 @@ def placed_pairs(monkeypatch):
         "candidates": [], "seconds": 1.0})
 
 
-def test_a_run_appends_one_record_per_row_it_prints_and_one_summary(results, placed_pairs, tmp_path, capsys):
+def test_a_run_appends_one_record_per_row_it_prints_and_one_summary(results, placed_pairs, tmp_path, monkeypatch,
+                                                                    capsys):
+    monkeypatch.setenv("WFC_COMPILE", "0")
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    monkeypatch.setenv("UNRELATED", "x")
     argv = ["bench", "placement", "--synthetic", str(tmp_path / "set"), "--json"]
     assert main(argv) == 0
     printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
@@ -48,6 +52,7 @@ def test_a_run_appends_one_record_per_row_it_prints_and_one_summary(results, pla
         assert set(record) == RUN_FIELDS
         assert record["bench"] == "placement" and record["command"] == "python -m devtools " + " ".join(argv)
         assert record["datasets"] == [str((tmp_path / "set").resolve())]
+        assert record["environment"] == {"OMP_NUM_THREADS": "3", "WFC_COMPILE": "0"}
         assert set(record["machine"]) == {"cpu", "cores", "torch_threads", "device", "gpu"}
         assert record["machine"]["device"] == "cpu" and record["machine"]["torch_threads"] >= 1
     assert len({(r["date"], r["commit"]) for r in records}) == 1  # the run's context, read once

@@ -3,7 +3,8 @@
 A figure quoted without the code, the machine and the data it came from cannot be checked again, so
 every ``python -m devtools bench ...`` and ``evaluate-init`` run appends each row it prints and its
 summary, each with the run's context: the commit and whether the tree differed from it, the date,
-the command line, the machine and the data sets' folders (the record format:
+the command line and the environment variables that change a measurement, the machine and the data
+sets' folders (the record format:
 ``devtools/bench/results/README.md``). ``--no-record`` runs without appending.
 """
 from __future__ import annotations
@@ -22,6 +23,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]  # the checkout holding devtools/
 IN_CHECKOUT = "devtools/bench/results"  # the ledger's folder within the checkout
 RESULTS = ROOT / IN_CHECKOUT
+THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")  # read by the OpenMP and MKL runtimes torch loads
 
 
 @dataclass(frozen=True)
@@ -79,8 +81,14 @@ def run_context(bench: str, argv: list[str], datasets: list[str], device: str, r
     status = _git(root, "status", "--porcelain", "--", ".", f":(exclude){IN_CHECKOUT}")
     return {"bench": bench, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "commit": commit, "dirty": None if commit is None or status is None else bool(status),
-            "command": shlex.join(["python", "-m", "devtools", *argv]), "machine": machine(device),
-            "datasets": [str(Path(folder).resolve()) for folder in datasets]}
+            "command": shlex.join(["python", "-m", "devtools", *argv]), "environment": _environment(),
+            "machine": machine(device), "datasets": [str(Path(folder).resolve()) for folder in datasets]}
+
+
+def _environment() -> dict:
+    """The variables set that change what a benchmark measures: the renderer's compile switch
+    (``WFC_COMPILE``) and the thread counts its fits inherit."""
+    return {name: value for name, value in sorted(os.environ.items()) if name.startswith("WFC_") or name in THREADS}
 
 
 def machine(device: str) -> dict:
