@@ -63,6 +63,7 @@ from .photo_like import photograph
 LATTICE_ERROR = 0.003    # relative s.d. of the lattice estimator's tiles (checked on the golden pairs)
 LATTICE_ERROR_MAX = 0.01
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamps: the same item gives the same bytes
+WORKER_EXIT_S = 60.0  # how long workers whose items are written may take to exit before they are stopped
 
 
 @dataclass(frozen=True)
@@ -251,6 +252,7 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
     procs = _start_workers(out, jobs, settings, compile, workers)
     try:
         missing = _watch(out, jobs, procs, report)
+        _wait_for_exit(procs)
     finally:
         for proc in procs:
             if proc.poll() is None:
@@ -263,7 +265,7 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
 
 def _start_workers(out: Path, jobs, settings: DatasetSettings, compile, workers: int) -> list[subprocess.Popen]:
     """One worker process per non-empty shard (every ``workers``-th job), its jobs sent on stdin."""
-    root = str(Path(__file__).resolve().parents[2])  # holds the backend package
+    root = str(Path(__file__).resolve().parents[1])  # the checkout: holds the backend and devtools packages
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     procs = []
     for k in range(workers):
@@ -277,6 +279,17 @@ def _start_workers(out: Path, jobs, settings: DatasetSettings, compile, workers:
         proc.stdin.close()
         procs.append(proc)
     return procs
+
+
+def _wait_for_exit(procs: list[subprocess.Popen]) -> None:
+    """Workers whose items are all written are still shutting down (Python, torch): up to
+    WORKER_EXIT_S for all of them; one still running then is stopped and reported by its exit code."""
+    deadline = time.monotonic() + WORKER_EXIT_S
+    for proc in procs:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            return
 
 
 def _watch(out: Path, jobs, procs: list[subprocess.Popen], report) -> int:
