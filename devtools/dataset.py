@@ -384,7 +384,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
                   f"eta {eta / 60:.1f} min", file=log, flush=True)
 
     if workers <= 1:
-            make_items(out, jobs, settings, signatures or candidates.signatures(DEFAULT_RIG), compile, report)
+        make_items(out, jobs, settings, signatures or candidates.signatures(DEFAULT_RIG), compile, report)
     else:
         _run_shards(out, jobs, settings, compile, workers, report)
     return done
@@ -394,6 +394,3 @@ def load_items(folder: str | Path, limit: int | None = None) -> list[Path]:
     """The item files of a dataset folder, sorted by name."""
     files = sorted(Path(folder).glob("*.npz"))
     return files[:limit] if limit else files
-
-
-# -- command line ----------------------------------------------------------------------------------

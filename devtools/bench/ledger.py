@@ -4,8 +4,8 @@ A figure quoted without the code, the machine and the data it came from cannot b
 every ``python -m devtools bench ...`` and ``evaluate-init`` run appends each row it prints and its
 summary, each with the run's context: the commit and whether the tree differed from it, the date,
 the command line and the environment variables that change a measurement, the machine and the data
-sets' folders (the record format:
-``devtools/bench/results/README.md``). ``--no-record`` runs without appending.
+sets' folders (the record format: ``devtools/bench/results/README.md``). ``--no-record`` runs
+without appending.
 """
 from __future__ import annotations
 
