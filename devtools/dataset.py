@@ -21,14 +21,9 @@ the true (axis-aligned) lattice as above, so the network learns the features of 
 noisy, unevenly lit photos. The renders then have no ``--spp``: one sample per phone pixel.
 
 Resolution and samples: 256 x 256 (the working size of the fit, where the features are read) with
-16 samples per pixel on a fixed stratified jitter (the fit's own renders use the same). Measured
-against 512 x 64-spp renders area-downsampled to 256 (10 prior draws, all presets), the mean
-absolute feature error is, for 4 / 8 / 16 spp: log harmonics 0.087 / 0.064 / 0.041 (eps 0.03;
-spread across fabrics 0.17), 16 x 16 colours 0.004 / 0.0025 / 0.0026 (spread 0.08), luminance
-quantiles 0.012 / 0.0075 / 0.0041 (spread 0.06); an independent 16-spp render is as far from the
-reference as ours, so at 16 spp what remains is the sampling noise the fit sees too. With the
-compiled renderer a pair takes about 0.45 s on one core, so 5 x 1000 items take about 20 minutes
-with two workers.
+16 samples per pixel on a fixed stratified jitter (the fit's own renders use the same). Against
+renders of many more samples, what remains of the features' error at 16 spp is the sampling noise
+the fit sees too: an independent 16-spp render is as far from the reference.
 
 Files: ``DIR/dataset.json`` (the settings; a resumed run must use the same ones) and one
 ``DIR/<pattern>_<index>.npz`` per item (arrays: 16-bit ``reflection`` and ``transmission``,
@@ -64,13 +59,14 @@ from backend.model import rng
 from backend.model.render import Renderer
 from backend.texture import candidates, lattice
 from backend.texture.gates import GATES
-from backend.texture.signatures import signatures
+from backend.texture.signatures import signatures as pattern_signatures
 
 from .photo_like import photograph
 
 LATTICE_ERROR = 0.003    # relative s.d. of the lattice estimator's tiles (checked on the golden pairs)
 LATTICE_ERROR_MAX = 0.01
 ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamps: the same item gives the same bytes
+WORKER_EXIT_S = 60.0  # how long workers whose items are written may take to exit before they are stopped
 
 
 @dataclass(frozen=True)
@@ -113,7 +109,7 @@ def confusable_tiles(maps: list[np.ndarray], signature, true_tiles, pattern: str
             if not (ulo <= tu <= uhi and vlo <= tv <= vhi):
                 continue
             a, b = np.array([[tu * scale]]), np.array([[tv * scale]])
-            # lattice.signature_score is the estimator's own signature score (what lattice.candidates ranks by).
+            # lattice.signature_score is the estimator's own signature score (what candidates.comb_lattices ranks by).
             score = float(lattice.signature_score(maps, signature, a, b, size)[0, 0])
             if best is None or score > best[0]:
                 best = (score, (tu, tv))
@@ -249,14 +245,30 @@ def _shard_main() -> None:
     """Entry point of a worker process: its job list and settings come as JSON on stdin."""
     job = json.loads(sys.stdin.read())
     make_items(Path(job["out"]), [tuple(j) for j in job["jobs"]], DatasetSettings(**job["settings"]),
-               signatures(DEFAULT_RIG), job["compile"])
+               pattern_signatures(DEFAULT_RIG), job["compile"])
 
 
 def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: int, report) -> None:
     """Splits the jobs over ``workers`` Python processes (plain subprocesses: the command line's
     ``__main__`` must not be re-run the way multiprocessing's spawn would) and reports progress by
     watching the finished files appear."""
-    root = str(Path(__file__).resolve().parents[2])  # holds the backend package
+    procs = _start_workers(out, jobs, settings, compile, workers)
+    try:
+        missing = _watch(out, jobs, procs, report)
+        _wait_for_exit(procs)
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.terminate()
+            proc.wait()
+    failed = [p.returncode for p in procs if p.returncode]
+    if failed or missing:
+        raise RuntimeError(f"dataset: {missing} item(s) not made; worker exit codes {failed}")
+
+
+def _start_workers(out: Path, jobs, settings: DatasetSettings, compile, workers: int) -> list[subprocess.Popen]:
+    """One worker process per non-empty shard (every ``workers``-th job), its jobs sent on stdin."""
+    root = str(Path(__file__).resolve().parents[1])  # the checkout: holds the backend and devtools packages
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))}
     procs = []
     for k in range(workers):
@@ -269,6 +281,23 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
                                      "compile": compile}))
         proc.stdin.close()
         procs.append(proc)
+    return procs
+
+
+def _wait_for_exit(procs: list[subprocess.Popen]) -> None:
+    """Workers whose items are all written are still shutting down (Python, torch): up to
+    WORKER_EXIT_S for all of them; one still running then is stopped and reported by its exit code."""
+    deadline = time.monotonic() + WORKER_EXIT_S
+    for proc in procs:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            return
+
+
+def _watch(out: Path, jobs, procs: list[subprocess.Popen], report) -> int:
+    """Reports each item file as it appears, until all have or every worker has ended; returns how
+    many are missing."""
     waiting = {f"{item_name(p, i)}.npz" for p, i in jobs}
     started = time.time() - 1.0
 
@@ -278,24 +307,16 @@ def _run_shards(out: Path, jobs, settings: DatasetSettings, compile, workers: in
         except FileNotFoundError:
             return False
 
-    try:
-        while waiting:
-            finished = {name for name in waiting if written(name)}
-            for name in sorted(finished):
-                report(name[:-4])
-            waiting -= finished
-            if all(p.poll() is not None for p in procs):
-                waiting = {name for name in waiting if not written(name)}
-                break
-            time.sleep(1.0)
-    finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-            proc.wait()
-    failed = [p.returncode for p in procs if p.returncode]
-    if failed or waiting:
-        raise RuntimeError(f"dataset: {len(waiting)} item(s) not made; worker exit codes {failed}")
+    while waiting:
+        finished = {name for name in waiting if written(name)}
+        for name in sorted(finished):
+            report(name[:-4])
+        waiting -= finished
+        if all(p.poll() is not None for p in procs):
+            waiting = {name for name in waiting if not written(name)}
+            break
+        time.sleep(1.0)
+    return len(waiting)
 
 
 def recorded_settings(folder: str | Path) -> dict | None:
@@ -366,7 +387,7 @@ def generate(out: str | Path, per_pattern: int, workers: int = 1, settings: Data
                   f"eta {eta / 60:.1f} min", file=log, flush=True)
 
     if workers <= 1:
-            make_items(out, jobs, settings, signatures or signatures(DEFAULT_RIG), compile, report)
+        make_items(out, jobs, settings, signatures or pattern_signatures(DEFAULT_RIG), compile, report)
     else:
         _run_shards(out, jobs, settings, compile, workers, report)
     return done
@@ -376,6 +397,3 @@ def load_items(folder: str | Path, limit: int | None = None) -> list[Path]:
     """The item files of a dataset folder, sorted by name."""
     files = sorted(Path(folder).glob("*.npz"))
     return files[:limit] if limit else files
-
-
-# -- command line ----------------------------------------------------------------------------------

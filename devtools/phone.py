@@ -29,9 +29,8 @@ comparison with the truth under other lights applies them to the truth (:meth:`P
 
 :meth:`PhoneEffects.without` takes effects away (:data:`EFFECTS`) after the draw, so a set made
 without some (``photolike --without``) differs from the full set in those alone: every other value
-and the render are the same. What each effect costs a fit is then one bench away: photo-like seed 7
-without the spacing warp, roughness MAE .0719 -> .0579 over its pairs but twill1m_007 (which was fitted
-as a plain without it), FLIP R .1215 -> .0967, novel-light colour L1 .0089 -> .0082 (all 20).
+and the render are the same. What each effect costs a fit is then one bench away: ``bench fit`` on
+both sets.
 """
 from __future__ import annotations
 

@@ -12,9 +12,9 @@ One shot of a weave preset, all drawn from one seeded generator ``rng`` in this 
 5. the seed of the render's sample positions.
 
 With ``move_rng``, the phone also moves between the shots (:func:`moved_reflection`): the
-reflection photo is taken from a little further away and turned, as in the dev real pairs
-(twill1: the reflection's lattice 15 % denser and turned 1 degree; twill2: 3.5 % and -1 degree). The
-move is drawn from its own generator, so a set's unmoved shots stay what they were.
+reflection photo is taken from a little further away and turned (up to :data:`MOVE_SCALE` and
+:data:`MAX_MOVE_TURN_DEG`), as a hand-held phone's second shot is. The move is drawn from its own
+generator, so a set's unmoved shots stay what they were.
 
 The rig renders the turned sample at ``phone_scale`` times the film's resolution with one sample per
 phone pixel (``phone_scale``\\ :sup:`2` per film pixel), the phone turns each radiance into its photo

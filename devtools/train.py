@@ -152,11 +152,7 @@ def train(arrays: Arrays, settings: TrainSettings = TrainSettings(), log=sys.std
     """Trains a network; ``steps`` (tests) stops after that many optimiser steps."""
     torch.manual_seed(settings.seed)
     generator = torch.Generator().manual_seed(settings.seed)
-    held = validation_mask(arrays.names, settings.validation)
-    if held.all() or not held.any():  # tiny sets: validate on the training items
-        training, validation = arrays, arrays
-    else:
-        training, validation = arrays.subset(~held), arrays.subset(held)
+    training, validation = _split(arrays, settings.validation)
     net = init_net.InitNet(init_net.INPUT_DIM, settings.hidden, settings.dropout)
     net.set_normalisation(training.features[:, :EXACT_ROW].reshape(-1, init_net.FEATURE_DIM))
     optimiser = torch.optim.AdamW(net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
@@ -165,34 +161,13 @@ def train(arrays: Arrays, settings: TrainSettings = TrainSettings(), log=sys.std
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, total_steps)
     initial = evaluate(net, training)
     best = (math.inf, None, None)
-    history = []
     started = time.perf_counter()
     step = 0
     epoch = 0
     while step < total_steps:
-        net.train()
-        order = torch.randperm(len(training), generator=generator)
-        running = {"loss": 0.0, "l1": 0.0, "ce": 0.0}
-        count = 0
-        for start in range(0, len(training), settings.batch):
-            index = order[start:start + settings.batch]
-            exact = torch.rand(len(index), generator=generator) < 0.5
-            out = losses(net, candidate_batch(training, index, exact), training.targets[index],
-                         training.patterns[index])
-            optimiser.zero_grad(set_to_none=True)
-            out["loss"].backward()
-            optimiser.step()
-            scheduler.step()
-            for k in running:
-                running[k] += float(out[k].detach()) * len(index)
-            count += len(index)
-            step += 1
-            if step >= total_steps:
-                break
+        train_stats, step = _epoch(net, training, settings.batch, optimiser, scheduler, generator, step, total_steps)
         epoch += 1
-        train_stats = {k: v / count for k, v in running.items()}
         val = evaluate(net, validation)
-        history.append({"epoch": epoch, "train": train_stats, "validation": val})
         if val["loss"] < best[0]:
             best = (val["loss"], {k: v.clone() for k, v in net.state_dict().items()}, epoch)
         if epoch == 1 or epoch % 10 == 0 or step >= total_steps:
@@ -211,3 +186,37 @@ def train(arrays: Arrays, settings: TrainSettings = TrainSettings(), log=sys.std
             "validation": {k: round(v, 5) for k, v in final_val.items()},
             "settings": settings.__dict__}
     return net, info
+
+
+def _split(arrays: Arrays, fraction: float) -> tuple[Arrays, Arrays]:
+    """The training and the validation items (:func:`validation_mask`); a set too small to hold
+    items back validates on the training items."""
+    held = validation_mask(arrays.names, fraction)
+    if held.all() or not held.any():
+        return arrays, arrays
+    return arrays.subset(~held), arrays.subset(held)
+
+
+def _epoch(net: init_net.InitNet, training: Arrays, batch: int, optimiser, scheduler, generator: torch.Generator,
+           step: int, total_steps: int) -> tuple[dict[str, float], int]:
+    """One pass over the training items in a random order (or up to ``total_steps``): each batch's
+    true rows at the exact tiles for a random half. Returns the mean losses and the step count."""
+    net.train()
+    order = torch.randperm(len(training), generator=generator)
+    running = {"loss": 0.0, "l1": 0.0, "ce": 0.0}
+    count = 0
+    for start in range(0, len(training), batch):
+        index = order[start:start + batch]
+        exact = torch.rand(len(index), generator=generator) < 0.5
+        out = losses(net, candidate_batch(training, index, exact), training.targets[index], training.patterns[index])
+        optimiser.zero_grad(set_to_none=True)
+        out["loss"].backward()
+        optimiser.step()
+        scheduler.step()
+        for k in running:
+            running[k] += float(out[k].detach()) * len(index)
+        count += len(index)
+        step += 1
+        if step >= total_steps:
+            break
+    return {k: v / count for k, v in running.items()}, step

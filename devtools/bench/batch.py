@@ -44,6 +44,8 @@ from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.image.png import write_png
 from backend.model.render import render_pair
 
+from .ledger import NOT_RECORDED, Ledger
+
 OUTPUT_SPP = 4
 
 
@@ -97,7 +99,8 @@ def small_fabric(params: FabricParams, film: int) -> FabricParams:
 
 
 def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit: int, workers: int | None,
-                sequential_threads: int | None, with_subprocess: bool, rounds: int, as_json: bool) -> int:
+                sequential_threads: int | None, with_subprocess: bool, rounds: int, as_json: bool,
+                ledger: Ledger = NOT_RECORDED) -> int:
     cores = os.cpu_count() or 1
     workers = workers or max(1, cores // cpus_per_fit)
     sequential_threads = sequential_threads or cores
@@ -130,7 +133,7 @@ def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit:
                 for row in ways:
                     row.update(round=number, pairs_per_hour=round(3600 * pairs / row["wall_s"], 1),
                                vs_sequential=round(ways[0]["wall_s"] / row["wall_s"], 2))
-                    _show(row, as_json)
+                    _show(row, as_json, ledger)
                 rows += ways
         finally:
             connection.close()
@@ -153,16 +156,19 @@ def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit:
         for total in totals.values():
             print(f"  {total['way']:<10} {total['wall_s']:8.1f} s  {total['pairs_per_hour']:7.1f} pairs/hour  "
                   f"{total['vs_sequential']:.2f}x sequential  ({total['failed']} failed)", flush=True)
+    ledger.summary(summary)
     return 1 if any(t["failed"] for t in totals.values()) else 0
 
 
-def _show(row: dict, as_json: bool) -> None:
+def _show(row: dict, as_json: bool, ledger: Ledger) -> None:
+    shown = {**row, "wall_s": round(row["wall_s"], 1)}
     if as_json:
-        print(json.dumps({**row, "wall_s": round(row["wall_s"], 1)}), flush=True)
+        print(json.dumps(shown), flush=True)
     else:
         print(f"round {row['round']}: {row['way']:<10} {row['fits_at_once']} at a time x {row['threads']} thread(s): "
               f"{row['wall_s']:7.1f} s  {row['pairs_per_hour']:7.1f} pairs/hour  {row['vs_sequential']:.2f}x "
               f"sequential  ({row['failed']} failed)", flush=True)
+    ledger.row(shown)
 
 
 def _subprocess_loop(tmp: Path, rig_path: Path, fit_options: dict, threads: int, out: Path) -> dict:

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from operator import itemgetter
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +41,10 @@ from backend.model.spacing_warp import SpacingWarp, grid_centres, non_affine, rm
 from backend.texture.frequencies import yarns_in_view
 
 from ..phone import PhoneEffects
+from .ledger import NOT_RECORDED, Ledger
 from .novel_light import novel_light_error
 
+KINDS = ("real", "golden", "photolike")  # the kinds of pair, in the summary's order
 TARGETS = {
     "real": {"flip_max": 0.12, "colour_l1_max": 0.015, "spectrum_corr_min": 0.65, "family_accuracy_min": 1.0},
     "photolike": {"pattern_accuracy_min": 0.95, "roughness_mae_max": 0.06, "tiles_error_pct_max": 1.0,
@@ -123,8 +126,7 @@ def warp_errors(fitted: SpacingWarp | None, phone: PhoneEffects, film_size: int)
 def blur_errors(fitted_px: float, phone: PhoneEffects) -> dict:
     """The camera blur the fit used against the phone's (film pixels). Not a truth to the last
     hundredth (the sensor's pixels, the JPEG and the resize soften a photo a little more), but a fit
-    far from it has the rest wrong with it: photo-like seed 53's twill0_001 fitted at 1.31 px against
-    the phone's 1.04 has roughness MAE .175 and loss 1.19; held at 1.04 from the start, .048 and 0.85."""
+    far from it has the rest wrong with it: its roughness and its loss too."""
     return {"phone_blur_px": round(phone.blur_px, 3), "blur_error_px": round(fitted_px - phone.blur_px, 3)}
 
 
@@ -156,7 +158,7 @@ def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) ->
 
 
 def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, extra: list[str], as_json: bool,
-              keep: str | None = None, novel_light: bool = True) -> int:
+              keep: str | None = None, novel_light: bool = True, ledger: Ledger = NOT_RECORDED) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="fit-bench-") as tmp:
         work = Path(keep) if keep else Path(tmp)
@@ -164,47 +166,59 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
             out = work / f"{job['kind']}_{job['name']}"
             if keep and out.exists():
                 shutil.rmtree(out)
-            result = run_fit(job["reflection"], job["transmission"], out, extra)
-            row = {"kind": job["kind"], "name": job["name"], "wall_s": round(result["wall_s"], 1)}
-            if "error" in result:
-                row["error"] = result["error"]
-            else:
-                fitted, rig = result["params"], result["rig"]
-                row.update(pattern=fitted.pattern, tiles=[round(x, 1) for x in fitted.tiles],
-                           peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
-                           rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
-                           at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"],
-                           warp_rms_px=round(result["warp"].rms_px(rig.film_size) if result["warp"] else 0.0, 3))
-                registration = result["registration"]
-                if registration is not None or job.get("move") is not None:
-                    # the photos' framing as registered, beside the phone's true move where the set has one
-                    row["registered"] = None if registration is None else {
-                        k: registration[k] for k in ("moved", "magnification", "turn_deg", "matches")}
-                    row["move"] = job.get("move")
-                for tag in ("reflection", "transmission"):
-                    for key, value in result["metrics"][tag].items():
-                        row[f"{key}_{tag[0].upper()}"] = round(value, 4)
-                truth = job["truth"]
-                if truth is not None:
-                    row.update({k: (round(v, 4) if isinstance(v, float) else v)
-                                for k, v in parameter_errors(fitted, truth).items()})
-                    row["rotation_error_deg"] = round(abs(rig.sample_rotation_deg - job["rig"].sample_rotation_deg), 3)
-                    row["family_true"] = family(truth.pattern)
-                    row["pixels_per_yarn"] = round(pixels_per_yarn(truth, job["rig"]), 2)
-                    if job["phone"] is not None:
-                        row.update(warp_errors(result["warp"], job["phone"], rig.film_size))
-                        row.update(blur_errors(rig.camera_blur_px, job["phone"]))
-                    if novel_light:
-                        phone = job["phone"]
-                        gains = (phone.gains(0), phone.gains(1)) if phone else None
-                        errors = novel_light_error(fitted, truth, gains=gains)
-                        row["novel_colour_l1"] = round(errors["colour_l1"], 4)
-                        row["novel_spectrum_corr"] = round(errors["spectrum_corr"], 4)
+            row = pair_row(job, run_fit(job["reflection"], job["transmission"], out, extra), novel_light)
             rows.append(row)
             print(json.dumps(row) if as_json else _format(row), flush=True)
+            ledger.row(row)
     summary = summarise(rows)
     print(json.dumps(summary) if as_json else _format_summary(summary), flush=True)
+    ledger.summary(summary)
     return 0 if all("error" not in r for r in rows) else 1
+
+
+def pair_row(job: dict, result: dict, novel_light: bool) -> dict:
+    """One pair's row (a :func:`pair_jobs` job, its :func:`run_fit` result): what the fit found, the
+    photos' framing, the re-renders' metrics and, where the pair has a truth, the errors against it."""
+    row = {"kind": job["kind"], "name": job["name"], "wall_s": round(result["wall_s"], 1)}
+    if "error" in result:
+        return {**row, "error": result["error"]}
+    fitted, rig = result["params"], result["rig"]
+    row.update(pattern=fitted.pattern, tiles=[round(x, 1) for x in fitted.tiles],
+               peak_mb=round(result["peak_mb"] or 0, 1), camera_blur_px=rig.camera_blur_px,
+               rotation_deg=rig.sample_rotation_deg, skew_deg=rig.sample_skew_deg,
+               at_bounds=result["at_bounds"], steps=result["steps"], iterations=result["iterations"],
+               warp_rms_px=round(result["warp"].rms_px(rig.film_size) if result["warp"] else 0.0, 3))
+    registration = result["registration"]
+    if registration is not None or job.get("move") is not None:
+        # the photos' framing as registered, beside the phone's true move where the set has one
+        row["registered"] = None if registration is None else {
+            k: registration[k] for k in ("moved", "magnification", "turn_deg", "matches")}
+        row["move"] = job.get("move")
+    for tag in ("reflection", "transmission"):
+        for key, value in result["metrics"][tag].items():
+            row[f"{key}_{tag[0].upper()}"] = round(value, 4)
+    if job["truth"] is not None:
+        row.update(truth_errors(job, result, novel_light))
+    return row
+
+
+def truth_errors(job: dict, result: dict, novel_light: bool) -> dict:
+    """The fit against the pair's truth: parameters, rotation, the weave's pixels per yarn, on
+    photo-like pairs the phone's warp and blur, and (``novel_light``) the novel-light error."""
+    fitted, rig, truth, phone = result["params"], result["rig"], job["truth"], job["phone"]
+    row = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in parameter_errors(fitted, truth).items()}
+    row["rotation_error_deg"] = round(abs(rig.sample_rotation_deg - job["rig"].sample_rotation_deg), 3)
+    row["family_true"] = family(truth.pattern)
+    row["pixels_per_yarn"] = round(pixels_per_yarn(truth, job["rig"]), 2)
+    if phone is not None:
+        row.update(warp_errors(result["warp"], phone, rig.film_size))
+        row.update(blur_errors(rig.camera_blur_px, phone))
+    if novel_light:
+        gains = (phone.gains(0), phone.gains(1)) if phone else None
+        errors = novel_light_error(fitted, truth, gains=gains)
+        row["novel_colour_l1"] = round(errors["colour_l1"], 4)
+        row["novel_spectrum_corr"] = round(errors["spectrum_corr"], 4)
+    return row
 
 
 def _format(row: dict) -> str:
@@ -241,36 +255,46 @@ def summarise(rows: list[dict]) -> dict:
     done = [r for r in rows if "error" not in r]
     out = {"pairs": len(rows), "failed": len(rows) - len(done), "wall_s_mean": _mean(r["wall_s"] for r in rows),
            "wall_s_max": max((r["wall_s"] for r in rows), default=None)}
-    for kind in ("real", "golden", "photolike"):
+    for kind in KINDS:
         group = [r for r in done if r["kind"] == kind]
-        if not group:
-            continue
-        section = {f"{m}_{t}": _mean(r[f"{m}_{t}"] for r in group)
-                   for m in ("flip", "colour_l1", "spectrum_corr") for t in "RT"}
-        section["pairs"] = len(group)
-        section["at_bounds_pairs"] = sum(bool(r.get("at_bounds")) for r in group)
-        truthful = [r for r in group if "pattern_ok" in r]
-        if truthful:
-            section.update(_truth_figures(truthful))
-            section["rotation_error_deg_mean"] = _mean(r["rotation_error_deg"] for r in truthful)
-            resolved = [r for r in truthful if r.get("pixels_per_yarn", 0.0) >= RESOLVED_PX_PER_YARN]
-            section["resolved"] = {"pairs": len(resolved), **(_truth_figures(resolved) if resolved else {})}
-            novel = [r for r in truthful if "novel_colour_l1" in r]
-            if novel:
-                section.update(novel_colour_l1=_mean(r["novel_colour_l1"] for r in novel),
-                               novel_spectrum_corr=_mean(r["novel_spectrum_corr"] for r in novel))
-            warped = [r for r in truthful if "warp_error_px" in r]
-            if warped:
-                section.update(warp_true_rms_px=_mean(r["warp_true_rms_px"] for r in warped),
-                               warp_error_px=_mean(r["warp_error_px"] for r in warped))
-            blurred = [r for r in truthful if "blur_error_px" in r]
-            if blurred:
-                section.update(blur_error_px_mean=_mean(r["blur_error_px"] for r in blurred),
-                               blur_error_px_mean_abs=_mean(abs(r["blur_error_px"]) for r in blurred))
-        section["warp_rms_px"] = _mean(r.get("warp_rms_px", 0.0) for r in group)
-        out[kind] = section
+        if group:
+            out[kind] = _kind_summary(group)
     out["targets"] = TARGETS
     return out
+
+
+def _kind_summary(group: list[dict]) -> dict:
+    """The means over one kind's fitted pairs; the truth's figures where the pairs have one."""
+    section = {f"{m}_{t}": _mean(r[f"{m}_{t}"] for r in group) for m in ("flip", "colour_l1", "spectrum_corr")
+               for t in "RT"}
+    section["pairs"] = len(group)
+    section["at_bounds_pairs"] = sum(bool(r.get("at_bounds")) for r in group)
+    truthful = [r for r in group if "pattern_ok" in r]
+    if truthful:
+        section.update(_truth_figures(truthful))
+        section["rotation_error_deg_mean"] = _mean(r["rotation_error_deg"] for r in truthful)
+        resolved = [r for r in truthful if r.get("pixels_per_yarn", 0.0) >= RESOLVED_PX_PER_YARN]
+        section["resolved"] = {"pairs": len(resolved), **(_truth_figures(resolved) if resolved else {})}
+        section.update(_partial_figures(truthful))
+    section["warp_rms_px"] = _mean(r.get("warp_rms_px", 0.0) for r in group)
+    return section
+
+
+def _partial_figures(rows: list[dict]) -> dict:
+    """The means of the figures only some rows have: the novel-light error (not with
+    ``--no-novel-light``), the warp and the blur against the phone's (photo-like pairs)."""
+    return {**_means_where(rows, "novel_colour_l1", novel_colour_l1=itemgetter("novel_colour_l1"),
+                           novel_spectrum_corr=itemgetter("novel_spectrum_corr")),
+            **_means_where(rows, "warp_error_px", warp_true_rms_px=itemgetter("warp_true_rms_px"),
+                           warp_error_px=itemgetter("warp_error_px")),
+            **_means_where(rows, "blur_error_px", blur_error_px_mean=itemgetter("blur_error_px"),
+                           blur_error_px_mean_abs=lambda r: abs(r["blur_error_px"]))}
+
+
+def _means_where(rows: list[dict], key: str, **figures) -> dict:
+    """The mean of each figure (name=its value in a row) over the rows that have ``key``; none without any."""
+    having = [r for r in rows if key in r]
+    return {name: _mean(value(r) for r in having) for name, value in figures.items()} if having else {}
 
 
 def _truth_figures(rows: list[dict]) -> dict:
@@ -288,7 +312,7 @@ def _format_summary(s: dict) -> str:
     lines = [f"summary: {s['pairs']} pairs, {s['failed']} failed, wall time mean {s['wall_s_mean']} s, "
              f"max {s['wall_s_max']} s (targets: mean <= {TARGETS['wall_s']['mean_max']:.0f} s, "
              f"max <= {TARGETS['wall_s']['max_max']:.0f} s)"]
-    for kind in ("real", "golden", "photolike"):
+    for kind in KINDS:
         k = s.get(kind)
         if not k:
             continue

@@ -24,6 +24,7 @@ from backend.core.params import PARAMETERS
 from backend.model.render import compiler_found
 
 from .fit import run_fit
+from .ledger import NOT_RECORDED, Ledger
 
 MODES = {"compiled": {"WFC_COMPILE": "1"}, "eager": {"WFC_COMPILE": "0"}}
 
@@ -39,7 +40,7 @@ def _largest_difference(a, b) -> float:
 
 
 def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: int, extra: list[str],
-                    as_json: bool) -> int:
+                    as_json: bool, ledger: Ledger = NOT_RECORDED) -> int:
     if not compiler_found():
         print("bench fit-speed: torch.compile needs a C++ compiler and none was found", file=sys.stderr)
         return 1
@@ -56,7 +57,9 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
             row.update(cpu_s=None if result["cpu_s"] is None else round(result["cpu_s"], 2),
                        timings=result["timings"], params=result["params"])
         runs.append(row)
-        _print_run(row, as_json)
+        shown = {k: v for k, v in row.items() if k != "params"}
+        _print_run(shown, as_json)
+        ledger.row(shown)
         return row
 
     with tempfile.TemporaryDirectory(prefix="fit-speed-") as tmp_name:
@@ -69,12 +72,13 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
                 fit(mode, index, pair, tmp)
     summary = _summary(runs)
     print(json.dumps(summary) if as_json else _format_summary(summary), flush=True)
+    ledger.summary(summary)
     return 0 if all("error" not in r for r in runs) else 1
 
 
 def _print_run(row: dict, as_json: bool) -> None:
     if as_json:
-        print(json.dumps({k: v for k, v in row.items() if k != "params"}), flush=True)
+        print(json.dumps(row), flush=True)
         return
     label = "warm-up" if row["round"] == 0 else f"round {row['round']}"
     if "error" in row:
@@ -90,23 +94,36 @@ def _summary(runs: list[dict]) -> dict:
     timed = [r for r in runs if r["round"] > 0 and "error" not in r]
     out = {"rounds": max((r["round"] for r in runs), default=0), "failed": sum("error" in r for r in runs)}
     for key in ("wall_s", "cpu_s"):
-        by_mode = {m: [r[key] for r in timed if r["mode"] == m and r[key] is not None] for m in MODES}
-        if not all(by_mode.values()):
-            continue
-        medians = {m: statistics.median(v) for m, v in by_mode.items()}
-        rounds = {}
-        for r in timed:
-            rounds.setdefault(r["round"], {})[r["mode"]] = r[key]
-        ratios = [v["eager"] / v["compiled"] for v in rounds.values() if len(v) == 2]
-        out[key] = {"compiled_median": round(medians["compiled"], 2), "eager_median": round(medians["eager"], 2),
-                    "ratio": round(medians["eager"] / medians["compiled"], 3),
-                    "round_ratios": [round(x, 3) for x in ratios]}
-    fitted = [r for r in runs if "params" in r]
-    if len(fitted) > 1:
-        out["largest_parameter_difference"] = max(_largest_difference(fitted[0]["params"], r["params"])
-                                                  for r in fitted[1:])
-        out["patterns"] = sorted({r["params"].pattern for r in fitted})
+        ratios = _ratios(timed, key)
+        if ratios is not None:
+            out[key] = ratios
+    out.update(_agreement([r for r in runs if "params" in r]))
     return out
+
+
+def _ratios(timed: list[dict], key: str) -> dict | None:
+    """The medians of ``key`` (wall or CPU seconds) per mode and eager / compiled of the medians and of
+    each round; None where a mode has no figure."""
+    by_mode = {m: [r[key] for r in timed if r["mode"] == m and r[key] is not None] for m in MODES}
+    if not all(by_mode.values()):
+        return None
+    medians = {m: statistics.median(v) for m, v in by_mode.items()}
+    rounds = {}
+    for r in timed:
+        rounds.setdefault(r["round"], {})[r["mode"]] = r[key]
+    ratios = [v["eager"] / v["compiled"] for v in rounds.values() if len(v) == 2]
+    return {"compiled_median": round(medians["compiled"], 2), "eager_median": round(medians["eager"], 2),
+            "ratio": round(medians["eager"] / medians["compiled"], 3), "round_ratios": [round(x, 3) for x in ratios]}
+
+
+def _agreement(fitted: list[dict]) -> dict:
+    """Where more than one fit finished: the largest difference of a fitted value from the first
+    fit's, and the patterns they found."""
+    if len(fitted) < 2:
+        return {}
+    return {"largest_parameter_difference": max(_largest_difference(fitted[0]["params"], r["params"])
+                                                for r in fitted[1:]),
+            "patterns": sorted({r["params"].pattern for r in fitted})}
 
 
 def _format_summary(s: dict) -> str:

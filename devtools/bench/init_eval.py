@@ -36,6 +36,7 @@ from backend.texture.candidates import propose
 from backend.texture.spectra import Spectra
 
 from ..train import EXACT_ROW, load_arrays
+from .ledger import NOT_RECORDED, Ledger
 
 REPORTED = init_net.TARGETS
 
@@ -94,7 +95,8 @@ def _load(reflection: Path, transmission: Path):
     return photos.reflection, photos.transmission
 
 
-def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stderr) -> dict:
+def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stderr,
+                    ledger: Ledger = NOT_RECORDED) -> dict:
     rows, net_rows, prior_rows = [], [], []
     for name, r_path, t_path, truth in golden_cases(folder):
         reflection, transmission = _load(r_path, t_path)
@@ -118,6 +120,7 @@ def evaluate_golden(model: init_net.InitModel, folder: str | Path, log=sys.stder
               f"roughness MAE {network_mae.get('roughness')} (prior {prior_mae.get('roughness')}), "
               f"thickness MAE {network_mae.get('thickness')} (prior {prior_mae.get('thickness')})",
               file=log, flush=True)
+        ledger.row({"section": "golden", **row})
     return {"cases": rows, "pattern_accuracy": float(np.mean([r["pattern"] == r["predicted_pattern"] for r in rows])),
             "family_accuracy": float(np.mean([priors.family(r["pattern"]) == priors.family(r["predicted_pattern"])
                                               for r in rows])),
@@ -148,42 +151,62 @@ def _reach(trace, level: float) -> tuple[int | None, float | None]:
 
 
 def evaluate_fits(model: init_net.InitModel, folder: str | Path, names: list[str] | None, iterations: int | None,
-                  log=sys.stderr) -> dict:
-
+                  log=sys.stderr, ledger: Ledger = NOT_RECORDED) -> dict:
     settings = FitSettings() if iterations is None else FitSettings(iterations=iterations)
-    rows = []
+    rows, true_patterns = [], {}
     for name, r_path, t_path, truth in golden_cases(folder):
         if names and name not in names:
             continue
-        reflection, transmission = _load(r_path, t_path)
-        runs = {"prior": _timed_fit(reflection, transmission, settings, False, model),
-                "network": _timed_fit(reflection, transmission, settings, True, model)}
-        row = {"case": name}
-        for label, run in runs.items():
-            fitted = run["result"].params
-            row[label] = {"pattern": fitted.pattern, "loss": round(run["result"].loss, 5),
-                          "roughness_mae": round(_mae(fitted, truth, "roughness"), 4),
-                          "thickness_mae": round(_mae(fitted, truth, "thickness"), 4),
-                          "errors": {k: round(v, 4) for k, v in parameter_errors(fitted, truth).items()},
-                          "seconds": round(run["seconds"], 1),
-                          "search_seconds": round(run["result"].timings.get("search_s", 0.0), 1)}
-        iteration, seconds = _reach(runs["network"]["trace"], runs["prior"]["result"].loss)
-        row["network_reaches_prior_loss"] = {"iteration": iteration,
-                                             "seconds": None if seconds is None else round(seconds, 1)}
+        row = _fit_both_ways(model, name, r_path, t_path, truth, settings)
         rows.append(row)
-        print(f"evaluate-init: fit {name}: prior loss {row['prior']['loss']} ({row['prior']['pattern']}, "
-              f"{row['prior']['seconds']} s, roughness MAE {row['prior']['roughness_mae']}, thickness MAE "
-              f"{row['prior']['thickness_mae']}); network loss {row['network']['loss']} ({row['network']['pattern']}, "
-              f"{row['network']['seconds']} s, roughness MAE {row['network']['roughness_mae']}, thickness MAE "
-              f"{row['network']['thickness_mae']}); network reaches the prior's final loss at iteration "
-              f"{iteration} ({seconds if seconds is None else round(seconds, 1)} s)", file=log, flush=True)
+        true_patterns.setdefault(name, truth.pattern)
+        _print_fit(row, log)
+        ledger.row({"section": "fits", **row})
+    return {"iterations": settings.iterations, "cases": rows, "summary": _fits_summary(rows, true_patterns)}
+
+
+def _fit_both_ways(model: init_net.InitModel, name: str, r_path: Path, t_path: Path, truth: FabricParams,
+                   settings: FitSettings) -> dict:
+    """One case fitted from the prior and from the network: each fit's figures, and where the
+    network-started fit first reaches the prior-started fit's final loss."""
+    reflection, transmission = _load(r_path, t_path)
+    runs = {"prior": _timed_fit(reflection, transmission, settings, False, model),
+            "network": _timed_fit(reflection, transmission, settings, True, model)}
+    row = {"case": name}
+    for label, run in runs.items():
+        fitted = run["result"].params
+        row[label] = {"pattern": fitted.pattern, "loss": round(run["result"].loss, 5),
+                      "roughness_mae": round(_mae(fitted, truth, "roughness"), 4),
+                      "thickness_mae": round(_mae(fitted, truth, "thickness"), 4),
+                      "errors": {k: round(v, 4) for k, v in parameter_errors(fitted, truth).items()},
+                      "seconds": round(run["seconds"], 1),
+                      "search_seconds": round(run["result"].timings.get("search_s", 0.0), 1)}
+    iteration, seconds = _reach(runs["network"]["trace"], runs["prior"]["result"].loss)
+    row["network_reaches_prior_loss"] = {"iteration": iteration,
+                                         "seconds": None if seconds is None else round(seconds, 1)}
+    return row
+
+
+def _print_fit(row: dict, log) -> None:
+    prior, net, reach = row["prior"], row["network"], row["network_reaches_prior_loss"]
+    print(f"evaluate-init: fit {row['case']}: prior loss {prior['loss']} ({prior['pattern']}, "
+          f"{prior['seconds']} s, roughness MAE {prior['roughness_mae']}, thickness MAE "
+          f"{prior['thickness_mae']}); network loss {net['loss']} ({net['pattern']}, "
+          f"{net['seconds']} s, roughness MAE {net['roughness_mae']}, thickness MAE "
+          f"{net['thickness_mae']}); network reaches the prior's final loss at iteration "
+          f"{reach['iteration']} ({reach['seconds']} s)", file=log, flush=True)
+
+
+def _fits_summary(rows: list[dict], true_patterns: dict[str, str]) -> dict:
+    """Per start (prior, network): the means over the cases of the loss, the MAEs and the seconds,
+    and the share of cases fitted with the true pattern (None without a case)."""
     summary = {}
     for label in ("prior", "network"):
         summary[label] = {key: float(np.mean([r[label][key] for r in rows])) if rows else None
                           for key in ("loss", "roughness_mae", "thickness_mae", "seconds")}
-        summary[label]["pattern_accuracy"] = float(np.mean([r[label]["pattern"] == next(
-            t.pattern for n, _, _, t in golden_cases(folder) if n == r["case"]) for r in rows])) if rows else None
-    return {"iterations": settings.iterations, "cases": rows, "summary": summary}
+        summary[label]["pattern_accuracy"] = float(np.mean([r[label]["pattern"] == true_patterns[r["case"]]
+                                                            for r in rows])) if rows else None
+    return summary
 
 
 # -- command line ----------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ from backend.texture import placement
 from backend.texture.spectra import Spectra
 
 from .fit import TARGETS, pair_jobs, tiles_error_pct
+from .ledger import NOT_RECORDED, Ledger
 
 ROTATION_ERROR_DEG = 0.5  # the summary counts the pairs placed further off than this
 
@@ -65,7 +66,8 @@ def summary(rows: list[dict]) -> dict:
             "seconds": round(sum(r["seconds"] for r in rows), 1)}
 
 
-def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool) -> int:
+def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool,
+                    ledger: Ledger = NOT_RECORDED) -> int:
     rows = []
     for job in pair_jobs(synthetic, [], names):
         row = place(job)
@@ -77,6 +79,8 @@ def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool
             print(f"{row['kind']} {row['name']}: rotation {row['rotation_deg']:+.2f} (true "
                   f"{row['true_rotation_deg']:+.2f}, off {row['rotation_error_deg']:.2f}) skew {row['skew_deg']:+.2f}; "
                   f"tiles of the true pattern off {tiles}; {row['seconds']:.1f} s", flush=True)
+        ledger.row(row)
     result = summary(rows)
     print(json.dumps(result) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    ledger.summary(result)
     return 0

@@ -28,6 +28,8 @@ from backend.model.memory import peak_memory_mb
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer
 
+from .ledger import NOT_RECORDED, Ledger
+
 EXAMPLE = ("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.456,0.398,0.089,0.286,0.279,0.0"
            "_G_0.99,1.0_Rm_0.65,0.62_Tm_2.66,0.79_W_0.71,1.29_Ks_0.325,0.37,0.0,0.351,0.883,0.0_Psi_-30.5,-29.5")
 
@@ -65,7 +67,7 @@ def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dic
 
 
 def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = False,
-                 device=torch.device("cpu")) -> int:
+                 device=torch.device("cpu"), ledger: Ledger = NOT_RECORDED) -> int:
     params = FabricParams.from_interchange(EXAMPLE)
     optimised = [s.name for s in PARAMETERS if s.optimised]
     fabric = ParamTensors.from_params(params, device, requires_grad=optimised)
@@ -113,4 +115,5 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
         print(f"  peak memory       {result['peak_mb']:8.1f} MB  (eager path: {result['eager_peak_mb']:.1f} MB;"
               f" process before rendering: {result['baseline_mb']:.1f} MB)")
     sys.stdout.flush()
+    ledger.summary(result)
     return 0

@@ -7,46 +7,82 @@
     bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
         [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
+
+Each appends what it prints to the results ledger, ``devtools/bench/results/<bench>.jsonl``
+(:mod:`devtools.bench.ledger`); ``--no-record`` does not.
 """
 from __future__ import annotations
 
+import argparse
 import shlex
+from pathlib import Path
 
 from backend.app.batch.scheduler import BatchError
 from backend.app.cli.common import InputError, device, positive_int
+from backend.app.folder import FolderFitOptions
 
 from ..bench.batch import bench_batch
 from ..bench.fit import bench_fit
 from ..bench.fit_speed import bench_fit_speed
+from ..bench.ledger import add_record_option, open_ledger
 from ..bench.placement import bench_placement
 from ..bench.render import bench_render
 
 
 def run_bench(args) -> int:
-    extra = ["--iterations", str(args.iterations)] if args.iterations else []
-    if args.what == "fit":
-        synthetic = args.synthetic + args.golden
-        if not synthetic and not args.real:
-            raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
-        return bench_fit(synthetic, args.real, args.cases, extra + shlex.split(args.fit_args), args.json,
-                         keep=args.keep, novel_light=not args.no_novel_light)
-    if args.what == "placement":
-        if not args.synthetic + args.golden:
-            raise InputError("bench placement: give --synthetic DIR (golden or photo-like: the truth is needed)")
-        return bench_placement(args.synthetic + args.golden, args.cases, args.json)
-    if args.what == "fit-speed":
-        if args.fit_size:
-            extra += ["--size", str(args.fit_size)]
-        reflection, transmission = args.pair or (None, None)
-        return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json)
-    if args.what == "batch":
-        try:
-            return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
-                               args.workers, args.sequential_threads, args.subprocess, args.rounds or 1, args.json)
-        except BatchError as exc:  # no Ray
-            raise InputError(f"bench batch: {exc}") from None
-    return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json,
-                        device=device(args.device))
+    return {"render": _render, "fit": _fit, "placement": _placement, "fit-speed": _fit_speed,
+            "batch": _batch}[args.what](args)
+
+
+def _fit(args) -> int:
+    synthetic = args.synthetic + args.golden
+    if not synthetic and not args.real:
+        raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
+    extra = _iterations(args) + shlex.split(args.fit_args)
+    ledger = open_ledger(args, "fit", synthetic + args.real, fit_device(extra))
+    return bench_fit(synthetic, args.real, args.cases, extra, args.json, keep=args.keep,
+                     novel_light=not args.no_novel_light, ledger=ledger)
+
+
+def _placement(args) -> int:
+    synthetic = args.synthetic + args.golden
+    if not synthetic:
+        raise InputError("bench placement: give --synthetic DIR (golden or photo-like: the truth is needed)")
+    return bench_placement(synthetic, args.cases, args.json, ledger=open_ledger(args, "placement", synthetic))
+
+
+def _fit_speed(args) -> int:
+    extra = _iterations(args) + (["--size", str(args.fit_size)] if args.fit_size else [])
+    reflection, transmission = args.pair or (None, None)
+    ledger = open_ledger(args, "fit-speed", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())))
+    return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json, ledger=ledger)
+
+
+def _batch(args) -> int:
+    try:
+        return bench_batch(args.pairs, args.iterations or 20, args.size or 64, args.film, args.cpus_per_fit,
+                           args.workers, args.sequential_threads, args.subprocess, args.rounds or 1, args.json,
+                           ledger=open_ledger(args, "batch"))
+    except BatchError as exc:  # no Ray
+        raise InputError(f"bench batch: {exc}") from None
+
+
+def _render(args) -> int:
+    chosen = device(args.device)
+    return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json, device=chosen,
+                        ledger=open_ledger(args, "render", device=str(chosen)))
+
+
+def _iterations(args) -> list[str]:
+    """The fit's ``--iterations`` where the bench was given one."""
+    return ["--iterations", str(args.iterations)] if args.iterations else []
+
+
+def fit_device(fit_args: list[str]) -> str:
+    """The device the benchmark's fits run on: their ``--device``, else the fit's default."""
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("--device", default=FolderFitOptions.device)
+    return parser.parse_known_args(fit_args)[0].device
 
 
 def add_parser(sub) -> None:
@@ -82,4 +118,5 @@ def add_parser(sub) -> None:
     p.add_argument("--sequential-threads", type=positive_int, help="batch: threads of each sequential fit "
                                                                    "(default: every core)")
     p.add_argument("--subprocess", action="store_true", help="batch: also one python -m backend fit per pair")
+    add_record_option(p)
     p.set_defaults(run=run_bench)

@@ -1,0 +1,117 @@
+"""The results ledger: what a benchmark prints, appended as JSON lines to ``results/<bench>.jsonl``.
+
+A figure quoted without the code, the machine and the data it came from cannot be checked again, so
+every ``python -m devtools bench ...`` and ``evaluate-init`` run appends each row it prints and its
+summary, each with the run's context: the commit and whether the tree differed from it, the date,
+the command line and the environment variables that change a measurement, the machine and the data
+sets' folders (the record format: ``devtools/bench/results/README.md``). ``--no-record`` runs
+without appending.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shlex
+import subprocess
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]  # the checkout holding devtools/
+IN_CHECKOUT = "devtools/bench/results"  # the ledger's folder within the checkout
+RESULTS = ROOT / IN_CHECKOUT
+THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS")  # read by the OpenMP and MKL runtimes torch loads
+
+
+@dataclass(frozen=True)
+class Ledger:
+    """Appends records to ``path`` (None: records nothing, as ``--no-record`` asks)."""
+
+    path: Path | None = None
+    context: dict = field(default_factory=dict)
+
+    @classmethod
+    def open(cls, bench: str, argv: list[str], datasets: list[str] = (), device: str = "cpu", record: bool = True,
+             folder: Path | None = None, root: Path = ROOT) -> Ledger:
+        """The ledger of one run of ``bench`` (``argv``: the arguments of ``python -m devtools``) in
+        ``folder`` (default :data:`RESULTS`), its context read once, at the start: a commit made while
+        it runs is not the one it measured."""
+        if not record:
+            return cls()
+        return cls(Path(folder or RESULTS) / f"{bench}.jsonl", run_context(bench, argv, datasets, device, root))
+
+    def row(self, data: dict) -> None:
+        """One row the benchmark printed (a pair, a fit, a round)."""
+        self._append("row", data)
+
+    def summary(self, data: dict) -> None:
+        """The summary the benchmark printed last."""
+        self._append("summary", data)
+
+    def _append(self, kind: str, data: dict) -> None:
+        if self.path is None:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # appended and closed record by record: a run stopped half-way keeps the rows it printed
+        with self.path.open("a", encoding="utf-8") as ledger:
+            ledger.write(json.dumps({**self.context, "kind": kind, "data": data}) + "\n")
+
+
+NOT_RECORDED = Ledger()
+"""The ledger of a benchmark called from code (tests): nothing is written."""
+
+
+def open_ledger(args, bench: str, datasets: list[str] = (), device: str = "cpu") -> Ledger:
+    """The ledger of a command's run (``args`` as :func:`devtools.cli.main.main` parsed them)."""
+    return Ledger.open(bench, args.argv, datasets, device, record=not args.no_record)
+
+
+def add_record_option(parser) -> None:
+    parser.add_argument("--no-record", action="store_true",
+                        help="a dry run: append nothing to devtools/bench/results/ (the results ledger)")
+
+
+def run_context(bench: str, argv: list[str], datasets: list[str], device: str, root: Path = ROOT) -> dict:
+    """The fields every record of one run shares."""
+    commit = _git(root, "rev-parse", "HEAD")
+    # the ledger's own folder changes with every run: it does not make the measured code dirty
+    status = _git(root, "status", "--porcelain", "--", ".", f":(exclude){IN_CHECKOUT}")
+    return {"bench": bench, "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "commit": commit, "dirty": None if commit is None or status is None else bool(status),
+            "command": shlex.join(["python", "-m", "devtools", *argv]), "environment": _environment(),
+            "machine": machine(device), "datasets": [str(Path(folder).resolve()) for folder in datasets]}
+
+
+def _environment() -> dict:
+    """The variables set that change what a benchmark measures: the renderer's compile switch
+    (``WFC_COMPILE``) and the thread counts its fits inherit."""
+    return {name: value for name, value in sorted(os.environ.items()) if name.startswith("WFC_") or name in THREADS}
+
+
+def machine(device: str) -> dict:
+    """The CPU's model, its cores, this process's torch threads and the device the benchmark ran on."""
+    return {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+            "device": device, "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def _cpu_model() -> str | None:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:  # Linux: platform.processor() says only "x86_64"
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or None
+
+
+def _git(root: Path, *args: str) -> str | None:
+    """``git <args>``'s output in ``root``; None outside a git checkout or without git."""
+    try:
+        done = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)
+    except OSError:
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
