@@ -26,7 +26,7 @@ CHOICE, WHOLE, AUTO_OR_NUMBER, FLAG, TEXT, BOX = "choice", "whole", "auto_or_num
 _TYPES = {CHOICE: str, WHOLE: int, AUTO_OR_NUMBER: (str, int, float), FLAG: bool, TEXT: (str, os.PathLike),
           BOX: (tuple, list)}
 
-MIN_WORKING_SIZE = 32   # the smallest working size of the loss: below it a yarn repeat is a few pixels
+MIN_WORKING_SIZE = 32   # the smallest working size of the loss the command takes (smaller: bad input)
 MAX_SEED = 2**32 - 1    # the renders' jitter hashes the seed to 32 bits: a larger one repeats a smaller one's
 # The re-renders' samples per pixel: 6 x 6, a square of an even side, so that the camera blur acts on
 # sub-pixels (backend.model.render.subpixel_size); more samples hardly move the metrics
@@ -83,6 +83,11 @@ class FitOption:
                 BOX: f"four whole numbers{of} (x, y, w, h)"}[self.kind]
 
     @property
+    def expects_word(self) -> str:
+        """What one command-line word of the option takes (a box's: one of its numbers)."""
+        return f"a whole number{' of ' + self.unit if self.unit else ''}" if self.kind == BOX else self.expects
+
+    @property
     def annotation(self) -> str:
         """The Python type of the option's values (a dataclass field's annotation)."""
         kind = {CHOICE: "str", WHOLE: "int", AUTO_OR_NUMBER: "str", FLAG: "bool", TEXT: "str",
@@ -94,13 +99,12 @@ class FitOption:
         saying what is wrong (without the flag: argparse names it)."""
         if self.kind == CHOICE and text not in self.choices:
             raise ValueError(f"expected {self.expects}, got {text!r}")
-        if self.kind not in (WHOLE, AUTO_OR_NUMBER, BOX) or (self.kind == AUTO_OR_NUMBER and text == "auto"):
+        if self.kind in (CHOICE, FLAG, TEXT) or (self.kind == AUTO_OR_NUMBER and text == "auto"):
             return text
         try:
-            value = int(text) if self.kind != AUTO_OR_NUMBER else float(text)
+            value = float(text) if self.kind == AUTO_OR_NUMBER else int(text)
         except ValueError:
-            expected = self.expects if self.kind != BOX else f"a whole number{' of ' + self.unit if self.unit else ''}"
-            raise ValueError(f"expected {expected}, got {text!r}") from None
+            raise ValueError(f"expected {self.expects_word}, got {text!r}") from None
         self._check_range(value, text)
         return text if self.kind == AUTO_OR_NUMBER else value
 
