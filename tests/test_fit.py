@@ -14,7 +14,7 @@ from conftest import ROOT
 from oracles import reference
 
 from backend.app.cli.main import build_parser
-from backend.app.folder import BLUR_ON
+from backend.core.fit_options import BLUR_ON
 from backend.core.params import FabricParams
 from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode

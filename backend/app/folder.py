@@ -18,6 +18,10 @@ nothing; the run still ends with its result.
 bad input, 1 internal, 130 cancelled: the best parameters so far go to ``params.partial.json``, or,
 once params.json is written, stay there). The command line (cli/fit.py) adds argparse and stop
 requests; the batch's Ray tasks call it in-process.
+
+The options are a :class:`FolderFitOptions`: one field per option that backend.core.fit_options
+declares, checked there (a bad value is bad input, exit 2); :func:`fit_settings` turns them into the
+fit's :class:`~backend.fit.settings.FitSettings`.
 """
 from __future__ import annotations
 
@@ -26,13 +30,13 @@ import json
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from .. import __version__
+from ..core.fit_options import FIT_OPTIONS, FitOptionError, check_values
 from ..core.params import PARAMETERS, FabricParams
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig, RigError
@@ -51,13 +55,6 @@ from .report import write_report
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
-# The re-renders' samples per pixel. The three dev real fits' parameters re-rendered at 32 and at 64
-# samples: FLIP moves by at most 0.0003 and the 16 x 16 colour L1 by at most 0.0001, and the render takes
-# half the time (14 -> 7 s of a 125-s fit); at 16 samples FLIP moved by up to 0.0017. The spectrum
-# correlation is a noisier reading of the same images: it moved by up to 0.02, either way. 36 (6 x 6)
-# rather than 32: a square of an even side, so that the camera blur acts on sub-pixels
-# (:func:`backend.model.render.subpixel_size`; the fit's own renders blur the pixel means).
-OUTPUT_SPP = 36
 FITTED = tuple(s.name for s in PARAMETERS if s.optimised or (s.searched and s.name != "tiles"))
 
 
@@ -67,35 +64,26 @@ class FitInputError(ValueError):
         self.file = file
 
 
-INPUT_ERRORS = (FitInputError, PhotoError, RigError, GramWeightsError)  # exit code 2, one line naming the file
+# exit code 2, one line naming the file or option
+INPUT_ERRORS = (FitInputError, FitOptionError, PhotoError, RigError, GramWeightsError)
 
 
-# --blur-on: FitSettings.subpixel_blur
-BLUR_ON = {"pixels": False, "subpixels": True, "auto": None}
+# The fit command's options: one field per option of backend.core.fit_options (its name, type and default).
+FolderFitOptions = dataclasses.make_dataclass(
+    "FolderFitOptions", [(option.name, option.annotation, option.default) for option in FIT_OPTIONS],
+    frozen=True, namespace={"__module__": __name__,
+                            "__doc__": "The fit command's options (its ``--flags``: FIT_OPTIONS' names and defaults)."})
 
 
-@dataclass(frozen=True)
-class FolderFitOptions:
-    """The fit command's options (its ``--flags``, same names and defaults)."""
-
-    pattern: str = "auto"
-    iterations: int | None = None                # None: the fit's default for the working size
-    size: int | None = None                      # None: chosen from the yarn lattice (fit.search.working_size)
-    device: str = "cpu"
-    rig: str | None = None                       # a RIG.json (default: the paper's rig)
-    crop: tuple[int, int, int, int] | None = None
-    flat_field: str | None = None
-    strict: bool = False
-    seed: int = 0
-    init: str = "network"
-    vgg_weights: str | None = None
-    camera_blur: str = "auto"                    # 'auto' or film pixels
-    sample_rotation: str = "auto"                # 'auto' or degrees
-    light_falloff: str = "fit"                   # 'fit': solve the photos' light falloff; 'none'
-    spacing_warp: str = "fit"                    # 'fit': read the photos' uneven yarn spacing; 'none'
-    blur_on: str = "pixels"                      # the loss's camera blur: 'pixels', 'subpixels' or 'auto'
-    output_spp: int = OUTPUT_SPP
-    overwrite: bool = False
+def fit_settings(options: FolderFitOptions, rig: CaptureRig) -> FitSettings:
+    """The FitSettings of ``options``: each option's value as the setting FIT_OPTIONS names for it;
+    a capture value left at auto (camera blur, sample rotation) takes a rig file's non-zero value
+    (the same camera and holder again), else the fit reads it from the photos."""
+    values = {o.setting: o.setting_value(getattr(options, o.name)) for o in FIT_OPTIONS if o.setting}
+    for name, rig_value in (("camera_blur", rig.camera_blur_px), ("sample_rotation", rig.sample_rotation_deg)):
+        if values[name] is None and rig_value != 0:
+            values[name] = rig_value
+    return FitSettings(**values)
 
 
 def make_example(folder: Path, rig: CaptureRig = DEFAULT_RIG) -> tuple[Path, Path, FabricParams]:
@@ -145,6 +133,31 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
+def _checked_rig(options: FolderFitOptions) -> CaptureRig:
+    """The fit's rig, once the options are known good: each option's value (backend.core.fit_options),
+    the device there, the working size within the rig's film size."""
+    check_values(dataclasses.asdict(options))
+    if options.device.startswith("cuda") and not torch.cuda.is_available():
+        raise FitInputError(f"--device {options.device}: CUDA is not available in this PyTorch build or on this "
+                            "machine")
+    rig = CaptureRig.load(options.rig) if options.rig else DEFAULT_RIG
+    if options.size is not None and options.size > rig.film_size:
+        raise FitInputError(f"--size {options.size}: larger than the photos' working size ({rig.film_size} px, the "
+                            "rig's film size); the loss cannot see more than the photos hold")
+    return rig
+
+
+def _photo_paths(reflection: str | Path | None, transmission: str | Path | None, out: Path, rig: CaptureRig,
+                 example: bool) -> tuple[Path, Path, FabricParams | None]:
+    """(reflection, transmission, the fabric they show where known): the given photos, or the
+    example fabric's, rendered into ``out``."""
+    if example:
+        return make_example(out / "example_photos", rig)
+    if not reflection or not transmission:
+        raise FitInputError("fit needs REFLECTION and TRANSMISSION photos (or --example)")
+    return Path(reflection), Path(transmission), None
+
+
 def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None, out: Path,
                   options: FolderFitOptions, reporter: Reporter, should_stop: Callable[[], bool],
                   example: bool = False, written: dict[str, str] | None = None) -> int:
@@ -153,21 +166,9 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     path) as soon as it exists."""
     written = {} if written is None else written
     started = time.perf_counter()
-    if options.device.startswith("cuda") and not torch.cuda.is_available():
-        raise FitInputError(f"--device {options.device}: CUDA is not available in this PyTorch build or on this "
-                            "machine")
-    rig = CaptureRig.load(options.rig) if options.rig else DEFAULT_RIG
-    if options.size is not None and options.size > rig.film_size:
-        raise FitInputError(f"--size {options.size}: larger than the photos' working size ({rig.film_size} px, the "
-                            "rig's film size); the loss cannot see more than the photos hold")
+    rig = _checked_rig(options)
     _prepare_out(out, options.overwrite)
-    truth = None
-    if example:
-        reflection_path, transmission_path, truth = make_example(out / "example_photos", rig)
-    else:
-        if not reflection or not transmission:
-            raise FitInputError("fit needs REFLECTION and TRANSMISSION photos (or --example)")
-        reflection_path, transmission_path = Path(reflection), Path(transmission)
+    reflection_path, transmission_path, truth = _photo_paths(reflection, transmission, out, rig, example)
     reporter.progress("load", 0, 1)
     photos = load_pair(reflection_path, transmission_path, size=rig.film_size, crop=options.crop,
                        flat_field=options.flat_field, strict=options.strict, workers=torch.get_num_threads())
@@ -175,12 +176,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         reporter.warning(warning)
     reporter.progress("load", 1, 1)
 
-    settings = FitSettings(pattern=options.pattern, iterations=options.iterations, size=options.size,
-                           seed=options.seed, device=options.device, vgg_weights=options.vgg_weights,
-                           camera_blur=_given(options.camera_blur, rig.camera_blur_px),
-                           sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg),
-                           light_falloff=options.light_falloff == "fit", spacing_warp=options.spacing_warp == "fit",
-                           subpixel_blur=BLUR_ON[options.blur_on])
+    settings = fit_settings(options, rig)
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
@@ -280,10 +276,3 @@ def _final_renders(params: FabricParams, rig: CaptureRig, light: PhotoLight, war
                        light=light, warp=warp)
     return pair.reflection.cpu().numpy(), pair.transmission.cpu().numpy()
 
-
-def _given(option: str, rig_value: float) -> float | None:
-    """A fixed capture value (camera blur, sample rotation): the option's number, else a rig file's
-    non-zero value (the same camera and holder again); None (read it from the photos)."""
-    if option != "auto":
-        return float(option)
-    return rig_value if rig_value != 0 else None

@@ -23,6 +23,10 @@ class FitCancelled(Exception):
 
 @dataclass(frozen=True)
 class FitSettings:
+    """What a fit is asked to do. The fit command's options set some of these fields (each option's
+    ``setting`` in backend.core.fit_options, through backend.app.folder.fit_settings); the others
+    are the library's own tuning, which tests and the developer tools change."""
+
     pattern: str = "auto"            # a preset name, or "auto" to choose by comparing fits
     iterations: int | None = None    # None: 150 at 256 px, 100 above (backend.fit.search.iterations_for)
     size: int | None = None          # working size of the loss (photos are area-downsampled to it);

@@ -125,14 +125,15 @@ class FitRequest:
             raise BackendError(f"Unknown weave pattern {self.pattern!r}; expected one of {', '.join(patterns)}")
         if self.device is not None and self.device not in DEVICES:
             raise BackendError(f"Unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
-        args = ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir),
-                "--pattern", self.pattern, "--json-progress", "--stop-on-stdin"]
-        for flag, value in (("--iterations", self.iterations), ("--size", self.size),
-                            ("--device", self.device), ("--rig", self.rig_json),
-                            ("--output-spp", self.output_spp)):
-            if value is not None:
-                args += [flag, str(value)]
-        return args
+        options = declarations.fit_options()  # the backend's flags and checks for these values
+        values = {"pattern": self.pattern, "iterations": self.iterations, "size": self.size, "device": self.device,
+                  "rig": self.rig_json, "output_spp": self.output_spp}
+        try:
+            flags = options.command_line(values)
+        except options.FitOptionError as exc:
+            raise BackendError(str(exc)) from None
+        return ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir), *flags,
+                "--json-progress", "--stop-on-stdin"]
 
 
 def progress_fraction(stage: str, iteration: int, total: int) -> float:

@@ -8,6 +8,7 @@ without torch), so the panel, the batch, the node group and the shader cannot dr
 - the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index), which
   of them mirror which (``core.weave.MIRRORED_OF``) and the
   patterns the fit command accepts (``core.priors.FIT_PATTERNS``, with ``auto`` first);
+- the fit command's options (``core.fit_options``: names, accepted values; the request's command line);
 - the capture rig (``core.rig.CaptureRig``; its field defaults are the spec's rig);
 - the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
   (``core.pairs.find_pairs``);
@@ -51,6 +52,12 @@ def mirrored_of() -> dict[str, str]:
 def fit_patterns() -> tuple[str, ...]:
     """What the fit command's ``--pattern`` accepts: ``auto``, then the backend's patterns."""
     return (AUTO_PATTERN, *backend_module("core.priors").FIT_PATTERNS)
+
+
+def fit_options():
+    """The backend's ``core.fit_options`` module: the fit command's options (``FIT_OPTIONS``),
+    ``command_line`` (checked flags for a dict of values) and ``FitOptionError``."""
+    return backend_module("core.fit_options")
 
 
 def rig():

@@ -1,12 +1,11 @@
 """``python -m backend batch``: fit every photo pair of a folder on Ray, on this machine or a cluster.
 
     batch PHOTOS/ --out DIR [--workers N] [--cpus-per-fit K] [--gpus-per-fit G] [--memory-per-fit GB]
-        [--ray-address ADDR] [--resume] [--timeout S] [--json-progress] [--pattern ...] [--iterations N] [--size N]
-        [--rig RIG.json] [--strict] [--seed S] [--camera-blur auto|PX] [--sample-rotation auto|DEG]
-        [--init network|prior] [--output-spp N]
+        [--ray-address ADDR] [--resume] [--timeout S] [--json-progress] [fit options]
 
 Every ``<name>_R.* / <name>_T.*`` pair of PHOTOS (the Blender batch's rule, backend/core/pairs.py)
-is fitted as ``fit`` fits it, with the same options, into ``DIR/<name>/``; ``DIR/catalogue.json``
+is fitted as ``fit`` fits it, with the same options (those backend/core/fit_options.py marks
+``batch``: every pair gets them; the device follows ``--gpus-per-fit``), into ``DIR/<name>/``; ``DIR/catalogue.json``
 and ``catalogue.csv`` list every pair (backend/app/batch/catalogue.py) and ``DIR/logs/<name>.log`` keeps
 what each fit said. Without ``--ray-address`` a local Ray starts on this machine. ``--resume``
 keeps the complete results of an earlier run and fits the rest; without it a DIR that holds
@@ -23,13 +22,14 @@ import argparse
 import signal
 from pathlib import Path
 
+from ...core.fit_options import BATCH_OPTIONS
 from ...core.protocol import EXIT_CANCELLED, EXIT_INPUT, Reporter, failed_exit_code
 from ...core.rig import CaptureRig, RigError
 from ..batch import scheduler
 from ..batch.output import OutputError
 from ..batch.ray_executor import DEFAULT_MEMORY_GB, FitResources, connect
 from .common import positive_int
-from .fit import BATCH_FIT_OPTIONS, add_fit_options
+from .fit import add_fit_options
 
 
 def run_batch(args) -> int:
@@ -123,7 +123,7 @@ def _rig_text(path: str | None) -> str | None:
 
 
 def _fit_options(args) -> dict:
-    options = {name: getattr(args, name) for name in BATCH_FIT_OPTIONS if name != "rig"}
+    options = {option.name: getattr(args, option.name) for option in BATCH_OPTIONS if option.name != "rig"}
     return {**options, "device": "cuda" if args.gpus_per_fit else "cpu"}
 
 
@@ -163,5 +163,5 @@ def add_parser(sub) -> None:
     p.add_argument("--resume", action="store_true", help="keep the complete results in DIR and fit the rest")
     p.add_argument("--timeout", type=_positive, help="seconds one fit may take before it is stopped (and retried once)")
     p.add_argument("--json-progress", action="store_true", help="JSON lines on stdout (see backend/core/protocol.py)")
-    add_fit_options(p)
+    add_fit_options(p, BATCH_OPTIONS)
     p.set_defaults(run=run_batch)
