@@ -16,8 +16,8 @@ EXAMPLE = ("twill1_R_0.6,0.66_S_0.75,1.53_T_1.33,1.39_N_0.0_UV_121.8,168.9_Kd_0.
            "_G_0.99,1.0_Rm_0.65,0.62_Tm_2.66,0.79_W_0.71,1.29_Ks_0.325,0.37,0.0,0.351,0.883,0.0_Psi_-30.5,-29.5")
 
 
-def run(*args, env=None):
-    return subprocess.run([sys.executable, "-m", "backend", *args], cwd=ROOT, capture_output=True, text=True, env=env)
+def run(*args, env=None, program="backend"):
+    return subprocess.run([sys.executable, "-m", program, *args], cwd=ROOT, capture_output=True, text=True, env=env)
 
 
 def test_render_writes_16_bit_images_and_params(tmp_path):
@@ -85,8 +85,8 @@ def test_render_cases_reports_the_bad_case(tmp_path):
 
 def test_bench_prints_one_json_line_with_the_figures():
     # Eager only here: compilation has its own test, and a cold compile costs half a minute.
-    result = run("bench", "render", "--json", "--size", "32", "--spp", "1", "--runs", "1",
-                 env={**os.environ, "WFC_COMPILE": "0"})
+    result = run("bench", "render", "--json", "--size", "32", "--spp", "1", "--runs", "1", "--no-record",
+                 env={**os.environ, "WFC_COMPILE": "0"}, program="devtools")
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
     for key in ("forward_s", "backward_s", "eager_forward_s", "peak_mb"):
