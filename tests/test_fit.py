@@ -34,14 +34,13 @@ from backend.fit.search import (
 )
 from backend.fit.settings import FitSettings
 from backend.image import metrics
-from backend.image.photos import load_pair
-from backend.image.spectrum import Peak
 from backend.model.param_tensors import ParamTensors, as_float
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
-from backend.texture import lattice
+from backend.texture import sieve
 from backend.texture.features import LatticeProbe, describe, descriptor_terms, log_spectrum
-from devtools.bench import photolike
+from backend.texture.gates import GATES
+from backend.texture.spectra import Spectra
 
 TWILL = FabricParams.from_interchange(
     "twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -57,17 +56,17 @@ def twill_pair():
 
 
 def test_lattice_reads_the_tiles_from_the_spectrum(twill_pair):
-    candidates = search.propose(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG, ("twill1",))
+    candidates = search.propose(Spectra.of(list(twill_pair)), DEFAULT_RIG, ("twill1",))
     tiles = candidates[0].tiles
     assert tiles == pytest.approx(TWILL.tiles, rel=0.01)
 
 
 def test_comb_prefers_the_true_spacing_over_its_submultiples(twill_pair):
-    comb = lattice.estimate(lattice.Spectra.of(list(twill_pair)), (25.0, 250.0), (25.0, 250.0))
+    comb = sieve.estimate(Spectra.of(list(twill_pair)), (25.0, 250.0), (25.0, 250.0))
     a, b = (t * SCALE for t in TWILL.tiles)
     # The comb pins the lattice up to small ratios; the pattern signature settles them later.
     for found, true in ((comb.a, a), (comb.b, b)):
-        assert min(abs(found / (true * r) - 1) for r in lattice.RATIOS) < 0.01
+        assert min(abs(found / (true * r) - 1) for r in GATES.ratios) < 0.01
 
 
 def test_harmonic_descriptor_ignores_where_the_weave_sits(twill_pair):
@@ -572,232 +571,6 @@ def test_metrics_match_the_team_checker(shared_tools, twill_pair):
     assert metrics.flip(photo, render) == pytest.approx(imagemetrics.flip_mean(photo, render), rel=1e-6)
     assert metrics.colour_l1(photo, render) == pytest.approx(imagemetrics.downsample_l1(photo, render), rel=1e-6)
     assert metrics.spectrum_corr(photo, render) == pytest.approx(imagemetrics.spectrum_corr(photo, render), rel=1e-6)
-
-
-def test_the_sample_rotation_is_read_from_the_spectra(twill_pair):
-    # A turned sample moves every lattice peak; the estimate must find the turn (and none when there
-    # is none), without a shear.
-    turned = render_pair(TWILL, CaptureRig(sample_rotation_deg=-2.5), size=512, spp=8, seed=3)
-    found = search.sample_placement(lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()]),
-                                    DEFAULT_RIG)
-    assert (found.rotation_deg, found.skew_deg) == pytest.approx((-2.5, 0.0), abs=0.25)
-    found = search.sample_placement(lattice.Spectra.of(list(twill_pair)), DEFAULT_RIG)
-    assert (found.rotation_deg, found.skew_deg) == pytest.approx((0.0, 0.0), abs=0.25)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["satin1_s1", "satin1_s2"])
-def test_dense_satins_get_their_own_lattice(golden_dir, golden_cases, name):
-    # 0.7 px per yarn across: only aliased harmonics remain. At full size the sieve's strongest peaks
-    # lined up with a wrong comb (satin1_s2: 72 % off), and the rotation estimate preferred a turn of
-    # 0.15-0.24 degrees that threw the sieve off (satin1_s1: 40 % off): the shrunk photos' comb and the
-    # unturned placement are now hypotheses too, judged by the pattern signature.
-    truth = FabricParams.from_interchange(next(c for c in golden_cases if c["name"] == name)["params"])
-    pair = load_pair(golden_dir / f"{name}_R.png", golden_dir / f"{name}_T.png", size=512)
-    placement, found = search.placed(lattice.Spectra.of([pair.reflection, pair.transmission]), DEFAULT_RIG,
-                                     FIT_PATTERNS, None)
-    satin = next(c for c in found if c.pattern == "satin1")
-    # unturned, the satins' yarn vectors reading a hundredth of a degree at most (candidates.yarn_turn)
-    assert placement == pytest.approx((0.0, 0.0), abs=0.02)
-    assert satin.tiles == pytest.approx(truth.tiles, rel=0.01)
-    assert max(found, key=lambda c: c.score).pattern == "satin1"
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("index, pattern", [(6, "twill0"), (14, "satin1")])
-def test_a_lone_low_harmonic_pins_the_lattice(tmp_path, index, pattern):
-    # Photo-like pairs (photolike --seed 31) at 2-3 px per yarn behind 1-2 px of blur: twill0_006
-    # keeps one diagonal peak (with side bands from its uneven yarns), satin1_014 a few low oblique
-    # ones. The per-axis combs read them as 264 % and 338 % off; named as the pattern's strongest
-    # oblique harmonic, one peak gives the lattice. Their yarns are spaced unevenly (the phone's
-    # warp: twill0_006's are 1.6 % denser down the image at its centre, where the spectrum reads;
-    # the lattice read there was 1.1 % off): the tiles are the mean over the whole photo.
-    assert_placed_as_made(tmp_path, seed=31, index=index, pattern=pattern, rotation_tolerance_deg=0.25,
-                          unmirrored=True)
-
-
-@pytest.mark.slow
-def test_the_angles_paired_for_a_shear_also_seed_a_turn(tmp_path):
-    # Photo-like twill0_011 of the benchmark's set (seed 7, 2-3 px per yarn behind 1.9 px of blur) is
-    # turned -0.52 degrees; the summed scan's maxima placed it at -2.60 degrees with tiles 5.8 % off.
-    # The warp's and the weft's own angles, paired for a shear and refined as one turn at their
-    # middle, explain the peakness maps 1.22 times better than that (RIVAL_TURN_GAIN: 1.1).
-    assert_placed_as_made(tmp_path, seed=7, index=11, pattern="twill0", rotation_tolerance_deg=0.4)
-
-
-@pytest.mark.slow
-def test_the_maps_read_a_turn_the_summed_sieves_miss(tmp_path):
-    # Photo-like twill0_016 (seed 7, 2-3 px per yarn, unevenly spaced) is turned +3.88 degrees. Every
-    # maximum of the summed sieve scan missed it (best -5.74, then unturned with tiles 12 % off); the
-    # same scan's lattices scored by the generic harmonics over the 2D maps peak near the turn.
-    assert_placed_as_made(tmp_path, seed=7, index=16, pattern="twill0", rotation_tolerance_deg=0.4, unmirrored=True)
-
-
-@pytest.mark.slow
-def test_the_yarn_vectors_correct_a_turn_read_from_the_centre(tmp_path):
-    # Photo-like satin0_008 (seed 7) is turned -1.54 degrees; the spectra's peaks, smeared by the
-    # phone's uneven yarns, placed it at -0.58. The candidates' yarn vectors, solved from their
-    # harmonics' frequencies over the whole photo, agree on -1.52 (candidates.yarn_turn).
-    assert_placed_as_made(tmp_path, seed=7, index=8, pattern="satin0", rotation_tolerance_deg=0.15, unmirrored=True)
-
-
-@pytest.mark.slow
-def test_a_mirrored_twill_is_placed_with_its_own_lattice(tmp_path):
-    # Photo-like twill0m_006 (seed 7, 3.4 px per yarn behind 1.1 px of blur) is twill0 mirrored
-    # left-right, turned 2.21 degrees: its twill0m candidate has the true tiles.
-    assert_placed_as_made(tmp_path, seed=7, index=6, pattern="twill0m", rotation_tolerance_deg=0.15)
-
-
-@pytest.mark.slow
-def test_the_yarn_vectors_confirm_a_turn_the_combs_ruled_out(tmp_path):
-    # Photo-like satin0_003 (seed 53) is turned -2.31 degrees; the placement read -1.60, and the
-    # unturned sample's combs scored higher (its best satin0 tiles then 108 % off). At -1.60 the
-    # transmission's harmonics give the satins' yarn vectors at -2.28; unturned they pin none.
-    assert_placed_as_made(tmp_path, seed=53, index=3, pattern="satin0", rotation_tolerance_deg=0.15)
-
-
-@pytest.mark.slow
-def test_two_strong_peaks_give_a_turn_the_sieves_spacings_miss(tmp_path):
-    # Photo-like plain_005 (seed 97, about 2.3 px per yarn behind 1-2 px of blur) is turned -2.93
-    # degrees. The summed sieve scan peaks at -3.0, but with a spacing 1.5 times off on one axis
-    # (aliased yarn harmonics), so the maps preferred a wrong turn near 0 (tiles 5.3 % off). Its
-    # (1, 1) and (-1, 1) harmonics stand out; read as two harmonics of one lattice they give the turn
-    # (lattice._peak_pair_turns).
-    assert_placed_as_made(tmp_path, seed=97, index=5, pattern="plain", rotation_tolerance_deg=0.15)
-
-
-@pytest.mark.slow
-def test_a_turn_two_readings_agree_on_needs_no_margin_over_the_generic_harmonics(tmp_path):
-    # Photo-like plain_005 (seed 61, 2.62 px per yarn behind 1.48 px of blur) is turned 2.77 degrees;
-    # its reflection keeps only the (1, 1) and (-1, 1) harmonics, its transmission nothing above noise.
-    # Those two peaks read as harmonics of one lattice give 2.73 degrees, and the summed sieve scan
-    # peaks at 2.75; yet the generic harmonics explained the noise best with a lattice at 4.76 degrees,
-    # 1.07 times better (short of RIVAL_TURN_GAIN), and the sample was placed unturned: its plain
-    # candidate's tiles 69 % off (worst axis), fitted as satin1.
-    assert_placed_as_made(tmp_path, seed=61, index=5, pattern="plain", rotation_tolerance_deg=0.15)
-
-
-@pytest.mark.slow
-def test_agreeing_readings_with_the_reflections_help_keep_a_turn(tmp_path):
-    # Photo-like plain_000 (seed 97) is turned 3.02 degrees and read at 2.97 (two strong peaks). No
-    # candidate's transmission harmonics pin its yarn vectors at either placement; with the
-    # reflection's help two do at 2.97 (plain 3.03, satin1 2.91) and none unturned, where the combs
-    # scored higher and the plain's tiles came out 41 % off.
-    assert_placed_as_made(tmp_path, seed=97, index=0, pattern="plain", rotation_tolerance_deg=0.15)
-
-
-@pytest.mark.slow
-def test_the_sieves_strongest_turn_replaces_a_placement_whose_lattices_miss_the_peaks(tmp_path):
-    # Photo-like twill1m_017 (seed 23) is turned -3.99 degrees. The maps preferred -0.32, where its
-    # candidates' lattices made at most 0.53 of the photos' peak strength (its tiles 9 % off); the
-    # summed sieve scan peaks at -4.0, where the twills' lattices make 0.80-0.85 (search._rescued).
-    assert_placed_as_made(tmp_path, seed=23, index=17, pattern="twill1m", rotation_tolerance_deg=0.2)
-
-
-@pytest.mark.slow
-def test_the_turned_placement_replaces_an_unturned_one_whose_lattices_miss_the_peaks(tmp_path):
-    # Photo-like twill1_002 (seed 53) is turned 1.90 degrees and read at 1.6; the unturned combs scored
-    # higher and no yarn vectors agreed, so it was placed unturned, its tiles 5.2 % off and its
-    # candidates making at most 0.62 of the photos' peak strength. Turned, they make 0.96.
-    assert_placed_as_made(tmp_path, seed=53, index=2, pattern="twill1", rotation_tolerance_deg=0.15)
-
-
-def test_only_a_placement_whose_lattices_miss_the_peaks_gives_way_and_only_to_one_that_makes_them(monkeypatch):
-    a, b, turn = 40.0, 50.0, -4.0
-    scale = DEFAULT_RIG.view_size / DEFAULT_RIG.plane_size
-
-    def peak(m, n, strength):
-        fx, fy = lattice.turned_frequencies(m * a, n * b, turn)
-        return Peak(float(fx), float(fy), strength)
-
-    spectra = lattice.Spectra(512, [[peak(1, 0, 5.0), peak(0, 1, 4.0), peak(1, 1, 3.0), peak(2, 1, 2.0)], []], [], [])
-    true = search.Candidate("twill1", (a / scale, b / scale), 1.0)
-    missing = search.Candidate("twill1", (1.2 * a / scale, 0.8 * b / scale), 1.0)   # none of its harmonics shows
-    proposed_at, offered = [], [true]
-    monkeypatch.setattr(search, "_comb_lattices", lambda *args: {})
-    monkeypatch.setattr(search, "_with_anchored", lambda spectra, rig, combs, per_pattern: (
-        proposed_at.append(rig.sample_rotation_deg) or (list(offered), ["sieve's readings"])))
-
-    def rescued(placement, found, sieve_turn=turn, rivals=None):
-        estimate = lattice.Placement(1.0, 0.0, 0.0, lattice.Lattice(a, b, 1.0), sieve_turn_deg=sieve_turn)
-        return search._rescued(spectra, DEFAULT_RIG, ("twill1",), 1, estimate, placement, (found, ["readings"]),
-                               rivals or {})
-
-    # photo-like twill1m_017 (seed 23): placed at -0.32, its lattices missing the peaks; the sieve's turn
-    assert rescued((-0.32, 0.0), [missing]) == ((turn, 0.0), ([true], ["sieve's readings"]))
-    assert proposed_at == [turn]
-    # a rival must make RESCUE_GAIN more of the peaks than the placement it would replace
-    offered[:] = [missing]
-    assert rescued((-0.32, 0.0), [missing]) == ((-0.32, 0.0), ([missing], ["readings"]))
-    # the placement compared in search.placed is a rival too, read already: the sieve's turn is read
-    # only where no placement lies there, and the best rival wins
-    proposed_at.clear()
-    assert rescued((0.0, 0.0), [missing], rivals={(-3.9, 0.0): ([true], ["its"])}) == ((-3.9, 0.0), ([true], ["its"]))
-    assert proposed_at == []
-    offered[:] = [true]
-    assert rescued((0.0, 0.0), [missing], rivals={(-2.0, 0.0): ([missing], ["its"])})[0] == (turn, 0.0)
-    # a placement whose lattices make the peaks is not questioned, nor an unsheared one at the sieve's
-    # turn; a sheared one there is another placement
-    proposed_at.clear()
-    assert rescued((turn, 0.0), [true], sieve_turn=1.5)[0] == (turn, 0.0)
-    assert rescued((-3.6, 0.0), [missing])[0] == (-3.6, 0.0)
-    assert proposed_at == []
-    assert rescued((-3.6, 2.0), [missing])[0] == (turn, 0.0)
-
-
-@pytest.mark.parametrize("estimate, unturned_turn, turned_turn, placed_at", [
-    (1.5, 1.40, 1.45, 1.45),    # both placements' yarn vectors show the turn: the turned one stands
-    (1.5, None, None, 1.5),     # neither shows one: the turned estimate stands all the same
-    (5.0, 0.03, 4.88, 0.03),    # they disagree (the dev real satin1): the scores decide
-    (0.3, None, None, 0.0),     # a turn under RESCUE_MIN_TURN_DEG: the scores decide
-    (1.5, 0.2, None, 0.2),      # only one shows a turn: that one
-])
-def test_a_turned_estimate_stands_where_the_yarn_vectors_do_not_contradict_it(monkeypatch, estimate, unturned_turn,
-                                                                             turned_turn, placed_at):
-    """search.placed between the unturned sample and the estimate's turn, its comb lattices scoring
-    higher unturned (the scores of two placements do not compare; the unturned signatures score a
-    turned sample's photos as well unturned): which placement it keeps, and the turn it returns."""
-    unturned, turned = (0.0, 0.0), (estimate, 0.0)
-    turns = {unturned: unturned_turn, turned: turned_turn}
-    scores = {unturned: 2.9, turned: 1.6}
-    monkeypatch.setattr(search, "sample_placement", lambda *args: lattice.Placement(
-        1.0, estimate, estimate, lattice.Lattice(40.0, 50.0, 1.0), sieve_turn_deg=None))  # yarn angles
-    monkeypatch.setattr(search, "_comb_lattices", lambda spectra, rig, *args: {"twill1": [lattice.Lattice(
-        40.0, 50.0, scores[rig.sample_rotation_deg, rig.sample_skew_deg])]})
-    monkeypatch.setattr(search, "_with_anchored", lambda spectra, rig, combs, per_pattern: (
-        [search.Candidate("twill1", (40.0, 50.0), 1.0)], [(rig.sample_rotation_deg, rig.sample_skew_deg)]))
-    monkeypatch.setattr(search, "yarn_turn", lambda readings, placement, reflection_votes=1: turns[readings[0]])
-    monkeypatch.setattr(search, "_rescued", lambda spectra, rig, patterns, per_pattern, estimate, placement, read,
-                        rivals: (placement, read))
-    (rotation, skew), _ = search.placed(None, DEFAULT_RIG, ("twill1",), None)
-    assert (rotation, skew) == (placed_at, 0.0)
-
-
-def assert_placed_as_made(tmp_path, seed: int, index: int, pattern: str, rotation_tolerance_deg: float,
-                          unmirrored: bool = False) -> None:
-    """Photo-like item ``index`` of set ``seed`` (of ``pattern``), placed as the fit places it: its
-    rotation (no skew) within the tolerance, its pattern's best tiles within 1 % of the truth (the
-    phone warp's yarns are spaced 1-3 % off their mean in places, within 0.75 % over the photo).
-    ``unmirrored``: the item as it was made before the sets mirrored some (the same draws, the
-    paper's preset), the pair these tests were written for."""
-    case = photolike.make_item(tmp_path, seed=seed, index=index, pattern=pattern if unmirrored else None)
-    truth = FabricParams.from_interchange(case["params"])
-    assert truth.pattern == pattern
-    pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
-    spectra = lattice.Spectra.of([pair.reflection, pair.transmission])
-    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, FIT_PATTERNS, None)
-    assert (rotation, skew) == pytest.approx((case["rig"]["sample_rotation_deg"], 0.0), abs=rotation_tolerance_deg)
-    assert next(c for c in found if c.pattern == pattern).tiles == pytest.approx(truth.tiles, rel=0.01)
-
-
-def test_a_given_sample_rotation_is_kept_and_a_clear_turn_is_found(twill_pair):
-    turned = render_pair(TWILL, CaptureRig(sample_rotation_deg=-2.5), size=512, spp=8, seed=3)
-    spectra = lattice.Spectra.of([turned.reflection.numpy(), turned.transmission.numpy()])
-    (rotation, skew), found = search.placed(spectra, DEFAULT_RIG, ("twill1",), None)
-    assert (rotation, skew) == pytest.approx((-2.5, 0.0), abs=0.25)
-    assert found[0].tiles == pytest.approx(TWILL.tiles, rel=0.01)
-    given, _ = search.placed(spectra, DEFAULT_RIG, ("twill1",), 1.0)
-    assert given == (1.0, 0.0)
 
 
 def test_dense_weaves_get_the_photos_full_resolution():
