@@ -13,6 +13,7 @@ from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model.imaging import display_transform
 from backend.model.render import Renderer
+from backend.texture.gates import GATES
 from devtools import photo_like
 from devtools.bench import photolike
 from devtools.bench.novel_light import NOVEL_LIGHTS, novel_light_error
@@ -302,7 +303,8 @@ def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_
     case = photolike.make_item(tmp_path, seed=31, index=14)
     (tmp_path / "cases.json").write_text(json.dumps([case]))
     assert main(["bench", "placement", "--synthetic", str(tmp_path), "--json", "--no-record"]) == 0
-    row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    printed, row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert printed["gates"]["rival_turn_gain"] == GATES.rival_turn_gain  # the gates it ran with come first
     assert row["name"] == case["name"] and row["true_rotation_deg"] == pytest.approx(0.15, abs=0.01)
     assert row["rotation_error_deg"] == pytest.approx(abs(row["rotation_deg"] - row["true_rotation_deg"]), abs=1e-3)
     assert row["rotation_error_deg"] < 0.25 and row["tiles_error_pct"] < 1.0

@@ -259,3 +259,68 @@ def test_every_gate_is_declared_with_what_it_guards():
     assert len(table) == len(dataclasses.fields(GATES)) > 30
     assert all(isinstance(guards, str) and len(guards) > 20 for _, _, guards in table)
     assert dict((name, value) for name, value, _ in table)["rival_turn_gain"] == GATES.rival_turn_gain
+
+
+class Judged:
+    """A stand-in scan for the selection: the summed sieve scan's strongest turn, and which
+    hypotheses explain each photo better than the summed-scan turn."""
+
+    def __init__(self, sieve_turn_deg, beaten_on_each_photo=()):
+        self.sieve_turn_deg = sieve_turn_deg
+        self.beaten = set(beaten_on_each_photo)
+
+    def beats_on_each_photo(self, placement, rivals):
+        return placement.rotation_deg in self.beaten
+
+
+def turn(rotation, score):
+    return Placement(score, rotation, rotation, Lattice(40.0, 50.0, score))
+
+
+def test_two_readings_agreeing_on_a_turn_outweigh_the_generic_harmonics_whatever_the_order():
+    summed, mapped_turn, peak_turn = turn(4.76, 1.03), turn(5.9, 1.13), turn(2.73, 1.095)
+    scan = Judged(2.75, beaten_on_each_photo=(5.9, 2.73))
+    # the peak-pair turn agrees with the sieves: its standing 1.1 x 1.095 beats the map turn's 1.13,
+    # and would whichever generator had proposed which
+    assert select.select_turn(scan, [summed], [], [mapped_turn], [peak_turn]) == peak_turn
+    assert select.select_turn(scan, [summed], [], [peak_turn], [mapped_turn]) == peak_turn
+    assert select.select_turn(scan, [summed, peak_turn], [mapped_turn], [], []) == peak_turn
+    # a turn the sieves do not back wins only by rival_turn_gain over one they do
+    stronger = turn(5.9, 1.1 * 1.095 + 0.01)
+    assert select.select_turn(scan, [summed], [], [stronger], [peak_turn]) == stronger
+
+
+def test_the_summed_scans_turns_compete_on_the_same_standing():
+    # two maxima of the summed scan scoring alike: the one at the sieves' strongest turn stands
+    at_sieve, elsewhere = turn(4.42, 1.0153), turn(-0.26, 1.0152)
+    assert select.select_turn(Judged(4.5), [elsewhere, at_sieve], [], [], []) == at_sieve
+    assert select.select_turn(Judged(4.5), [turn(-0.26, 1.12), at_sieve], [], [], []).rotation_deg == -0.26
+
+
+def test_map_and_peak_turns_must_explain_each_photo_better_paired_ones_need_not():
+    summed, rival = turn(0.0, 1.0), turn(2.0, 1.5)
+    assert select.select_turn(Judged(0.0), [summed], [], [rival], []) == summed        # not beaten on each photo
+    assert select.select_turn(Judged(0.0, (2.0,)), [summed], [], [rival], []) == rival
+    assert select.select_turn(Judged(0.0), [summed], [], [], [rival]) == summed
+    assert select.select_turn(Judged(0.0), [summed], [rival], [], []) == rival         # paired angles
+    assert select.select_turn(Judged(0.0), [summed], [turn(2.0, 1.09)], [], []) == summed
+
+
+NOISE_FAR_BELOW_A_SENSOR = 1e-4  # of full scale: a phone's noise at mid-grey is about 1e-2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed, index", [(61, 5), (31, 6)])  # photo-like pairs whose placement was on an edge
+def test_the_placement_does_not_move_with_noise_far_below_a_sensors(tmp_path, seed, index):
+    from devtools.bench import photolike
+
+    case = photolike.make_item(tmp_path, seed=seed, index=index)
+    pair = load_pair(tmp_path / f"{case['name']}_R.png", tmp_path / f"{case['name']}_T.png")
+    placed = []
+    for k in range(3):
+        scale = NOISE_FAR_BELOW_A_SENSOR if k else 0.0
+        noise = scale * np.random.default_rng(k).standard_normal((2, *pair.reflection.shape))
+        spectra = Spectra.of([pair.reflection + noise[0], pair.transmission + noise[1]])
+        placed.append(placement.place(spectra, DEFAULT_RIG, FIT_PATTERNS, None)[0])
+    rotations, skews = zip(*placed)
+    assert max(rotations) - min(rotations) <= 0.1 and max(skews) - min(skews) <= 0.1, placed

@@ -1,16 +1,17 @@
 """Placement benchmark: ``python -m devtools bench placement --synthetic DIR ... [--cases ...] [--json]``.
 
 The fit's first stage alone, run as the fit runs it: the photos loaded at the default rig's film
-size, then :func:`backend.texture.candidates.placed`. For each golden or photo-like pair (folders
+size, then :func:`backend.texture.placement.place`. For each golden or photo-like pair (folders
 with ``cases.json``, as for ``bench fit``): the sample's rotation and skew found against the true
 ones, the worst-axis tiles error (%) of the true pattern's best lattice candidate, and whether the
 best-scoring candidate is of the true pattern (scores compare within a pattern only, so this is a
 hint, not the fit's choice: the fit's trial fits choose, :mod:`backend.fit.search`).
 
-The placement and the tiles stay fixed through the fit (:mod:`backend.fit.pipeline`), so these
-errors are the fit's. At about 10 s a pair (the first also renders the patterns' signatures, about
-15 s) against 2-3 minutes for ``bench fit``, this is the loop for work on the lattice and the
-placement. Prints one line per pair and a summary against the fit issue's tiles target.
+The placement and the tiles stay fixed through the fit, so these errors are the fit's; a pair takes
+seconds where ``bench fit`` takes minutes, so this is the loop for work on the lattice and the
+placement. It prints the placement's gates (:mod:`backend.texture.gates`) first, one line per
+pair, and a summary against the fit issue's tiles target; the ledger keeps the gates with the
+summary. Measure a change on a photo-like seed no decision was tuned on.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ import torch
 from backend.core.priors import FIT_PATTERNS
 from backend.core.rig import DEFAULT_RIG
 from backend.image.photos import load_pair
-from backend.texture import placement
+from backend.texture import gates, placement
 from backend.texture.spectra import Spectra
 
 from .fit import TARGETS, pair_jobs, tiles_error_pct
@@ -68,6 +69,11 @@ def summary(rows: list[dict]) -> dict:
 
 def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool,
                     ledger: Ledger = NOT_RECORDED) -> int:
+    table = gates.table()
+    if as_json:
+        print(json.dumps({"gates": {name: value for name, value, _ in table}}), flush=True)
+    else:
+        print("gates:", *(f"  {name} = {value}: {guards}" for name, value, guards in table), sep="\n", flush=True)
     rows = []
     for job in pair_jobs(synthetic, [], names):
         row = place(job)
@@ -82,5 +88,5 @@ def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool
         ledger.row(row)
     result = summary(rows)
     print(json.dumps(result) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    ledger.summary(result)
+    ledger.summary({**result, "gates": {name: value for name, value, _ in table}})
     return 0
