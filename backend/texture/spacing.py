@@ -1,14 +1,12 @@
 """The yarn spacing over the whole photo: a lattice's mean frequency read from the phase of its harmonics.
 
 The spectral lattice (:mod:`.lattice`) reads peaks of a Hann-windowed spectrum, which weights the
-photo's centre. A phone photo's yarn spacing is not even (a sample not quite flat, lens distortion;
-the photo-like set draws changes of 1-3 % across the image), so the centre's spacing can be that far
-from the sample's mean, which is what the material needs (yarns per cm) and what a re-render must
-match at the photo's edges. Measured at the true placement and pattern on three photo-like sets of 20
-(seeds 7, 53, 97), the spectral lattice is off by over 1 % on 7, 13 and 5 pairs.
+photo's centre. A phone photo's yarn spacing is not even (a sample not quite flat, lens
+distortion), so the centre's spacing can be a percent or more from the sample's mean, which is
+what the material needs (yarns per cm) and what a re-render must match at the photo's edges.
 
 The mean spacing is in the phase of the harmonics. For a harmonic h = (m, n) of the lattice (a, b)
-(cycles per image), at image frequency f_h = turned(m a, n b) (:func:`.lattice.turned_frequencies`),
+(cycles per image), at image frequency f_h = turned(m a, n b) (:func:`.frequencies.turned_frequencies`),
 
     z_h(p)  = G_s * [ y(p) exp(-2 pi i f_h . p / N) ]          demodulated and low-passed
     s_h(p)  = z_h(p + e_x) conj(z_h(p))
@@ -16,51 +14,39 @@ The mean spacing is in the phase of the harmonics. For a harmonic h = (m, n) of 
 
 where y is the high-passed luminance: the phase of z_h advances by 2 pi (f_true - f_h) . e per pixel
 step e, and the sum averages it over the whole photo, every pixel where the harmonic shows at least
-as strongly as at the median pixel alike (EVEN_QUANTILE), those where it is weaker less (there noise,
-which has no steady phase, takes over): the harmonic's frequency is read as g_h = f_h + delta. The
-plain sum, weighted by |z_h|^2, reads the spacing where the harmonic is strongest, and in a
-transmission photo that is the centre, where the lamp's glow lights the gaps: photo-like seed 53
-satin1m_019's (0, 5) harmonic is 20-40 times stronger in the central 128 rows than elsewhere, and
-the yarns are 2 % denser there than on average; read 1.6 % off the mean that way, 0.4 % evenly.
+as strongly as at the median pixel alike (``EVEN_QUANTILE``), those where it is weaker less (there
+noise, which has no steady phase, takes over): the harmonic's frequency is read as g_h = f_h + delta.
+The plain sum, weighted by |z_h|^2, would read the spacing where the harmonic is strongest, and in
+a transmission photo that is the centre, where the lamp's glow lights the gaps.
 
-The yarn vectors' directions, which can decide the sample's turn (:func:`.candidates.yarn_turn`),
-are read from the power-weighted sum instead (g'_h, the same steps s_h summed as they are): a
-candidate of the wrong pattern demodulates where its harmonics barely show, and read evenly its
-vectors could come out unsheared at a wrong turn and vote for it (photo-like seed 97 plain_000,
-turned 3.02 degrees: twill1 on the plain's lattice read 2.42 degrees, skew 0.12, and the sample
-was placed there; weighted by power, 2.02 degrees, skew -0.69, and it does not vote).
+The yarn vectors' directions, which can decide the sample's turn
+(:mod:`backend.texture.placement.votes`), are read from the power-weighted sum instead (g'_h, the
+same steps s_h summed as they are): a candidate of the wrong pattern demodulates where its
+harmonics barely show, and read evenly its vectors could come out unsheared at a wrong turn and
+vote for it.
 
-Measured with ``bench placement`` against the power-weighted sum for both (photo-like seeds 53 and
-97, the 37 of 40 pairs whose true pattern's candidate is on the true lattice): tiles off by 0.50 ->
-0.41 % on average, at most 1.59 -> 0.91 %, over 1 %: 3 -> 0 (seed 53 satin1m_019 1.59 -> 0.38,
-satin0_013 1.10 -> 0.25, plain_000 1.07 -> 0.66; worse: seed 97 plain_010 0.16 -> 0.50); rotation
-error mean 0.051 -> 0.052 degrees, median 0.041 -> 0.037, none over 0.5; the 11 dev goldens,
-evenly spaced: tiles 0.05 -> 0.07 % on average, at most 0.13 % in both, rotation unchanged.
-
-The harmonics read are the HARMONICS with the most power |Y_h|^2 in the Hann-windowed y, among those
-whose power is SHOWN times the mean frequency bin's. Their frequencies g_h = m u + n v are solved,
-least squares weighted by w = |Y_h|^2, for the yarn vectors u = a' (cos theta_1, -sin theta_1) and
-v = b' (sin theta_2, cos theta_2) (as :func:`.lattice.turned_frequencies` turns them); a' = |u| and
-b' = |v|. The lengths do not depend on the placement's angles: turned back at the angles as given, a
-rotation read 0.6 degrees off leaks one axis's frequency into the other's (seed-97 twill1_012: read
-1.8 % off where the true turn gives 0.3 %). Where the harmonics read do not pin both vectors (fewer
-than two independent (m, n)), each axis's harmonics are turned back at the given angles
-(:func:`.lattice.fabric_frequencies`: (f1, f2)) and a' = sum w m f1 / sum w m^2, and b' likewise
+The harmonics read are the ``HARMONICS`` with the most power |Y_h|^2 in the Hann-windowed y, among
+those whose power is ``SHOWN`` times the mean frequency bin's. Their frequencies g_h = m u + n v are
+solved, least squares weighted by w = |Y_h|^2, for the yarn vectors u = a' (cos theta_1, -sin theta_1)
+and v = b' (sin theta_2, cos theta_2); a' = |u| and b' = |v|. The lengths do not depend on the
+placement's angles (turned back at angles a fraction of a degree off, one axis's frequency would
+leak into the other's). Where the harmonics read do not pin both vectors (fewer than two independent
+(m, n)), each axis's harmonics are turned back at the given angles
+(:func:`.frequencies.fabric_frequencies`: (f1, f2)) and a' = sum w m f1 / sum w m^2, and b' likewise
 with n. The power of the line itself weighs, not the mean of |z_h|^2: what the low-passed z holds
 beyond a harmonic's own line, noise or a neighbour's tail, has no steady phase.
 
-The filter G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d pixels
-puts it four standard deviations of the filter's response away. The neighbours that count carry
-power: the pattern's signature and their mirrors (-f_h included), folded at Nyquist, and the photo's
-light, which the high-pass of N / 64 px leaves up to LIGHT_BAND cycles from DC (a low harmonic beside
-a transmission glow was read 10 % off without it). A harmonic with a neighbour closer than
-MIN_SEPARATION cycles is not read. Two passes: the second demodulates at the first's lattice.
+The filter G_s keeps the other harmonics out: the nearest one lies d cycles away, and s = 0.64 N / d
+pixels puts it ``SEPARATION_SIGMAS`` standard deviations of the filter's response away. The
+neighbours that count carry power: the pattern's signature and their mirrors (-f_h included),
+folded at Nyquist, and the photo's light, which the high-pass of N / 64 px leaves up to
+``LIGHT_BAND`` cycles from DC. A harmonic with a neighbour closer than ``MIN_SEPARATION`` cycles is
+not read. Two passes: the second demodulates at the first's lattice.
 
 Only the transmission photo is read (the reflection joins in when the transmission alone does not
-pin both vectors): in reflection a harmonic rides on glints whose place on a yarn follows the
-half vector, which turns across the photo, so its phase drifts by a fraction of a cycle over the
-image (photo-like satins read 2-6 % off in reflection, within 1 % in transmission), while light
-through the gaps shows where the yarns are.
+pin both vectors): in reflection a harmonic rides on glints whose place on a yarn follows the half
+vector, which turns across the photo, so its phase drifts by a fraction of a cycle over the image,
+while light through the gaps shows where the yarns are.
 """
 from __future__ import annotations
 
@@ -104,7 +90,7 @@ def mean_lattice(transmission: np.ndarray, reflection: np.ndarray, start: Lattic
     the transmission photo (``signatures``: the pattern's (reflection, transmission) signatures;
     the reflection joins in when the transmission alone does not pin both axes). ``transmission``
     and ``reflection`` are the photos' high-passed luminances y
-    (:func:`backend.image.spectrum.highpassed_luminance` at N / 64 px, as :class:`.lattice.Spectra`
+    (:func:`backend.image.spectrum.highpassed_luminance` at N / 64 px, as :class:`.spectra.Spectra`
     keeps them). The score is ``start``'s; the placement is the last pass's."""
     a, b = start.a, start.b
     for _ in range(PASSES):

@@ -11,10 +11,8 @@ the render's,
     r_{h,e}(p) = N / (2 pi) arg (s_{h,e}(p) conj(s'_{h,e}(p))) = f_h . (d/de) d(p)    (e = across, down)
 
 one equation per harmonic, step and pixel for the Jacobian of d. A render of another fabric than
-the photo's drifts otherwise, and part of the difference reads as a warp (photo-like seed 7 read
-against renders of the true parameters: a median error of 12 % of the true warp; against the
-pattern's typical parameters: 43 %), so the fit reads again as its parameters improve
-(:mod:`backend.fit.warp`).
+the photo's drifts otherwise, and part of the difference reads as a warp, so the fit reads again as
+its parameters improve (:mod:`backend.fit.warp`).
 
 With d(p) = sum C B_a(x) B_b(y) (uniform cubic B-splines of INTERVALS spans), the equations are
 solved for the control displacements C by weighted least squares,
@@ -32,20 +30,14 @@ the render's yarn frequency vectors u, v (:func:`.lattice.turned_frequencies`) a
 
     s_u = |(I + J)^T u| / |u| - 1,   s_v likewise
 
-(J's turn and shear are left to the placement, which reads them within 0.05 degrees). This reads the
-spacing against a render, evenly over the photo, where :mod:`.spacing` reads it from the photo
-alone before any render: weighted towards where the harmonics show (a warp's denser or sparser
-part) and with the light's own phase drift in it. Photo-like seed 61 twill0m_006 (a phone warp of
-1.43 px, periods 372 and 305 px): the mean spacing read 1.26 % short on u; the photos against a
-render of the true parameters at those tiles read a stretch that puts them 0.06 % off (the true
-warp's own affine part: +0.06 %). Against a render of parameters still being fitted it can read a
-few tenths of a percent off (:meth:`backend.fit.optimise.Run.update_warp` keeps it only where the
-loss is lower at once), and the loss can be wrong too: with MAX_STRETCH at 3 %, seed-61
-satin0m_008's tiles went from 0.74 % to 2.84 % off the truth (its reflection FLIP .261 -> .300).
-A stretch over MAX_STRETCH (1.5 %) is not the lattice's: the placement's mean spacing is closer
-than that on the photo-like sets measured (seeds 7, 53, 61 and 97, the pairs placed on the true
-lattice: at most 1.25 %, `bench placement`). One under NEGLIGIBLE_STRETCH is none. A warp under
-NEGLIGIBLE_PX (root mean square) is none.
+(J's turn and shear are left to the placement). This reads the spacing against a render, evenly
+over the photo, where :mod:`.spacing` reads it from the photo alone before any render: weighted
+towards where the harmonics show (a warp's denser or sparser part) and with the light's own phase
+drift in it. Against a render of parameters still being fitted it can read a few tenths of a
+percent off (:meth:`backend.fit.optimise.Run.update_warp` keeps it only where the loss is lower at
+once). A stretch over ``MAX_STRETCH`` is not the lattice's: the placement's mean spacing reads
+closer than that. One under ``NEGLIGIBLE_STRETCH`` is none; a warp under ``NEGLIGIBLE_PX`` (root
+mean square) is none.
 
 The photos' equations are summed (both show the sample's warp); each photo's own reading tells
 whether they agree (:func:`read_warp`'s ``agreeing``). The harmonics are the lattice's strongest
@@ -104,17 +96,22 @@ def read_warp(readings: list[WarpReading], a: float, b: float, rotation_deg: flo
     own and those agree (a correlation of at least AGREEMENT, pairwise)."""
     size = readings[0].photo.shape[0]
     equations = [_equations(reading, a, b, rotation_deg, skew_deg) for reading in readings]
-    if agreeing and len(readings) > 1:
-        own = [None if e is None else _solved(*e, size, film_size)[0] for e in equations]
-        if any(w is None for w in own) or min(correlation(u, v, film_size) for k, u in enumerate(own)
-                                              for v in own[k + 1:]) < AGREEMENT:
-            return None
+    if agreeing and len(readings) > 1 and not _own_warps_agree(equations, size, film_size):
+        return None
     found = [e for e in equations if e is not None]
     if not found:
         return None
     warp, affine = _solved(sum(e[0] for e in found), sum(e[1] for e in found), size, film_size)
     stretch = _stretch(affine, a, b, rotation_deg, skew_deg)
     return None if warp is None and stretch == (0.0, 0.0) else SpacingRead(warp, stretch)
+
+
+def _own_warps_agree(equations: list, size: int, film_size: int) -> bool:
+    """Whether every photo shows a warp of its own and those agree pairwise (``AGREEMENT``)."""
+    own = [None if e is None else _solved(*e, size, film_size)[0] for e in equations]
+    if any(w is None for w in own):
+        return False
+    return min(correlation(u, v, film_size) for k, u in enumerate(own) for v in own[k + 1:]) >= AGREEMENT
 
 
 def _stretch(affine: np.ndarray, a: float, b: float, rotation_deg: float, skew_deg: float) -> tuple[float, float]:

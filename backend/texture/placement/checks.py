@@ -37,9 +37,7 @@ def versus_unturned(spectra: Spectra, rig: CaptureRig, patterns: tuple[str, ...]
     at = {p: comb_lattices(spectra, placed_rig(rig, p), patterns, per_pattern, workers=workers)
           for p in (unturned, found)}
     reads = {p: read_combs(spectra, placed_rig(rig, p), at[p], per_pattern, workers) for p in (unturned, found)}
-    turns = {p: yarn_turn(reads[p].readings, p, reflection_votes=None) for p in reads}
-    if all(turn is None for turn in turns.values()):
-        turns = {p: yarn_turn(reads[p].readings, p, GATES.deciding_reflection_votes) for p in reads}
+    turns = _turns_shown(reads)
     shown = [p for p in reads if turns[p] is not None]
     if len(shown) == 1:
         placement = shown[0]
@@ -49,6 +47,15 @@ def versus_unturned(spectra: Spectra, rig: CaptureRig, patterns: tuple[str, ...]
     else:
         placement = found if _best_score(at[found]) > _best_score(at[unturned]) else unturned
     return placement, reads[placement], {p: reads[p] for p in reads if p != placement}
+
+
+def _turns_shown(reads: dict[Placed, Read]) -> dict[Placed, float | None]:
+    """Per placement, the turn its candidates' yarn vectors show from the transmission alone, or,
+    where neither placement's do, with ``deciding_reflection_votes`` of the reflection's help."""
+    turns = {p: yarn_turn(read.readings, p, reflection_votes=None) for p, read in reads.items()}
+    if all(turn is None for turn in turns.values()):
+        turns = {p: yarn_turn(read.readings, p, GATES.deciding_reflection_votes) for p, read in reads.items()}
+    return turns
 
 
 def rescued(spectra: Spectra, rig: CaptureRig, patterns: tuple[str, ...], per_pattern: int, sieve_turn_deg: float,
