@@ -22,6 +22,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...core.pair_jobs import CANCELLED
 from .job import FitJob, FitOutcome, run_fit_job
 from .scheduler import BatchError, TaskLost
 
@@ -143,7 +144,7 @@ class RayExecutor:
         try:
             return self.ray.get(handle)
         except exceptions.TaskCancelledError:
-            return FitOutcome("", "cancelled", "cancelled before it started")
+            return FitOutcome("", CANCELLED, "cancelled before it started")
         except exceptions.RayError as exc:
             first_line = next((line for line in str(exc).splitlines() if line.strip()), "")
             raise TaskLost(f"{type(exc).__name__}: {first_line}"[:500]) from None
