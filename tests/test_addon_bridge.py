@@ -671,7 +671,7 @@ def test_the_gpu_install_can_be_cancelled_and_a_failure_changes_nothing(fake_pip
             break
         time.sleep(0.02)
     assert job.state == gpu_env.RUNNING and job.status.startswith("Downloading torch-2.13.0")
-    job.cancel()
+    job.request_cancel()
     assert job.wait(timeout=HANG_S) == gpu_env.CANCELLED
     assert job.error == "The GPU PyTorch install was cancelled; nothing was changed."
     monkeypatch.setenv("FAKE_PIP_MODE", "fail")

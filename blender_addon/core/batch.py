@@ -75,14 +75,25 @@ def run_batch(folder: str | Path, library_path: str | Path | None = None, *, bac
     rig_values = _rig_file(options.rig_json)
     if options.width_cm:
         rig_values["width_cm"] = options.width_cm
-    rig = rig_settings.rig_dict(rig_values)
+    queue = _fit_all(folder, jobs, backend, library, rig_settings.rig_dict(rig_values), options,
+                     Path(fits_parent) if fits_parent else folder / "fabric_fits", log)
+    report.fitted += [(job.name, job.material, job.out_dir) for job in queue.jobs if job.state == batch_queue.DONE]
+    report.failed += [(job.name, job.reason) for job in queue.failures() if job.reflection is not None]
+    _write_library(report, library, Path(library_path) if library_path else folder / LIBRARY_NAME, options.overwrite,
+                   log)
+    return report
+
+
+def _fit_all(folder: Path, jobs: list, backend, library, rig: dict, options: BatchOptions, fits_parent: Path,
+             log) -> batch_queue.BatchQueue:
+    """Fits the pairs one after another (the sidebar's queue, polled until it is done), a line each."""
     lines = _PairLines(jobs, log)
 
     def add(job, params, description, preview):
         return library.add(job.name, params, rig.get("width_cm"), Path(job.out_dir), description, preview)
 
-    queue = batch_queue.BatchQueue(folder, backend, Path(fits_parent) if fits_parent else folder / "fabric_fits", rig,
-                                   add, options, jobs=jobs, on_event=lines.event, on_end=lines.end).start()
+    queue = batch_queue.BatchQueue(folder, backend, fits_parent, rig, add, options, jobs=jobs, on_event=lines.event,
+                                   on_end=lines.end).start()
     try:
         while not queue.done:
             queue.poll()
@@ -90,11 +101,7 @@ def run_batch(folder: str | Path, library_path: str | Path | None = None, *, bac
     except KeyboardInterrupt:  # Ctrl+C: the backend runs in its own session and must be stopped here
         queue.cancel()
         raise
-    report.fitted += [(job.name, job.material, job.out_dir) for job in queue.jobs if job.state == batch_queue.DONE]
-    report.failed += [(job.name, job.reason) for job in queue.failures() if job.reflection is not None]
-    _write_library(report, library, Path(library_path) if library_path else folder / LIBRARY_NAME, options.overwrite,
-                   log)
-    return report
+    return queue
 
 
 class _PairLines:
