@@ -208,7 +208,7 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         assert tuple(material.preview.image_size) == (96, 96) and pixels.reshape(-1, 4)[:, :3].std() > 0.01
 
         # Paint over a weave lookup image: it is put back before the file is saved.
-        atlas = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+        atlas = bpy.data.images[ext.scene.fallback_atlases.ATLAS_PREFIX + "warp"]
         good = np.empty(len(atlas.pixels), np.float32); atlas.pixels.foreach_get(good)
         atlas.pixels.foreach_set(np.full_like(good, 0.5))
         bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})
@@ -222,7 +222,7 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         material = bpy.data.materials[name]
         assert material.asset_data.catalog_id == written["Fabrics/twill1"]
         assert [t.name for t in material.asset_data.tags] == tags
-        atlas = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+        atlas = bpy.data.images[ext.scene.fallback_atlases.ATLAS_PREFIX + "warp"]
         again = np.empty(len(atlas.pixels), np.float32); atlas.pixels.foreach_get(again)
         assert np.array_equal(again, good)
 
