@@ -411,22 +411,26 @@ def _emit(node, b, env):
     if isinstance(node, ast.BinOp) and type(node.op) in BINARY:
         return b.math(BINARY[type(node.op)], _emit(node.left, b, env), _emit(node.right, b, env))
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
-        n, kind, op = FUNCTIONS[node.func.id]
-        if kind == "pick":
-            if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
-                raise TypeError("fallback program: pick takes an index and constant values")
-            return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
-        if len(node.args) != n:
-            raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
-        args = [_emit(a, b, env) for a in node.args]
-        if kind == "math":
-            return b.math(op, *args)
-        if kind == "vec":
-            return b.vec(op, *args)
-        if kind == "combine":
-            return b.combine(*args)
-        if kind == "separate":
-            return b.separate(args[0], op)
-        if kind == "lookup":
-            return b.lookup(*args)
+        return _emit_call(node, b, env)
     raise SyntaxError(f"fallback program: unsupported expression {ast.dump(node)}")
+
+
+def _emit_call(node, b, env):
+    """A call of one of :data:`FUNCTIONS` (checked by the caller) as the builder's node."""
+    n, kind, op = FUNCTIONS[node.func.id]
+    if kind == "pick":
+        if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
+            raise TypeError("fallback program: pick takes an index and constant values")
+        return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
+    if len(node.args) != n:
+        raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
+    args = [_emit(a, b, env) for a in node.args]
+    if kind == "math":
+        return b.math(op, *args)
+    if kind == "vec":
+        return b.vec(op, *args)
+    if kind == "combine":
+        return b.combine(*args)
+    if kind == "separate":
+        return b.separate(args[0], op)
+    return b.lookup(*args)
