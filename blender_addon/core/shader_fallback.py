@@ -35,8 +35,8 @@ the dependence on the light direction wo is left to the closures:
   through a gap in front); in transmission (1 - w) k_d^t translucent(N) + w k_d^t c translucent(N) with
   the product c = max(0, -wo . n0) max(0, -wo . n1) / |wo_z| of spec 4.5 taken at wo = -wi. (A Translucent
   BSDF on n itself would do the light-side cosine exactly, as the OSL shader does, but Cycles' SVM bends
-  the normal of a translucent closure like a glossy one's, ``maybe_ensure_valid_specular_reflection``:
-  measured 37 % too bright on a plain weave with w = 0.9);
+  the normal of a translucent closure like a glossy one's, ``maybe_ensure_valid_specular_reflection``,
+  which made it too bright);
 - gaps (both layers open): the node group mixes in a Transparent BSDF by ``coverage``.
 
 The program is plain text, one assignment per line, in a tiny expression language (Python
@@ -92,8 +92,7 @@ LAYER_OUTPUTS = ("gloss_s_color", "gloss_m_color", "gloss_s_rough", "gloss_m_rou
 # transmission (a Cauchy in azimuth) cannot be; seen from a point it is a cosine glow of the lobe's value at
 # wo = -wi. So the lobe is the hair cone, weight TT_CONE times its peak, blended into a translucent closure
 # of that straight-through value as alpha_m goes from TT_GLOW[0] to TT_GLOW[1]. Fitted to the exact lobe of
-# one flat fibre in the capture rig (numpy: alpha_m 0.05-0.95, T_m 0.5-3, warp and weft; 32 x 32 block
-# relative L1 0.199 -> 0.119), not to any parameter set the validation uses.
+# one flat fibre in the capture rig, not to any parameter set the validation uses.
 TT_SINGLE = (0.3, 0.7)
 TT_CONE = 1.25
 TT_GLOW = (0.25, 0.95)
@@ -105,7 +104,7 @@ TT_GLOW = (0.25, 0.95)
 
 # EEVEE's diffuse transmission: the yarn term's n . wi / wi_z (spec 4.5's 1 / |w_z| at wo = -wi) grows
 # without bound at grazing views, bright specks on the silhouettes of a backlit drape; it is capped
-# here (measured on the rig draws, which see the fabric near its normal: at most 1.21 there).
+# here, above what the rig's views (near the fabric's normal) reach.
 EEVEE_TRANSLUCENT_CAP = 2.0
 
 _GEOMETRY = """

@@ -214,9 +214,9 @@ def create_material(name: str, params: dict, width_cm: float | None = None,
     out_cycles.is_active_output = True
     out_eevee.is_active_output = True
     # EEVEE: a cloth is a thin sheet. With the default "Sphere" thickness mode EEVEE lights the
-    # Translucent closures of a plane from the front and mostly shadows the back light (measured:
-    # 17 % of k |cos| / pi from behind); "Slab" transmits the back light (half of it, which the
-    # fallback's EEVEE output makes up for) and none from the front.
+    # Translucent closures of a plane from the front and mostly shadows the back light; "Slab"
+    # transmits the back light (half of it, which the fallback's EEVEE output makes up for) and none
+    # from the front.
     for attr, value in (("surface_render_method", "DITHERED"), ("use_transparent_shadow", True),
                         ("thickness_mode", "SLAB")):
         if hasattr(material, attr):

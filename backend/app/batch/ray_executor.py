@@ -27,10 +27,9 @@ from .job import FitJob, FitOutcome, run_fit_job
 from .scheduler import BatchError, TaskLost
 
 INSTALL_HINT = "pip install -e '.[cluster]' (or pip install ray)"
-MAX_FITS_PER_WORKER = 20
-# A fit's peak memory: about 2.0 GB for a default fit (--size 256, 512-pixel film; metrics.json's
-# peak_mb), 1.1 GB for the tests' tiny ones. Reserving it keeps a many-core, little-memory machine
-# from running more fits than it can hold.
+MAX_FITS_PER_WORKER = 20  # then a fresh worker: nothing a fit leaves in memory piles up
+# A default fit's peak memory (metrics.json's peak_mb): reserving it keeps a many-core, little-memory
+# machine from running more fits than it can hold.
 DEFAULT_MEMORY_GB = 2.0
 _BACKEND = Path(__file__).resolve().parents[1]  # the backend package the workers import
 

@@ -31,7 +31,7 @@ from .job import FitJob, FitOutcome
 
 ATTEMPTS = 2  # a pair's fits at most: an attempt may die with its worker or machine, the second rarely does
 PROGRESS_EVERY_S = 5.0  # the progress line is also refreshed this often (its time left changes)
-POLL_S = 0.5
+POLL_S = 0.5  # how long the driver waits for a finished fit before it looks at Ctrl+C again
 
 
 class BatchError(ValueError):
