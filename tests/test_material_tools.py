@@ -230,3 +230,14 @@ def test_a_material_that_cannot_be_made_fails_only_its_pair(tmp_path, pair_folde
     jobs = {job.name: job for job in queue.jobs}
     assert jobs["linen"].state == batch_queue.FAILED and "no room in the file" in jobs["linen"].reason
     assert jobs["wool"].state == batch_queue.DONE
+
+
+def test_a_pair_past_the_time_limit_fails_and_the_next_one_runs(tmp_path, pair_folder, monkeypatch):
+    monkeypatch.setenv("FAKE_BACKEND_MODE", "slow")
+    (pair_folder / "torn_T.png").unlink()
+    (pair_folder / "torn_R.png").unlink()
+    queue = _queue(pair_folder, tmp_path, [], timeout_s=0.5).start()
+    _poll_until_done(queue)
+    jobs = {job.name: job for job in queue.jobs}
+    assert [jobs[name].state for name in ("linen", "wool")] == [batch_queue.FAILED] * 2
+    assert jobs["linen"].reason == "The fit took longer than 0.5 s and was stopped." and jobs["linen"].attempts == 1
