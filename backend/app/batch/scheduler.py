@@ -29,7 +29,7 @@ from ...core.protocol import Reporter
 from . import catalogue, output
 from .job import FitJob, FitOutcome
 
-ATTEMPTS = 2  # a pair's fits at most: an attempt may die with its worker or machine, the second rarely does
+ATTEMPTS = 2  # fits of a pair at most: a second try after a failure it may not repeat (pair_jobs.RETRIED)
 PROGRESS_EVERY_S = 5.0  # the progress line is also refreshed this often (its time left changes)
 POLL_S = 0.5  # how long the driver waits for a finished fit before it looks at Ctrl+C again
 
