@@ -39,7 +39,16 @@ import backend.core.rig  # noqa: E402
 import backend.core.weave  # noqa: E402
 from blender_addon.core import backend_bridge as bridge  # noqa: E402
 from blender_addon.core import backend_setup as setup  # noqa: E402
-from blender_addon.core import batch, captures, checklist, declarations, gpu_env, paths, rig_settings  # noqa: E402
+from blender_addon.core import (  # noqa: E402
+    batch,
+    captures,
+    checklist,
+    declarations,
+    fit_progress,
+    gpu_env,
+    paths,
+    rig_settings,
+)
 from blender_addon.core.check_job import BackendCheckJob  # noqa: E402
 
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
@@ -196,13 +205,13 @@ def test_interpreter_candidates_put_the_project_environment_first(tmp_path, monk
 
 
 def test_progress_fraction_is_monotonic_over_the_stages():
-    assert tuple(bridge.STAGE_WEIGHTS) == declarations.protocol().STAGES == tuple(bridge.STAGE_NAMES)
-    assert sum(bridge.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
-    fractions = [bridge.progress_fraction(stage, i, 4) for stage in bridge.STAGE_WEIGHTS for i in range(5)]
+    assert tuple(fit_progress.STAGE_WEIGHTS) == declarations.protocol().STAGES == tuple(fit_progress.STAGE_NAMES)
+    assert sum(fit_progress.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
+    fractions = [fit_progress.progress_fraction(stage, i, 4) for stage in fit_progress.STAGE_WEIGHTS for i in range(5)]
     assert fractions == sorted(fractions)
     assert fractions[0] == 0.0 and fractions[-1] == pytest.approx(1.0)
-    assert bridge.progress_fraction("optimise", 3, 0) == pytest.approx(0.22)
-    assert bridge.describe_progress({"stage": "optimise", "iteration": 12, "total": 300, "loss": 0.0312,
+    assert fit_progress.progress_fraction("optimise", 3, 0) == pytest.approx(0.22)
+    assert fit_progress.describe_progress({"stage": "optimise", "iteration": 12, "total": 300, "loss": 0.0312,
                                      "eta_s": 41.5}) == "Optimising 12/300, loss 0.0312, about 42 s left"
 
 

@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import backend_bridge, backend_setup, batch_queue, captures, declarations, rig_settings
+from . import backend_bridge, backend_setup, batch_queue, captures, declarations, fit_progress, rig_settings
 from .batch_queue import BatchOptions
 
 CLI_COMMAND = "fabric_fit"
@@ -116,7 +116,7 @@ class _PairLines:
     def event(self, job, event: dict) -> None:
         if event["event"] == "progress" and event.get("stage") != self.stage.get(job.name):
             self.stage[job.name] = event.get("stage")
-            self.log(f"     {self.prefix[job.name]}: {backend_bridge.describe_progress(event)}")
+            self.log(f"     {self.prefix[job.name]}: {fit_progress.describe_progress(event)}")
         elif event["event"] == "warning":
             self.log(f"WARN {self.prefix[job.name]}: {event.get('message')}")
 
