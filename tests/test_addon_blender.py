@@ -92,6 +92,16 @@ assert bpy.ops.extensions.package_install_files(
 import importlib
 ext = importlib.import_module("%s")
 
+class StandIn:
+    # A modal operator's state with its class's methods: Blender cannot make one without an event loop.
+    def __init__(self, operator_class):
+        self._class, self._timer, self.reports = operator_class, None, []
+    def report(self, kind, message):
+        self.reports.append((kind, message))
+    def __getattr__(self, name):
+        value = getattr(self._class, name)
+        return value.__get__(self) if callable(value) and hasattr(value, "__get__") else value
+
 def refused(operator, message, **properties):
     # Runs an operator that must fail (an ERROR report raises in background mode); its message.
     try:
@@ -219,7 +229,7 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         bridge = ext.core.backend_bridge
         fit = bridge.FitProcess.fit(ext.ui.preferences.selected_backend(), bridge.FitRequest(
             Path(settings.reflection_path), Path(settings.reflection_path), Path("run"))).start()
-        ext.ui.operators.ActiveFit.process = fit
+        ext.ui.operators.fit_job.job = fit
         drawn.clear()
         panels[2].draw(SimpleNamespace(layout=Layout()), bpy.context)
         assert ("operator", "fabric.cancel_fit") in drawn and "progress" in [d[0] for d in drawn], drawn
@@ -293,7 +303,7 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
                     drawn.append((name, kw.get("text", args[0] if args else None)))
                     return Recorder()
                 return call
-        failed = ext.ui.operators.ActiveFit.process
+        failed = ext.ui.operators.fit_job.job
         from types import SimpleNamespace
         ext.ui.panels.VIEW3D_PT_woven_fabric_fit.draw(SimpleNamespace(layout=Recorder()), bpy.context)
         assert ("operator", "fabric.open_fit_log") in drawn and ("box", None) in drawn, drawn
@@ -312,6 +322,106 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
     assert "FIT OK" in output
 
 
+def test_the_modal_job_operator_follows_a_job_to_its_end_and_cancels_it(tmp_path, extension_zip):
+    """The base of the fit, batch and GPU install operators, with a job that ends after three polls:
+    execute follows it to the end without an event loop; a modal tick polls it once and passes every
+    other event on, ESC asks it to stop, a finished job is handed over once; another file or
+    disabling the add-on cancels the jobs of the file, a job that survives files is asked to stop."""
+    output = run_bpy(tmp_path, extension_zip, """
+        from types import SimpleNamespace
+        modal_job = ext.ui.modal_job
+
+        class Job:  # a plain job as core/ makes them: poll, done, request_cancel, cancel
+            def __init__(self, polls_to_end=3):
+                self.polls, self.polls_to_end, self.state, self.progress = 0, polls_to_end, "running", 0.0
+                self.calls = []
+            @property
+            def done(self):
+                return self.state != "running"
+            def poll(self):
+                self.polls += 1
+                self.progress = min(1.0, self.polls / self.polls_to_end)
+                if self.cancel_asked() or self.polls >= self.polls_to_end:
+                    self.state = "cancelled" if self.cancel_asked() else "done"
+            def cancel_asked(self):
+                return "request_cancel" in self.calls
+            def request_cancel(self):
+                self.calls.append("request_cancel")
+            def cancel(self):
+                self.calls.append("cancel")
+                self.state = "cancelled"
+
+        started, finished = [], []
+        class FABRIC_OT_test_job(modal_job.ModalJobOperator, bpy.types.Operator):
+            bl_idname, bl_label = "fabric.test_job", "Test Job"
+            refuse: bpy.props.BoolProperty()
+            active = modal_job.ActiveJob()
+            def start_job(self, context):
+                if self.refuse:
+                    self.report({"ERROR"}, "The test job cannot start")
+                    return None
+                started.append(Job())
+                return started[-1]
+            def finish_job(self, context, job):
+                finished.append(job)
+                return {"FINISHED"} if job.state == "done" else {"CANCELLED"}
+        bpy.utils.register_class(FABRIC_OT_test_job)
+
+        # Without an event loop, execute follows the job to its end and hands it over once.
+        assert bpy.ops.fabric.test_job() == {"FINISHED"}
+        assert started[0].polls == 3 and finished == started
+        refused(bpy.ops.fabric.test_job, "The test job cannot start", refuse=True)
+        assert len(started) == 1 and FABRIC_OT_test_job.active.job is started[0]
+
+        # Timer ticks: one poll each; other events pass through untouched; ESC asks the job to stop.
+        timer = SimpleNamespace(type="TIMER", value="NOTHING")
+        op, job = StandIn(FABRIC_OT_test_job), Job(polls_to_end=10)
+        FABRIC_OT_test_job.active.job = job
+        assert not FABRIC_OT_test_job.poll(bpy.context)  # one job of a kind at a time
+        assert FABRIC_OT_test_job.modal(op, bpy.context, timer) == {"PASS_THROUGH"} and job.polls == 1
+        assert FABRIC_OT_test_job.modal(op, bpy.context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) \
+            == {"PASS_THROUGH"} and job.polls == 1
+        assert FABRIC_OT_test_job.modal(op, bpy.context, SimpleNamespace(type="ESC", value="PRESS")) \
+            == {"RUNNING_MODAL"} and job.calls == ["request_cancel"] and finished == started
+        assert FABRIC_OT_test_job.modal(op, bpy.context, timer) == {"CANCELLED"} and finished[-1] is job
+        assert FABRIC_OT_test_job.poll(bpy.context)
+        # Blender ending the operator (its window closed) cancels the job and waits for it.
+        FABRIC_OT_test_job.active.job = job = Job()
+        FABRIC_OT_test_job.cancel(op, bpy.context)
+        assert job.calls == ["cancel"] and job.done
+
+        # Drawn: the progress bar with its Cancel button; the error with the button that opens the log.
+        drawn = []
+        class Layout:
+            def __getattr__(self, name):
+                def call(*args, **kw):
+                    drawn.append((name, kw.get("text", args[0] if args else None), kw.get("factor")))
+                    return Layout()
+                return call
+        modal_job.draw_progress(Layout(), 0.25, "Optimising 5/20", "fabric.cancel_fit")
+        assert ("progress", "Optimising 5/20", 0.25) in drawn and ("operator", "", None) in drawn, drawn
+        log = Path("fit.log")
+        log.write_text("the backend's stderr")
+        drawn.clear()
+        modal_job.draw_error(Layout(), "Bad input: the photo is black", bpy.context, log)
+        assert ("label", "Bad input: the photo is black", None) in drawn and ("operator", "fabric.open_fit_log", None) \
+            in drawn, drawn
+
+        # Another file: the jobs of the old one are cancelled (waiting), a job that survives files goes on.
+        survivor = modal_job.ActiveJob(survives_file=True)
+        FABRIC_OT_test_job.active.job, survivor.job = Job(), Job()
+        bpy.ops.wm.save_as_mainfile(filepath=str(Path("other.blend").resolve()))
+        bpy.ops.wm.open_mainfile(filepath=str(Path("other.blend").resolve()))
+        assert FABRIC_OT_test_job.active.job.calls == ["cancel"] and survivor.job.calls == []
+        # Disabling the add-on stops every job: the file's waiting, the others asked to stop.
+        FABRIC_OT_test_job.active.job = Job()
+        bpy.ops.preferences.addon_disable(module=ext.__name__)
+        assert FABRIC_OT_test_job.active.job.calls == ["cancel"] and survivor.job.calls == ["request_cancel"]
+        print("MODAL JOB OK")
+    """)
+    assert "MODAL JOB OK" in output
+
+
 def test_modal_fit_returns_to_blender_between_polls_and_esc_cancels(tmp_path, extension_zip, photos):
     output = run_bpy(tmp_path, extension_zip, f"""
         import time
@@ -322,19 +432,15 @@ def test_modal_fit_returns_to_blender_between_polls_and_esc_cancels(tmp_path, ex
         settings.transmission_path = str(photos / "wool_T.png")
         operator_class = ext.ui.operators.FABRIC_OT_fit
 
-        class Operator:  # the modal operator's state; Blender cannot make one without an event loop
-            _timer, _scene_name, _warned, reports = None, bpy.context.scene.name, 0, []
-            def report(self, kind, message):
-                self.reports.append((kind, message))
-        for name in ("modal", "_settings", "_finish", "_material", "_end"):
-            setattr(Operator, name, getattr(operator_class, name))
+        class Operator(StandIn):
+            _scene_name, _warned = bpy.context.scene.name, 0
         timer, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
 
         def run(mode, cancel_after=None):
             os.environ["FAKE_BACKEND_MODE"] = mode
-            op = Operator()
+            op = Operator(operator_class)
             fit = ext.ui.operators.new_fit(bpy.context, settings).start()
-            ext.ui.operators.ActiveFit.process = fit
+            ext.ui.operators.fit_job.job = fit
             for ticks in range(1, 2000):  # a liveness bound (100 s), not a timing
                 result = operator_class.modal(op, bpy.context, timer)
                 if result != {{"PASS_THROUGH"}}:  # the last tick also builds the material

@@ -29,6 +29,7 @@ from fake_backend import fake_params  # noqa: E402
 
 import backend.core.dependencies  # noqa: E402
 import backend.core.formats  # noqa: E402
+import backend.core.pair_jobs  # noqa: E402
 import backend.core.pairs  # noqa: E402
 import backend.core.params  # noqa: E402
 import backend.core.priors  # noqa: E402
@@ -38,7 +39,16 @@ import backend.core.rig  # noqa: E402
 import backend.core.weave  # noqa: E402
 from blender_addon.core import backend_bridge as bridge  # noqa: E402
 from blender_addon.core import backend_setup as setup  # noqa: E402
-from blender_addon.core import batch, captures, checklist, declarations, gpu_env, paths, rig_settings  # noqa: E402
+from blender_addon.core import (  # noqa: E402
+    batch,
+    captures,
+    checklist,
+    declarations,
+    fit_progress,
+    gpu_env,
+    paths,
+    rig_settings,
+)
 from blender_addon.core.check_job import BackendCheckJob  # noqa: E402
 
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
@@ -70,6 +80,7 @@ def run_fit(tmp_path, photos, mode="ok", monkeypatch=None, **request):
 def test_the_addon_reads_the_backends_own_declarations():
     """Each shared fact comes from the backend's file itself, so the two sides cannot drift."""
     for name, module in (("core.formats", backend.core.formats), ("core.pairs", backend.core.pairs),
+                         ("core.pair_jobs", backend.core.pair_jobs),
                          ("core.params", backend.core.params), ("core.priors", backend.core.priors),
                          ("core.protocol", backend.core.protocol), ("core.results", backend.core.results),
                          ("core.rig", backend.core.rig), ("core.weave", backend.core.weave)):
@@ -194,13 +205,13 @@ def test_interpreter_candidates_put_the_project_environment_first(tmp_path, monk
 
 
 def test_progress_fraction_is_monotonic_over_the_stages():
-    assert tuple(bridge.STAGE_WEIGHTS) == declarations.protocol().STAGES == tuple(bridge.STAGE_NAMES)
-    assert sum(bridge.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
-    fractions = [bridge.progress_fraction(stage, i, 4) for stage in bridge.STAGE_WEIGHTS for i in range(5)]
+    assert tuple(fit_progress.STAGE_WEIGHTS) == declarations.protocol().STAGES == tuple(fit_progress.STAGE_NAMES)
+    assert sum(fit_progress.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
+    fractions = [fit_progress.progress_fraction(stage, i, 4) for stage in fit_progress.STAGE_WEIGHTS for i in range(5)]
     assert fractions == sorted(fractions)
     assert fractions[0] == 0.0 and fractions[-1] == pytest.approx(1.0)
-    assert bridge.progress_fraction("optimise", 3, 0) == pytest.approx(0.22)
-    assert bridge.describe_progress({"stage": "optimise", "iteration": 12, "total": 300, "loss": 0.0312,
+    assert fit_progress.progress_fraction("optimise", 3, 0) == pytest.approx(0.22)
+    assert fit_progress.describe_progress({"stage": "optimise", "iteration": 12, "total": 300, "loss": 0.0312,
                                      "eta_s": 41.5}) == "Optimising 12/300, loss 0.0312, about 42 s left"
 
 
@@ -217,7 +228,7 @@ def test_a_fit_reports_progress_and_its_result(tmp_path, photos, monkeypatch):
     assert fit.state == bridge.SUCCEEDED, fit.error
     assert seen[0] == "start" and seen[-1] == "result" and "progress" in seen
     assert fractions == sorted(fractions) and fit.progress == 1.0
-    assert fit.returncode == 0 and fit.error == ""
+    assert fit.returncode == 0 and fit.error == "" and fit.outcome == backend.core.pair_jobs.DONE
     params = captures.read_fit_params(fit.result)
     assert params["pattern"] == "twill1"
     assert Path(fit.result["files"]["report"]).is_file()
@@ -229,6 +240,7 @@ def test_an_error_event_becomes_a_readable_failure(tmp_path, photos, monkeypatch
     assert fit.wait(timeout=HANG_S) == bridge.FAILED
     assert fit.error == "Internal backend error: the optimiser diverged (loss is NaN)"
     assert "error: the optimiser diverged" in fit.details and fit.returncode == 1
+    assert fit.outcome == backend.core.pair_jobs.INTERNAL  # worth another try where a batch gives one
 
 
 def test_bad_input_names_the_file(tmp_path, photos, monkeypatch):
@@ -236,7 +248,7 @@ def test_bad_input_names_the_file(tmp_path, photos, monkeypatch):
     fit = run_fit(tmp_path, photos, "ok", monkeypatch)
     assert fit.wait(timeout=HANG_S) == bridge.FAILED
     assert fit.error.startswith("Bad input") and str(photos[1]) in fit.error
-    assert fit.returncode == 2
+    assert fit.returncode == 2 and fit.outcome == backend.core.pair_jobs.INPUT  # no second try would help
 
 
 def test_a_crash_shows_the_exit_code_and_stderr(tmp_path, photos, monkeypatch):
@@ -307,7 +319,7 @@ def test_cancel_ends_the_process_cleanly(tmp_path, photos, monkeypatch):
         time.sleep(0.01)
     # 130: the backend stopped on the stop line on its stdin (no kill after the grace period was needed):
     # the cancel every platform delivers, Windows included, where SIGTERM cannot be caught.
-    assert fit.state == bridge.CANCELLED and fit.returncode == 130
+    assert fit.state == bridge.CANCELLED and fit.returncode == 130 and fit.outcome == backend.core.pair_jobs.CANCELLED
     assert "cancelled" in fit.status.lower()
     _assert_reaped(fit.pid)
 
@@ -316,6 +328,7 @@ def test_a_run_past_its_time_limit_is_stopped_and_fails(tmp_path, photos, monkey
     fit = run_fit(tmp_path, photos, "slow", monkeypatch)
     assert fit.wait(timeout=0.5) == bridge.FAILED
     assert fit.error == "The fit took longer than 0.5 s and was stopped."
+    assert fit.outcome == backend.core.pair_jobs.TIMEOUT
     _assert_reaped(fit.pid)
 
 
@@ -671,7 +684,7 @@ def test_the_gpu_install_can_be_cancelled_and_a_failure_changes_nothing(fake_pip
             break
         time.sleep(0.02)
     assert job.state == gpu_env.RUNNING and job.status.startswith("Downloading torch-2.13.0")
-    job.cancel()
+    job.request_cancel()
     assert job.wait(timeout=HANG_S) == gpu_env.CANCELLED
     assert job.error == "The GPU PyTorch install was cancelled; nothing was changed."
     monkeypatch.setenv("FAKE_PIP_MODE", "fail")

@@ -24,6 +24,7 @@ from backend.app.batch import catalogue, output, scheduler  # noqa: E402
 from backend.app.batch.job import FitJob, FitOutcome, run_fit_job  # noqa: E402
 from backend.app.batch.ray_executor import FitResources, RayConnection  # noqa: E402
 from backend.app.cli.main import main  # noqa: E402
+from backend.core.pair_jobs import FAILED, PENDING  # noqa: E402
 from backend.core.pairs import PhotoFiles  # noqa: E402
 from backend.core.protocol import ProtocolError, Reporter, decode, failed_exit_code  # noqa: E402
 from backend.core.results import RESULT_FILES, is_complete, missing_files  # noqa: E402
@@ -112,6 +113,18 @@ def test_a_results_folder_is_complete_only_with_every_file(tmp_path):
     assert is_complete(tmp_path)
     (tmp_path / "report.png").write_bytes(b"")  # a copy cut short
     assert missing_files(tmp_path) == ["report.png"]
+
+
+def test_the_ray_batch_and_the_addon_s_queue_list_a_folder_s_jobs_alike(tmp_path):
+    """Both executors run the one job model: the same jobs, states and reasons for the same folder."""
+    from blender_addon.core import batch_queue
+
+    photos = make_photos(tmp_path / "photos", ["denim", "linen"], orphans=["solo"])
+    ray_jobs = scheduler.plan(photos, tmp_path / "out", resume=False).jobs
+    queued = batch_queue.folder_pairs(photos.resolve())
+    assert [(j.name, j.state, j.reason, j.reflection) for j in ray_jobs] == \
+        [(j.name, j.state, j.reason, j.reflection) for j in queued]
+    assert [j.state for j in ray_jobs] == [PENDING, PENDING, FAILED]
 
 
 # -- one batch ------------------------------------------------------------------------------------

@@ -208,7 +208,7 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         assert tuple(material.preview.image_size) == (96, 96) and pixels.reshape(-1, 4)[:, :3].std() > 0.01
 
         # Paint over a weave lookup image: it is put back before the file is saved.
-        atlas = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+        atlas = bpy.data.images[ext.scene.fallback_atlases.ATLAS_PREFIX + "warp"]
         good = np.empty(len(atlas.pixels), np.float32); atlas.pixels.foreach_get(good)
         atlas.pixels.foreach_set(np.full_like(good, 0.5))
         bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})
@@ -222,7 +222,7 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         material = bpy.data.materials[name]
         assert material.asset_data.catalog_id == written["Fabrics/twill1"]
         assert [t.name for t in material.asset_data.tags] == tags
-        atlas = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+        atlas = bpy.data.images[ext.scene.fallback_atlases.ATLAS_PREFIX + "warp"]
         again = np.empty(len(atlas.pixels), np.float32); atlas.pixels.foreach_get(again)
         assert np.array_equal(again, good)
 
@@ -253,19 +253,13 @@ def test_sidebar_batch_runs_in_the_background_with_a_row_per_pair(tmp_path, exte
     write_png(photos / "torn_R.png", (10, 10, 10))
     (photos / "torn_T.png").write_text("not an image")
     output = run(tmp_path, extension_zip, f"""
-        import time
+        import faulthandler, signal, time
         from types import SimpleNamespace
+        HANG_S = 60
         batch_ui = ext.ui.batch_operators
-        queue_states = ext.core.batch_queue
         bpy.context.preferences.addons[ext.__name__].preferences.results_folder = {str(tmp_path / "fits")!r}
         operator_class = batch_ui.FABRIC_OT_batch_fit_folder
 
-        class Operator:  # the modal operator's state; Blender cannot make one without an event loop
-            _timer, reports = None, []
-            def report(self, kind, message):
-                self.reports.append((kind, message))
-        for name in ("modal", "_finish", "_end"):
-            setattr(Operator, name, getattr(operator_class, name))
         timer, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
 
         drawn = []
@@ -280,29 +274,40 @@ def test_sidebar_batch_runs_in_the_background_with_a_row_per_pair(tmp_path, exte
             panel.draw(SimpleNamespace(layout=Layout()), bpy.context)
             return list(drawn)
 
+        def tick_while_the_backend_is_stopped(op):
+            # A tick reads the backend without waiting on it: with the backend stopped (alive, its pipes
+            # open, silent) a tick still returns and the pair still runs.
+            queue = batch_ui.batch_job.job
+            pid = queue.fit.pid
+            os.kill(pid, signal.SIGSTOP)
+            faulthandler.dump_traceback_later(HANG_S, exit=True)  # a tick that waited ends the check here
+            try:
+                assert operator_class.modal(op, bpy.context, timer) == {{"PASS_THROUGH"}}
+                assert queue.fit.pid == pid and queue.fit.state == "running"
+            finally:
+                faulthandler.cancel_dump_traceback_later()
+                os.kill(pid, signal.SIGCONT)
+
         def run(mode, cancel_after=None):
             os.environ["FAKE_BACKEND_MODE"] = mode
-            op = Operator()
-            batch_ui.ActiveBatch.queue = batch_ui.new_batch(bpy.context, {str(photos)!r}).start()
+            op = StandIn(operator_class)
+            batch_ui.batch_job.job = batch_ui.new_batch(bpy.context, {str(photos)!r}).start()
             progress_rows = 0
             for ticks in range(1, 3000):  # a liveness bound (150 s), not a timing
-                started, fitted = time.monotonic(), sum(job.state == "done" for job in batch_ui.ActiveBatch.queue.jobs)
                 result = operator_class.modal(op, bpy.context, timer)
-                if sum(job.state == "done" for job in batch_ui.ActiveBatch.queue.jobs) == fitted:
-                    # (a tick that makes a material also builds the node group or renders a preview)
-                    assert time.monotonic() - started < 1.0, "a timer tick waited on the backend"
                 rows = draw(batch_ui.VIEW3D_PT_woven_fabric_batch)
                 progress_rows += sum(1 for kind, text, factor in rows if kind == "progress" and factor is not None
-                                     and text != batch_ui.ActiveBatch.queue.summary())
+                                     and text != batch_ui.batch_job.job.summary())
                 if result != {{"PASS_THROUGH"}}:
                     return result, op, ticks, progress_rows
                 if cancel_after is not None and ticks == cancel_after:
+                    tick_while_the_backend_is_stopped(op)
                     assert operator_class.modal(op, bpy.context, esc) == {{"RUNNING_MODAL"}}
                 time.sleep(0.05)
             raise AssertionError("the batch did not end")
 
         result, op, ticks, progress_rows = run("ok")
-        queue = batch_ui.ActiveBatch.queue
+        queue = batch_ui.batch_job.job
         states = {{job.name: job.state for job in queue.jobs}}
         assert result == {{"FINISHED"}} and ticks > 3, (result, ticks, op.reports)
         assert states == {{"linen": "done", "torn": "failed", "wool": "done"}}, states
@@ -316,7 +321,7 @@ def test_sidebar_batch_runs_in_the_background_with_a_row_per_pair(tmp_path, exte
         assert any("torn" in message and "Bad input" in message for kind, message in op.reports)
 
         result, op, ticks, _ = run("slow", cancel_after=5)
-        queue = batch_ui.ActiveBatch.queue
+        queue = batch_ui.batch_job.job
         assert result == {{"CANCELLED"}}, result
         assert [job.state for job in queue.jobs] == ["cancelled"] * 3, [job.state for job in queue.jobs]
         assert "wool.001" not in bpy.data.materials and "linen.001" not in bpy.data.materials

@@ -4,7 +4,10 @@ that the sidebar's batch polls (against the fake backend)."""
 from __future__ import annotations
 
 import math
+import os
+import signal
 import sys
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -19,7 +22,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from blender_addon.core import (  # noqa: E402
     asset_catalogs,
     backend_bridge,
-    batch,
     batch_queue,
     colour_layer,
     mesh_scale,
@@ -30,7 +32,8 @@ from blender_addon.core import (  # noqa: E402
 FAKE_BACKEND = Path(__file__).resolve().parent / "fake_backend.py"
 PNG_1x1 = bytes.fromhex("89504e470d0a1a0a0000000d4948445200000001000000010806000000"
                         "1f15c4890000000d49444154789c6360f8cfc0f01f0005000201d1b5a0550000000049454e44ae426082")
-HANG_S = 60  # a liveness bound, not a timing
+HANG_S = 60  # a liveness bound (a hung poll fails instead of blocking the suite), not a timing
+POLLS = 3000  # a liveness bound on the polls of a batch (about a minute of 20 ms pauses), not a timing
 
 
 # -- catalogs and tags -----------------------------------------------------------------------------
@@ -137,19 +140,24 @@ def _queue(folder, tmp_path, made, **options):
 
     return batch_queue.BatchQueue(folder, backend_bridge.Backend(sys.executable, str(FAKE_BACKEND)),
                                   tmp_path / "fits", {"width_cm": 5.0}, on_fitted,
-                                  batch.BatchOptions(iterations=3, **options))
+                                  batch_queue.BatchOptions(iterations=3, **options))
 
 
-def _poll_until_done(queue):
-    deadline = time.monotonic() + HANG_S
+def _poll_until(queue, ended):
+    """Polls ``queue`` until ``ended()``; returns the pairs seen running (never two at once)."""
     seen_running = set()
-    while not queue.done:
-        assert time.monotonic() < deadline, "the batch did not end"
+    for _ in range(POLLS):
+        if ended():
+            return seen_running
         queue.poll()
         seen_running |= {job.name for job in queue.jobs if job.state == batch_queue.RUNNING}
         assert sum(job.state == batch_queue.RUNNING for job in queue.jobs) <= 1
         time.sleep(0.02)
-    return seen_running
+    raise AssertionError("the batch did not get there")
+
+
+def _poll_until_done(queue):
+    return _poll_until(queue, lambda: queue.done)
 
 
 def test_batch_queue_fits_pairs_one_at_a_time_and_lists_failures(tmp_path, pair_folder, monkeypatch):
@@ -178,16 +186,19 @@ def test_batch_queue_polls_without_blocking_and_cancels(tmp_path, pair_folder, m
     monkeypatch.setenv("FAKE_BACKEND_MODE", "slow")
     queue = _queue(pair_folder, tmp_path, []).start()
     first = next(job for job in queue.jobs if job.state == batch_queue.RUNNING)
-    deadline = time.monotonic() + HANG_S
-    while first.progress == 0.0:
-        assert time.monotonic() < deadline
-        started = time.monotonic()
-        queue.poll()
-        assert time.monotonic() - started < 0.5, "poll waited on the backend"
-        time.sleep(0.05)
+    _poll_until(queue, lambda: first.progress > 0.0)
     assert 0.0 < queue.progress < 1.0 and "Optimising" in first.status
     pid = queue.fit.pid
-    queue.cancel()
+    os.kill(pid, signal.SIGSTOP)  # alive, holding its pipes open, writing nothing
+    try:
+        poller = threading.Thread(target=lambda: [queue.poll() for _ in range(3)], daemon=True)
+        poller.start()
+        poller.join(HANG_S)
+        assert not poller.is_alive(), "poll() waited for the backend"
+        assert first.state == batch_queue.RUNNING and queue.fit.pid == pid
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    queue.request_cancel()
     _poll_until_done(queue)
     assert first.state == batch_queue.CANCELLED
     assert all(job.state in (batch_queue.CANCELLED, batch_queue.FAILED) for job in queue.jobs)
@@ -219,3 +230,14 @@ def test_a_material_that_cannot_be_made_fails_only_its_pair(tmp_path, pair_folde
     jobs = {job.name: job for job in queue.jobs}
     assert jobs["linen"].state == batch_queue.FAILED and "no room in the file" in jobs["linen"].reason
     assert jobs["wool"].state == batch_queue.DONE
+
+
+def test_a_pair_past_the_time_limit_fails_and_the_next_one_runs(tmp_path, pair_folder, monkeypatch):
+    monkeypatch.setenv("FAKE_BACKEND_MODE", "slow")
+    (pair_folder / "torn_T.png").unlink()
+    (pair_folder / "torn_R.png").unlink()
+    queue = _queue(pair_folder, tmp_path, [], timeout_s=0.5).start()
+    _poll_until_done(queue)
+    jobs = {job.name: job for job in queue.jobs}
+    assert [jobs[name].state for name in ("linen", "wool")] == [batch_queue.FAILED] * 2
+    assert jobs["linen"].reason == "The fit took longer than 0.5 s and was stopped." and jobs["linen"].attempts == 1

@@ -24,6 +24,7 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     blend = tmp_path / "fabric.blend"
     result = run_blender(f"""
         from backend.core.params import FabricParams
+        from blender_addon.scene import fallback_atlases
         group = node_group.ensure_node_group()
         again = node_group.ensure_node_group()
         inputs = [(i.parent.name, i.name, i.socket_type, getattr(i, "min_value", None), getattr(i, "max_value", None),
@@ -54,8 +55,8 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
         mat = bpy.data.materials["Fitted"]
         reloaded = node_group.read_params(mat)
         atlases = {{im.name: (im.packed_file is not None, list(im.size)) for im in bpy.data.images
-                   if im.name.startswith(node_group.ATLAS_PREFIX)}}
-        warp = bpy.data.images[node_group.ATLAS_PREFIX + "warp"]
+                   if im.name.startswith(fallback_atlases.ATLAS_PREFIX)}}
+        warp = bpy.data.images[fallback_atlases.ATLAS_PREFIX + "warp"]
         px = list(warp.pixels[:8])
         emit({{"same_group": group == again, "inputs": inputs, "outputs": outputs, "first": first,
               "second": second, "reloaded": reloaded, "uv_default": uv_default, "uv_scale": uv_scale,

@@ -41,13 +41,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import declarations, paths
+from .fit_progress import describe_progress, progress_fraction
 
 DEVICES = ("cpu", "cuda")
-
-# Share of the progress bar per stage, in the protocol's stage order; optimisation dominates a fit.
-STAGE_WEIGHTS = {"load": 0.02, "init": 0.05, "search": 0.15, "optimise": 0.68, "render": 0.05, "report": 0.05}
-STAGE_NAMES = {"load": "Loading photos", "init": "Initial guess", "search": "Searching the weave",
-               "optimise": "Optimising", "render": "Rendering", "report": "Writing the report"}
 
 # The stop line, then a kill after this long: an iteration (or a render tile) in progress ends first,
 # and the best parameters are written.
@@ -134,29 +130,6 @@ class FitRequest:
             raise BackendError(str(exc)) from None
         return ["fit", str(self.reflection), str(self.transmission), "--out", str(self.out_dir), *flags,
                 "--json-progress", "--stop-on-stdin"]
-
-
-def progress_fraction(stage: str, iteration: int, total: int) -> float:
-    """Overall progress in [0, 1] for an iteration of a stage."""
-    done = 0.0
-    for name, weight in STAGE_WEIGHTS.items():
-        if name == stage:
-            within = min(max(iteration / total, 0.0), 1.0) if total and total > 0 else 0.0
-            return min(done + weight * within, 1.0)
-        done += weight
-    return 0.0
-
-
-def describe_progress(event: dict) -> str:
-    """One line for the UI: 'Optimising 120/300, loss 0.0312, about 41 s left'."""
-    text = f"{STAGE_NAMES.get(event.get('stage'), str(event.get('stage', 'Working')))}"
-    if event.get("total"):
-        text += f" {event.get('iteration', 0)}/{event['total']}"
-    if isinstance(event.get("loss"), (int, float)):
-        text += f", loss {event['loss']:.4g}"
-    if isinstance(event.get("eta_s"), (int, float)):
-        text += f", about {event['eta_s']:.0f} s left"
-    return text
 
 
 def describe_exit(code: int) -> str:
@@ -320,31 +293,51 @@ class FitProcess:
         self._finish(*self._outcome(code))
 
     def _outcome(self, code: int) -> tuple[str, str]:
-        proto = declarations.protocol()
         event = self._error_event
         if self._timed_out is not None:
             return FAILED, f"The fit took longer than {self._timed_out:g} s and was stopped."
         if self._cancel_deadline is not None or (event and event.get("kind") == "cancelled"):
             return CANCELLED, "Fit cancelled; the partial results stay in the output folder."
         if event is not None:
-            kind = {"input": "Bad input", "internal": "Internal backend error"}.get(event.get("kind"), "Backend error")
-            message = f"{kind}: {event.get('message', 'no message')}"
-            if event.get("file") and str(event["file"]) not in message:
-                message += f" (file: {event['file']})"
-            if event.get("kind") != "input" and self._stderr:
-                self.details = self.stderr_tail()
-            return FAILED, message
-        if code == proto.EXIT_OK and self.result is not None:
+            return FAILED, self._error_message(event)
+        if code == declarations.protocol().EXIT_OK and self.result is not None:
             return SUCCEEDED, ""
+        return FAILED, self._unexpected_end(code)
+
+    def _error_message(self, event: dict) -> str:
+        """The backend's error event in words (bad input, internal error), naming its file."""
+        kind = {"input": "Bad input", "internal": "Internal backend error"}.get(event.get("kind"), "Backend error")
+        message = f"{kind}: {event.get('message', 'no message')}"
+        if event.get("file") and str(event["file"]) not in message:
+            message += f" (file: {event['file']})"
+        if event.get("kind") != "input" and self._stderr:
+            self.details = self.stderr_tail()
+        return message
+
+    def _unexpected_end(self, code: int) -> str:
+        """A run that ended without an error event and without a result: a crash, or silence."""
         self.details = self.stderr_tail()
         if self._malformed:
             self.details += "\nLines that were not protocol events:\n" + "\n".join(self._malformed[-5:])
-        if code != proto.EXIT_OK:
+        if code != declarations.protocol().EXIT_OK:
             last = self._last_stderr_line()
-            return FAILED, (f"The backend stopped unexpectedly ({describe_exit(code)})"
-                            + (f": {last}" if last else "") + ". See the console for its log.")
+            return (f"The backend stopped unexpectedly ({describe_exit(code)})"
+                    + (f": {last}" if last else "") + ". See the console for its log.")
         wrote = f" (it wrote {len(self._malformed)} line(s) that were not progress events)" if self._malformed else ""
-        return FAILED, f"The backend ended without reporting a result{wrote}."
+        return f"The backend ended without reporting a result{wrote}."
+
+    @property
+    def outcome(self) -> str | None:
+        """How the run ended, in the batch job model's words (core/pair_jobs.py): done, input (the
+        photos are bad), timeout, cancelled or internal (anything else); None while it runs."""
+        jobs = declarations.pair_jobs()
+        if not self.done:
+            return None
+        if self.state in (SUCCEEDED, CANCELLED):
+            return jobs.DONE if self.state == SUCCEEDED else jobs.CANCELLED
+        if self._timed_out is not None:
+            return jobs.TIMEOUT
+        return jobs.INPUT if (self._error_event or {}).get("kind") == "input" else jobs.INTERNAL
 
     def _last_stderr_line(self) -> str:
         for line in reversed(self._stderr):
@@ -408,16 +401,21 @@ class FitProcess:
         if self._cancel_deadline is not None and time.monotonic() > self._cancel_deadline:
             self._kill()
 
+    def time_out(self, limit: float) -> None:
+        """Stops a run that has gone on past ``limit`` seconds: it fails, saying so."""
+        if self.state == RUNNING and self._cancel_deadline is None:
+            self._timed_out = limit
+            self.request_cancel()
+
     def wait(self, timeout: float | None = None, interval: float = 0.05, on_event=None) -> str:
-        """Blocks until the run ends (batch mode); past ``timeout`` seconds the run is cancelled."""
+        """Blocks until the run ends (batch mode); past ``timeout`` seconds the run is stopped (time_out)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self.done:
             for event in self.poll():
                 if on_event is not None:
                     on_event(event)
-            if deadline is not None and time.monotonic() > deadline and self._cancel_deadline is None:
-                self._timed_out = timeout
-                self.request_cancel()
+            if deadline is not None and time.monotonic() > deadline:
+                self.time_out(timeout)
             if not self.done:
                 time.sleep(interval)
         return self.state

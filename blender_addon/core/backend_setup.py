@@ -175,34 +175,46 @@ def _missing(dependency, found: dict, backend: Backend) -> str:
 def check_backend(backend: Backend, device: str | None = None, timeout: float = 120.0) -> BackendCheck:
     """Runs the backend's interpreter as a fit would and reports, in words, what is missing for a fit."""
     check = BackendCheck(backend.python, label=backend.label)
+    found, problem = _probe(backend, timeout)
+    if problem:
+        check.problems.append(problem)
+        return check
+    _read_packages(check, found, backend)
+    _read_device(check, found, device)
+    if backend.script:
+        _check_fit_command(backend, check, timeout)
+    return check
+
+
+def _probe(backend: Backend, timeout: float) -> tuple[dict | None, str | None]:
+    """What the interpreter reports of itself and the runtime dependencies (_PROBE), or why it cannot."""
     python = backend.python
     if not python:
-        check.problems.append("No Python interpreter is set for the backend.")
-        return check
+        return None, "No Python interpreter is set for the backend."
     if not Path(python).exists():
-        check.problems.append(f"The Python interpreter {python} does not exist.")
-        return check
-    dependencies = _runtime_dependencies()
+        return None, f"The Python interpreter {python} does not exist."
+    modules = json.dumps([d.module for d in _runtime_dependencies()])
     try:
-        done = subprocess.run(backend.python_command(["-c", _PROBE, json.dumps([d.module for d in dependencies])]),
-                              capture_output=True, text=True, timeout=timeout, env=backend.environment())
+        done = subprocess.run(backend.python_command(["-c", _PROBE, modules]), capture_output=True, text=True,
+                              timeout=timeout, env=backend.environment())
     except subprocess.TimeoutExpired:
-        check.problems.append(f"{python} did not answer within {timeout:.0f} s.")
-        return check
+        return None, f"{python} did not answer within {timeout:.0f} s."
     except OSError as exc:
-        check.problems.append(f"{python} could not be started: {exc.strerror or exc}.")
-        return check
+        return None, f"{python} could not be started: {exc.strerror or exc}."
     try:
-        found = json.loads(done.stdout.strip().splitlines()[-1])
+        return json.loads(done.stdout.strip().splitlines()[-1]), None
     except (json.JSONDecodeError, IndexError):
         tail = (done.stderr or done.stdout).strip().splitlines()[-1:] or ["no output"]
-        check.problems.append(f"{python} is not a working Python interpreter ({tail[0]}).")
-        return check
+        return None, f"{python} is not a working Python interpreter ({tail[0]})."
 
-    version = tuple(found["python"])
+
+def _read_packages(check: BackendCheck, found: dict, backend: Backend) -> None:
+    """The Python version, the missing dependencies, PyTorch and the backend package, from the probe."""
+    python, version = backend.python, tuple(found["python"])
     if version[:2] != (3, 11):
         check.problems.append(f"{python} is Python {'.'.join(map(str, version))}; the backend needs Python 3.11.")
-    check.problems += [_missing(d, found, backend) for d in dependencies if d.module not in found["modules"]]
+    check.problems += [_missing(d, found, backend) for d in _runtime_dependencies()
+                       if d.module not in found["modules"]]
     check.torch_version = found["modules"].get("torch", "")
     check.torch_file = found["files"].get("torch", "")
     if "backend" in found and not check.problems and not found.get("fit"):
@@ -213,6 +225,10 @@ def check_backend(backend: Backend, device: str | None = None, timeout: float = 
                            + (f" from {Path(check.torch_file).parent}" if check.torch_file else "") + ".")
     elif check.torch_version:
         check.problems.append(f"The backend package cannot be imported: {found['errors'].get('backend')}.")
+
+
+def _read_device(check: BackendCheck, found: dict, device: str | None) -> None:
+    """The device PyTorch sees there, and whether the selected one is among them."""
     if found.get("cuda"):
         check.device = f"CUDA: {found.get('cuda_name')}"
         check.notes.append(f"CUDA is available ({found.get('cuda_name')}).")
@@ -220,9 +236,6 @@ def check_backend(backend: Backend, device: str | None = None, timeout: float = 
         check.device = "CPU"
         if device == "cuda":
             check.problems.append("The CUDA device is selected but PyTorch sees no CUDA GPU here; choose CPU.")
-    if backend.script:
-        _check_fit_command(backend, check, timeout)
-    return check
 
 
 def _check_fit_command(backend: Backend, check: BackendCheck, timeout: float):

@@ -1,5 +1,7 @@
 """The batch fit (no bpy): every ``<name>_R.* / <name>_T.*`` pair of a folder into a material library.
 
+The pairs are fitted one after another by the sidebar's executor (core/batch_queue.py, which runs
+the backend's job model, core/pair_jobs.py), here in a blocking loop that writes a line per pair.
 Each good pair is fitted in a new result folder (captures.new_fit) and handed to a *library*
 (scene/materials.py's AssetLibrary: ``add(name, params, width_cm, fit_folder, description,
 preview) -> material name`` and ``write(path)``), which makes one asset material per pair and
@@ -30,10 +32,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import backend_bridge, backend_setup, captures, declarations, rig_settings
+from . import backend_bridge, backend_setup, batch_queue, captures, declarations, fit_progress, rig_settings
+from .batch_queue import BatchOptions
 
 CLI_COMMAND = "fabric_fit"
 LIBRARY_NAME = "fabric_materials.blend"
+POLL_S = 0.05  # how often the loop reads the running fit
 
 
 @dataclass
@@ -47,19 +51,6 @@ class BatchReport:
         return declarations.protocol().failed_exit_code(len(self.failed))
 
 
-@dataclass
-class BatchOptions:
-    pattern: str = declarations.AUTO_PATTERN
-    iterations: int | None = None
-    size: int | None = None
-    device: str | None = None
-    rig_json: Path | None = None
-    width_cm: float | None = None
-    timeout_s: float | None = None
-    overwrite: bool = False
-    output_spp: int | None = None
-
-
 def run_batch(folder: str | Path, library_path: str | Path | None = None, *, backend: backend_bridge.Backend,
               library, options: BatchOptions | None = None, fits_parent: str | Path | None = None,
               log=print) -> BatchReport:
@@ -68,36 +59,74 @@ def run_batch(folder: str | Path, library_path: str | Path | None = None, *, bac
     options = options or BatchOptions()
     folder = Path(folder).resolve()
     report = BatchReport()
-    pairs, problems = declarations.find_pairs(folder)
-    for problem in problems:
-        log(f"SKIP {problem.name}: {problem.message}")
-        report.failed.append((problem.name, problem.message))
-    if not pairs:
-        if not problems:
-            report.failed.append(("", f"{folder}: no <name>_R.* / <name>_T.* photo pairs"))
-            log(f"ERROR {report.failed[-1][1]}")
+    try:
+        jobs = batch_queue.folder_pairs(folder)
+    except ValueError as exc:  # no photo named as a pair (main has checked that it is a folder)
+        report.failed.append(("", str(exc)))
+        log(f"ERROR {exc}")
+        return report
+    skipped = [job for job in jobs if job.finished]
+    for job in skipped:
+        log(f"SKIP {job.name}: {job.reason}")
+    report.failed += [(job.name, job.reason) for job in skipped]
+    if len(skipped) == len(jobs):
         return report
 
-    fits_parent = Path(fits_parent) if fits_parent else folder / "fabric_fits"
     rig_values = _rig_file(options.rig_json)
     if options.width_cm:
         rig_values["width_cm"] = options.width_cm
-    rig = rig_settings.rig_dict(rig_values)
-    for number, pair in enumerate(pairs, 1):
-        prefix = f"[{number}/{len(pairs)}] {pair.name}"
-        try:
-            material, out_dir = _fit_pair(pair, backend, library, options, rig, fits_parent, prefix, log)
-        except Exception as exc:  # one pair's trouble never stops the batch
-            reason = str(exc) or type(exc).__name__
-            log(f"FAIL {prefix}: {reason}")
-            report.failed.append((pair.name, reason))
-            continue
-        report.fitted.append((pair.name, material, str(out_dir)))
-        log(f"OK   {prefix}: material {material} ({out_dir})")
-
+    queue = _fit_all(folder, jobs, backend, library, rig_settings.rig_dict(rig_values), options,
+                     Path(fits_parent) if fits_parent else folder / "fabric_fits", log)
+    report.fitted += [(job.name, job.material, job.out_dir) for job in queue.jobs if job.state == batch_queue.DONE]
+    report.failed += [(job.name, job.reason) for job in queue.failures() if job.reflection is not None]
     _write_library(report, library, Path(library_path) if library_path else folder / LIBRARY_NAME, options.overwrite,
                    log)
     return report
+
+
+def _fit_all(folder: Path, jobs: list, backend, library, rig: dict, options: BatchOptions, fits_parent: Path,
+             log) -> batch_queue.BatchQueue:
+    """Fits the pairs one after another (the sidebar's queue, polled until it is done), a line each."""
+    lines = _PairLines(jobs, log)
+
+    def add(job, params, description, preview):
+        return library.add(job.name, params, rig.get("width_cm"), Path(job.out_dir), description, preview)
+
+    queue = batch_queue.BatchQueue(folder, backend, fits_parent, rig, add, options, jobs=jobs, on_event=lines.event,
+                                   on_end=lines.end).start()
+    try:
+        while not queue.done:
+            queue.poll()
+            time.sleep(POLL_S)
+    except KeyboardInterrupt:  # Ctrl+C: the backend runs in its own session and must be stopped here
+        queue.cancel()
+        raise
+    return queue
+
+
+class _PairLines:
+    """The headless batch's lines about the pairs being fitted: each stage, warnings, how each ended."""
+
+    def __init__(self, jobs: list, log):
+        fitted = [job for job in jobs if not job.finished]
+        self.prefix = {job.name: f"[{number}/{len(fitted)}] {job.name}" for number, job in enumerate(fitted, 1)}
+        self.stage: dict[str, str] = {}
+        self.log = log
+
+    def event(self, job, event: dict) -> None:
+        if event["event"] == "progress" and event.get("stage") != self.stage.get(job.name):
+            self.stage[job.name] = event.get("stage")
+            self.log(f"     {self.prefix[job.name]}: {fit_progress.describe_progress(event)}")
+        elif event["event"] == "warning":
+            self.log(f"WARN {self.prefix[job.name]}: {event.get('message')}")
+
+    def end(self, job, fit) -> None:
+        if job.state == batch_queue.DONE:
+            self.log(f"OK   {self.prefix[job.name]}: material {job.material} ({job.out_dir})")
+            return
+        if fit is not None and fit.details:
+            self.log(fit.details)
+        self.log(f"FAIL {self.prefix[job.name]}: {job.reason}")
 
 
 def import_results(results: str | Path, library_path: str | Path | None = None, *, library,
@@ -167,43 +196,6 @@ def _rig_file(path: Path | None) -> dict:
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"--rig {path}: cannot read ({exc})") from None
     return {**rig_settings.defaults(), **data}
-
-
-def _fit_pair(pair, backend, library, options, rig, fits_parent, prefix, log) -> tuple[str, Path]:
-    fit = captures.new_fit(backend, pair.reflection, pair.transmission, fits_parent, pair.name, rig,
-                           pattern=options.pattern, iterations=options.iterations, size=options.size,
-                           device=options.device, output_spp=options.output_spp).start()
-    out_dir = fit.request.out_dir
-    last_stage = [None]
-
-    def show(event):
-        if event["event"] == "progress" and event.get("stage") != last_stage[0]:
-            last_stage[0] = event.get("stage")
-            log(f"     {prefix}: {backend_bridge.describe_progress(event)}")
-        elif event["event"] == "warning":
-            log(f"WARN {prefix}: {event.get('message')}")
-
-    try:
-        fit.wait(timeout=options.timeout_s, on_event=show)
-    except KeyboardInterrupt:  # Ctrl+C: the backend runs in its own session and must be stopped here
-        fit.cancel()
-        raise
-    if fit.state != backend_bridge.SUCCEEDED:
-        if fit.details:
-            log(fit.details)
-        raise RuntimeError(fit.error or f"fit {fit.state}")
-    params, description, preview = fitted_asset(pair, fit.result, out_dir)
-    material = library.add(pair.name, params, rig.get("width_cm"), out_dir, description, preview)
-    return material, out_dir
-
-
-def fitted_asset(pair, result: dict, out_dir: Path) -> tuple[dict, str, Path]:
-    """(params, asset description, preview image) of a pair's successful fit (its ``result`` event)."""
-    params = captures.read_fit_params(result)
-    preview = Path((result.get("files") or {}).get("reflection") or pair.reflection)
-    description = (f"Woven fabric fitted from {pair.reflection.name} and {pair.transmission.name} "
-                   f"({out_dir})")
-    return params, description, preview
 
 
 # -- command line -------------------------------------------------------------------------------

@@ -1,68 +1,105 @@
-"""The batch fit without blocking (no bpy): a folder's photo pairs fitted one after another in
-backend subprocesses, advanced by :meth:`BatchQueue.poll` from a timer.
+"""The add-on's batch executor (no bpy): a folder's photo pairs fitted one after another in backend
+subprocesses, advanced by :meth:`BatchQueue.poll` without ever blocking (from a timer in Blender,
+in a loop by the headless batch, core/batch.py).
 
-The pairs come from the backend's one ``<name>_R.* / <name>_T.*`` rule (declarations.find_pairs);
-a pair with a missing partner is listed as failed at once, with the reason. Each fit runs through
-captures.new_fit (a new result folder, the rig's ``rig.json``, ``backend.log``) exactly as the
-headless batch (core/batch.py) and the panel's Fit do. When a fit succeeds the queue calls
-``on_fitted(job, params, description, preview)``, which makes the material (the bpy layer) and
-returns its name; an exception there fails that pair only.
+The jobs, their states and the rules are the backend's job model (core/pair_jobs.py, read through
+declarations.pair_jobs): a pending job per ``<name>_R.* / <name>_T.*`` pair, a failed one per name
+without its partner, one attempt each (the fit runs on this machine: what fails once fails again).
+Each fit runs through captures.new_fit (a new result folder, the rig's ``rig.json``,
+``backend.log``) as the panel's Fit does. When a fit succeeds the queue calls ``on_fitted(job,
+params, description, preview)``, which makes the material and returns its name; an exception
+there fails that pair only.
 
-Each pair is a :class:`PairJob` with a state (waiting, running, done, failed, cancelled), a
-progress fraction, a status line and, for a failure, the reason: the rows the panel shows.
-:meth:`BatchQueue.cancel` stops the running fit (SIGTERM, then SIGKILL, see backend_bridge) and
-marks the pairs still waiting as cancelled.
+Each job (:class:`QueuedPair`) adds what the Batch panel shows: a progress fraction, a status line,
+the material and the result folder. :meth:`BatchQueue.request_cancel` asks the running fit to stop
+(the stop line, then SIGKILL, see backend_bridge) and cancels the pairs still waiting;
+:meth:`BatchQueue.cancel` also waits until the fit has ended.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from . import backend_bridge, batch, captures, declarations
+from . import backend_bridge, captures, declarations
 
-WAITING, RUNNING, DONE, FAILED, CANCELLED = "waiting", "running", "done", "failed", "cancelled"
+_model = declarations.pair_jobs()
+PENDING, RUNNING, DONE, FAILED, CANCELLED = (_model.PENDING, _model.RUNNING, _model.DONE, _model.FAILED,
+                                             _model.CANCELLED)
 
 
 @dataclass
-class PairJob:
-    name: str
-    reflection: Path | None
-    transmission: Path | None
-    state: str = WAITING
+class BatchOptions:
+    pattern: str = declarations.AUTO_PATTERN
+    iterations: int | None = None
+    size: int | None = None
+    device: str | None = None
+    rig_json: Path | None = None
+    width_cm: float | None = None
+    timeout_s: float | None = None
+    overwrite: bool = False
+    output_spp: int | None = None
+
+
+@dataclass
+class QueuedPair(_model.PairJob):
+    """A pair's job with what the panel shows of it."""
+
     progress: float = 0.0
     status: str = "Waiting"
-    reason: str = ""
     material: str = ""
     out_dir: str = ""
 
 
+def folder_pairs(folder: str | Path) -> list[QueuedPair]:
+    """The jobs of ``folder`` (the job model's); ValueError when it is not a folder or holds no pairs."""
+    jobs = _model.folder_jobs(folder, QueuedPair)
+    for job in jobs:
+        if job.state == FAILED:
+            job.status = "Skipped"
+    return jobs
+
+
+def fitted_asset(job: QueuedPair, result: dict) -> tuple[dict, str, Path]:
+    """(params, asset description, preview image) of a pair's successful fit (its ``result`` event)."""
+    params = captures.read_fit_params(result)
+    preview = Path((result.get("files") or {}).get("reflection") or job.reflection)
+    description = (f"Woven fabric fitted from {job.reflection.name} and {job.transmission.name} "
+                   f"({job.out_dir})")
+    return params, description, preview
+
+
 class BatchQueue:
-    """Fits every pair of ``folder`` in turn; call :meth:`start`, then :meth:`poll` until ``done``."""
+    """Fits every pair of ``folder`` in turn; call :meth:`start`, then :meth:`poll` until ``done``.
+
+    ``on_event(job, event)`` sees the running fit's protocol events, ``on_end(job, fit)`` each job
+    that ended (``fit`` None when none started)."""
 
     def __init__(self, folder: str | Path, backend: backend_bridge.Backend, results_parent: str | Path, rig: dict,
-                 on_fitted: Callable[[PairJob, dict, str, Path], str],
-                 options: batch.BatchOptions | None = None):
+                 on_fitted: Callable[[QueuedPair, dict, str, Path], str], options: BatchOptions | None = None, *,
+                 jobs: list[QueuedPair] | None = None, on_event=None, on_end=None):
         self.folder = Path(folder)
-        if not self.folder.is_dir():
-            raise ValueError(f"{folder}: not a folder")
+        self.pairs = _model.PairJobs(folder_pairs(self.folder) if jobs is None else jobs)
         self.backend, self.results_parent, self.rig = backend, Path(results_parent), rig
-        self.on_fitted, self.options = on_fitted, options or batch.BatchOptions()
-        pairs, problems = declarations.find_pairs(self.folder)
-        if not pairs and not problems:
-            raise ValueError(f"{self.folder}: no <name>_R.* / <name>_T.* photo pairs")
-        self._pairs = {pair.name: pair for pair in pairs}
-        self.jobs = [PairJob(pair.name, pair.reflection, pair.transmission) for pair in pairs]
-        self.jobs += [PairJob(problem.name, None, None, FAILED, 0.0, "Skipped", problem.message)
-                      for problem in problems]
+        self.on_fitted, self.options = on_fitted, options or BatchOptions()
+        self.on_event, self.on_end = on_event or (lambda job, event: None), on_end or (lambda job, fit: None)
         self.fit: backend_bridge.FitProcess | None = None
-        self._current: PairJob | None = None
-        self.cancelled = False
+        self._current: QueuedPair | None = None
+        self._started_at = 0.0
 
     # -- state --------------------------------------------------------------------------------
     @property
+    def jobs(self) -> list[QueuedPair]:
+        return self.pairs.jobs
+
+    @property
+    def cancelled(self) -> bool:
+        return self.pairs.stopping
+
+    @property
     def done(self) -> bool:
-        return self._current is None and not any(job.state == WAITING for job in self.jobs)
+        return self.pairs.finished
 
     @property
     def progress(self) -> float:
@@ -70,18 +107,18 @@ class BatchQueue:
         fittable = [job for job in self.jobs if job.reflection is not None]
         if not fittable:
             return 1.0
-        return sum(1.0 if job.state in (DONE, FAILED, CANCELLED) else job.progress for job in fittable) / len(fittable)
+        return sum(1.0 if job.finished else job.progress for job in fittable) / len(fittable)
 
-    def failures(self) -> list[PairJob]:
-        return [job for job in self.jobs if job.state == FAILED]
+    def failures(self) -> list[QueuedPair]:
+        return self.pairs.failures()
 
     def summary(self) -> str:
-        counts = {state: sum(job.state == state for job in self.jobs) for state in (DONE, FAILED, CANCELLED)}
-        text = f"{counts[DONE]} fitted, {counts[FAILED]} failed"
-        return text + (f", {counts[CANCELLED]} cancelled" if counts[CANCELLED] else "")
+        text = f"{self.pairs.count(DONE)} fitted, {self.pairs.count(FAILED)} failed"
+        cancelled = self.pairs.count(CANCELLED)
+        return text + (f", {cancelled} cancelled" if cancelled else "")
 
     # -- running ------------------------------------------------------------------------------
-    def start(self) -> "BatchQueue":
+    def start(self) -> BatchQueue:
         self._next()
         return self
 
@@ -92,7 +129,11 @@ class BatchQueue:
         if job is None or fit is None:
             return False
         before = (job.progress, job.status)
-        fit.poll()
+        limit = self.options.timeout_s
+        if limit is not None and time.monotonic() - self._started_at > limit:
+            fit.time_out(limit)
+        for event in fit.poll():
+            self.on_event(job, event)
         job.progress, job.status = fit.progress, fit.status
         if not fit.done:
             return (job.progress, job.status) != before
@@ -100,57 +141,61 @@ class BatchQueue:
         self._next()
         return True
 
-    def cancel(self, wait: bool = False) -> None:
-        """Stops the running fit and cancels the waiting pairs (``wait``: until the process is gone)."""
-        self.cancelled = True
-        for job in self.jobs:
-            if job.state == WAITING:
-                job.state, job.status = CANCELLED, "Cancelled"
+    def request_cancel(self) -> None:
+        """Asks the running fit to stop and cancels the waiting pairs; returns at once."""
+        for job in self.pairs.stop():
+            job.status = "Cancelled"
         if self.fit is not None and not self.fit.done:
-            self.fit.cancel() if wait else self.fit.request_cancel()
-            if wait:
-                self.poll()
+            self.fit.request_cancel()
+
+    def cancel(self) -> None:
+        """Cancels and waits until the running fit's process is gone."""
+        self.request_cancel()
+        if self.fit is not None and not self.fit.done:
+            self.fit.cancel()
+            self.poll()
 
     def _next(self) -> None:
         self._current, self.fit = None, None
-        if self.cancelled:
-            return
-        job = next((job for job in self.jobs if job.state == WAITING), None)
+        job = self.pairs.start_next()
         if job is None:
             return
-        job.state, job.status = RUNNING, "Starting the backend"
+        job.status = "Starting the backend"
+        self._started_at = time.monotonic()
         try:
             fit = captures.new_fit(self.backend, job.reflection, job.transmission, self.results_parent, job.name,
                                    self.rig, pattern=self.options.pattern, iterations=self.options.iterations,
                                    size=self.options.size, device=self.options.device,
                                    output_spp=self.options.output_spp).start()
-        except (backend_bridge.BackendError, OSError, ValueError) as exc:
-            self._fail(job, str(exc))
+        except Exception as exc:  # one pair's trouble never stops the batch
+            self._end(job, None, _model.INTERNAL, str(exc) or type(exc).__name__)
             self._next()
             return
         job.out_dir = str(fit.request.out_dir)
         if fit.done:  # could not even start
-            self._fail(job, fit.error)
+            self._end(job, fit, fit.outcome, fit.error)
             self._next()
             return
         self._current, self.fit = job, fit
 
-    def _finish(self, job: PairJob, fit: backend_bridge.FitProcess) -> None:
-        if fit.state == backend_bridge.CANCELLED:
-            job.state, job.status = CANCELLED, "Cancelled"
-            return
-        if fit.state != backend_bridge.SUCCEEDED:
-            self._fail(job, fit.error or f"fit {fit.state}")
+    def _finish(self, job: QueuedPair, fit: backend_bridge.FitProcess) -> None:
+        if fit.outcome != DONE:
+            self._end(job, fit, fit.outcome, fit.error or f"fit {fit.state}")
             return
         try:
-            params, description, preview = batch.fitted_asset(self._pairs[job.name], fit.result, Path(job.out_dir))
+            params, description, preview = fitted_asset(job, fit.result)
             job.material = self.on_fitted(job, params, description, preview)
         except Exception as exc:  # the fit is on disk; this pair alone fails, with the reason
-            self._fail(job, f"the fit finished in {job.out_dir} but could not become a material: {exc}")
+            job.end(FAILED, f"the fit finished in {job.out_dir} but could not become a material: {exc}")
+            self._end(job, fit)
             return
-        job.state, job.progress, job.status = DONE, 1.0, f"Material {job.material}"
+        self._end(job, fit, DONE)
 
-    @staticmethod
-    def _fail(job: PairJob, reason: str) -> None:
-        job.state, job.status, job.reason = FAILED, "Failed", reason or "unknown error"
-
+    def _end(self, job: QueuedPair, fit, outcome: str | None = None, reason: str | None = None) -> None:
+        """Applies the job model's rule to an attempt's outcome (none: the job has ended already)."""
+        if outcome is not None:
+            self.pairs.end(job, outcome, reason or "unknown error")
+        job.status = {DONE: f"Material {job.material}", CANCELLED: "Cancelled"}.get(job.state, "Failed")
+        if job.state == DONE:
+            job.progress = 1.0
+        self.on_end(job, fit)

@@ -88,3 +88,9 @@ def missing_result_files(folder: str | Path) -> list[str]:
 def protocol():
     """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
     return backend_module("core.protocol")
+
+
+def pair_jobs():
+    """The backend's job model of a folder batch (``core.pair_jobs``): the jobs of a folder, their
+    states, the retry rule; the add-on's batches run it."""
+    return backend_module("core.pair_jobs")

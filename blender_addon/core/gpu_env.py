@@ -9,7 +9,8 @@ one button: :class:`TorchInstall` runs Blender's own Python isolated like the bu
 
 in a subprocess that Blender never waits on: two threads read its output, :meth:`TorchInstall.poll`
 turns the lines into a status and a progress fraction (pip's ``Progress N of M`` lines of the file
-being downloaded), :meth:`TorchInstall.cancel` stops it. It refuses to start unless Blender allows
+being downloaded), :meth:`TorchInstall.request_cancel` stops it: a job like a fit, which the
+add-on's modal operator follows (ui/modal_job.py). It refuses to start unless Blender allows
 online access. When pip succeeds the ``.partial`` folder replaces FOLDER (an older one is moved
 aside first and deleted after), so an interrupted or failed install never leaves a half
 environment that the backend would pick up; :func:`installed` is what the add-on checks before it
@@ -167,7 +168,7 @@ class TorchInstall:
         self.state, self.error, self.status = state, error, error
         _remove_later(self.partial)
 
-    def cancel(self) -> None:
+    def request_cancel(self) -> None:
         """Stops pip (the poll after it ends says cancelled) and removes what it had written."""
         if self.state != RUNNING or self._process.poll() is not None:
             return
@@ -181,12 +182,17 @@ class TorchInstall:
         except (ProcessLookupError, PermissionError):
             pass
 
+    def cancel(self) -> str:
+        """Stops pip and waits until it has ended."""
+        self.request_cancel()
+        return self.wait()
+
     def wait(self, timeout: float | None = None) -> str:
         """Blocks until pip ends (for scripts and tests); past ``timeout`` seconds it is cancelled."""
         try:
             self._process.wait(timeout)
         except subprocess.TimeoutExpired:
-            self.cancel()
+            self.request_cancel()
             self._process.wait()
         self.poll()
         return self.state

@@ -35,8 +35,8 @@ the dependence on the light direction wo is left to the closures:
   through a gap in front); in transmission (1 - w) k_d^t translucent(N) + w k_d^t c translucent(N) with
   the product c = max(0, -wo . n0) max(0, -wo . n1) / |wo_z| of spec 4.5 taken at wo = -wi. (A Translucent
   BSDF on n itself would do the light-side cosine exactly, as the OSL shader does, but Cycles' SVM bends
-  the normal of a translucent closure like a glossy one's, ``maybe_ensure_valid_specular_reflection``:
-  measured 37 % too bright on a plain weave with w = 0.9);
+  the normal of a translucent closure like a glossy one's, ``maybe_ensure_valid_specular_reflection``,
+  which made it too bright);
 - gaps (both layers open): the node group mixes in a Transparent BSDF by ``coverage``.
 
 The program is plain text, one assignment per line, in a tiny expression language (Python
@@ -92,8 +92,7 @@ LAYER_OUTPUTS = ("gloss_s_color", "gloss_m_color", "gloss_s_rough", "gloss_m_rou
 # transmission (a Cauchy in azimuth) cannot be; seen from a point it is a cosine glow of the lobe's value at
 # wo = -wi. So the lobe is the hair cone, weight TT_CONE times its peak, blended into a translucent closure
 # of that straight-through value as alpha_m goes from TT_GLOW[0] to TT_GLOW[1]. Fitted to the exact lobe of
-# one flat fibre in the capture rig (numpy: alpha_m 0.05-0.95, T_m 0.5-3, warp and weft; 32 x 32 block
-# relative L1 0.199 -> 0.119), not to any parameter set the validation uses.
+# one flat fibre in the capture rig, not to any parameter set the validation uses.
 TT_SINGLE = (0.3, 0.7)
 TT_CONE = 1.25
 TT_GLOW = (0.25, 0.95)
@@ -105,7 +104,7 @@ TT_GLOW = (0.25, 0.95)
 
 # EEVEE's diffuse transmission: the yarn term's n . wi / wi_z (spec 4.5's 1 / |w_z| at wo = -wi) grows
 # without bound at grazing views, bright specks on the silhouettes of a backlit drape; it is capped
-# here (measured on the rig draws, which see the fabric near its normal: at most 1.21 there).
+# here, above what the rig's views (near the fabric's normal) reach.
 EEVEE_TRANSLUCENT_CAP = 2.0
 
 _GEOMETRY = """
@@ -411,22 +410,26 @@ def _emit(node, b, env):
     if isinstance(node, ast.BinOp) and type(node.op) in BINARY:
         return b.math(BINARY[type(node.op)], _emit(node.left, b, env), _emit(node.right, b, env))
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
-        n, kind, op = FUNCTIONS[node.func.id]
-        if kind == "pick":
-            if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
-                raise TypeError("fallback program: pick takes an index and constant values")
-            return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
-        if len(node.args) != n:
-            raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
-        args = [_emit(a, b, env) for a in node.args]
-        if kind == "math":
-            return b.math(op, *args)
-        if kind == "vec":
-            return b.vec(op, *args)
-        if kind == "combine":
-            return b.combine(*args)
-        if kind == "separate":
-            return b.separate(args[0], op)
-        if kind == "lookup":
-            return b.lookup(*args)
+        return _emit_call(node, b, env)
     raise SyntaxError(f"fallback program: unsupported expression {ast.dump(node)}")
+
+
+def _emit_call(node, b, env):
+    """A call of one of :data:`FUNCTIONS` (checked by the caller) as the builder's node."""
+    n, kind, op = FUNCTIONS[node.func.id]
+    if kind == "pick":
+        if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
+            raise TypeError("fallback program: pick takes an index and constant values")
+        return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
+    if len(node.args) != n:
+        raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
+    args = [_emit(a, b, env) for a in node.args]
+    if kind == "math":
+        return b.math(op, *args)
+    if kind == "vec":
+        return b.vec(op, *args)
+    if kind == "combine":
+        return b.combine(*args)
+    if kind == "separate":
+        return b.separate(args[0], op)
+    return b.lookup(*args)

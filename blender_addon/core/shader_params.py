@@ -111,6 +111,35 @@ def _panel(spec) -> str:
     return "Advanced"
 
 
+def _yarn_sockets(spec, kind: str, value, doc: str) -> list[SocketSpec]:
+    """A per-yarn parameter's two inputs: in the Weave panel by axis, else in each yarn's panel."""
+    sockets = []
+    for yarn, yarn_name in enumerate(YARNS):
+        weave = spec.name in _WEAVE_PARAMS
+        label = f"{spec.label} {_AXES[yarn]}" if weave else spec.label
+        panel = "Weave" if weave else yarn_name.capitalize()
+        sockets.append(SocketSpec(
+            f"{spec.name} {yarn_name}", kind, tuple(value[yarn]) if spec.rgb else value[yarn], spec.lo,
+            spec.hi, spec.name, yarn,
+            f"{doc}, {yarn_name} yarns ({_range_text(spec.lo, spec.hi, spec.unit)}). "
+            f"params.json: {spec.name}[{yarn}]", label, panel))
+    return sockets
+
+
+def _single_sockets(spec, kind: str, value, doc: str) -> list[SocketSpec]:
+    """A parameter's one input, and the colour map that multiplies it where it has one."""
+    panel = _panel(spec)
+    sockets = [SocketSpec(
+        spec.name, kind, tuple(value) if spec.rgb else value, spec.lo, spec.hi, spec.name, None,
+        f"{doc} ({_range_text(spec.lo, spec.hi, spec.unit)}). params.json: {spec.name}", spec.label, panel)]
+    if spec.name + MAP_SUFFIX in COLOUR_MAPS:
+        sockets.append(SocketSpec(
+            spec.name + MAP_SUFFIX, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
+            f"Colour map multiplying {spec.label.lower()} (plug an image texture; white: no change)",
+            f"{spec.label} map", panel))
+    return sockets
+
+
 def socket_specs() -> list[SocketSpec]:
     """Every group input, in UI order (panel by panel, see :data:`PANELS`)."""
     declaration = declarations.parameters()
@@ -125,27 +154,9 @@ def socket_specs() -> list[SocketSpec]:
         value = defaults[spec.name]
         kind = "COLOR" if spec.rgb else "FLOAT"
         doc = spec.doc if "_" in spec.doc.split(" ", 1)[0] else spec.doc[:1].upper() + spec.doc[1:]
-        if spec.per_yarn:
-            for yarn, yarn_name in enumerate(YARNS):
-                weave = spec.name in _WEAVE_PARAMS
-                label = f"{spec.label} {_AXES[yarn]}" if weave else spec.label
-                panel = "Weave" if weave else yarn_name.capitalize()
-                by_panel[panel].append(SocketSpec(
-                    f"{spec.name} {yarn_name}", kind, tuple(value[yarn]) if spec.rgb else value[yarn], spec.lo,
-                    spec.hi, spec.name, yarn,
-                    f"{doc}, {yarn_name} yarns ({_range_text(spec.lo, spec.hi, spec.unit)}). "
-                    f"params.json: {spec.name}[{yarn}]", label, panel))
-        else:
-            panel = _panel(spec)
-            by_panel[panel].append(SocketSpec(
-                spec.name, kind, tuple(value) if spec.rgb else value, spec.lo, spec.hi, spec.name, None,
-                f"{doc} ({_range_text(spec.lo, spec.hi, spec.unit)}). params.json: {spec.name}", spec.label,
-                panel))
-            if spec.name + MAP_SUFFIX in COLOUR_MAPS:
-                by_panel[panel].append(SocketSpec(
-                    spec.name + MAP_SUFFIX, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
-                    f"Colour map multiplying {spec.label.lower()} (plug an image texture; white: no change)",
-                    f"{spec.label} map", panel))
+        sockets = _yarn_sockets(spec, kind, value, doc) if spec.per_yarn else _single_sockets(spec, kind, value, doc)
+        for socket in sockets:
+            by_panel[socket.panel].append(socket)
         if spec.name == "tiles":
             by_panel["Weave"].append(SocketSpec(
                 UV_SCALE, "FLOAT", 1.0, 1e-4, 1e4, None, None,

@@ -177,30 +177,40 @@ def fallback_atlases() -> dict[str, tuple[int, int, list[float]]]:
     - ``weft``, ``weft_tension``, ``weft_distance``: the same for weft i at (yarn i, weft_row0 + interval k).
     """
     weaves = list(declarations.weave_presets().values())
-    entry = {"": lambda e: (e.centre, e.length, float(e.layer)),
-             "_tension": lambda e: (e.tension, e.tension_prev, e.tension_next),
-             "_distance": lambda e: (e.dist_prev, e.dist_next, 0.0)}
     width = {"matrix": max(w.cols for w in weaves)}
-    width.update({f"warp{suffix}": max(w.cols for w in weaves) for suffix in entry})
-    width.update({f"weft{suffix}": max(w.rows for w in weaves) for suffix in entry})
-    rows = {name: [] for name in width}
+    width.update({f"warp{suffix}": max(w.cols for w in weaves) for suffix in _INTERVAL_FIELDS})
+    width.update({f"weft{suffix}": max(w.rows for w in weaves) for suffix in _INTERVAL_FIELDS})
+    rows = _atlas_rows(weaves)
+    return {name: (width[name], len(table), _flat_pixels(table, width[name])) for name, table in rows.items()}
+
+
+# The three RGB atlases of a yarn's intervals: which fields of an interval each pixel holds.
+_INTERVAL_FIELDS = {"": lambda e: (e.centre, e.length, float(e.layer)),
+                    "_tension": lambda e: (e.tension, e.tension_prev, e.tension_next),
+                    "_distance": lambda e: (e.dist_prev, e.dist_next, 0.0)}
+
+
+def _atlas_rows(weaves: list) -> dict[str, list[list[tuple]]]:
+    """Each atlas's rows of RGB pixels, preset after preset (see :func:`fallback_atlases`)."""
+    rows = {"matrix": [], **{f"{yarn}{suffix}": [] for yarn in ("warp", "weft") for suffix in _INTERVAL_FIELDS}}
     for weave in weaves:
         for r in range(weave.rows):
             rows["matrix"].append([(float(c), 0.0, 0.0) for c in weave.matrix[r]])
         for name, yarn in (("warp", 0), ("weft", 1)):
             table = weave.interval_table(yarn)
             for k in range(len(table[0])):
-                for suffix, fields in entry.items():
+                for suffix, fields in _INTERVAL_FIELDS.items():
                     rows[name + suffix].append([fields(e) for e in (t[k] for t in table)])
-    out = {}
-    for name, table in rows.items():
-        px = []
-        for row in table:
-            row = row + [(0.0, 0.0, 0.0)] * (width[name] - len(row))
-            for pixel in row:
-                px += list(pixel)
-        out[name] = (width[name], len(table), px)
-    return out
+    return rows
+
+
+def _flat_pixels(table: list[list[tuple]], width: int) -> list[float]:
+    """The rows as one flat RGB list, each row padded with black to ``width`` pixels."""
+    px = []
+    for row in table:
+        for pixel in row + [(0.0, 0.0, 0.0)] * (width - len(row)):
+            px += list(pixel)
+    return px
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,14 +12,14 @@ from __future__ import annotations
 import bpy
 
 from ..core import colour_layer, shader_params
-from . import node_group
+from . import group_interface, node_group
 
 
 def add_colour_layer(material, mode: str = "MULTIPLY", size: int | None = None, uv_map: str = ""):
     """Adds a layer to ``material`` (a Woven Fabric material); returns the new image."""
     pixel = colour_layer.initial_pixel(mode)
     group = node_group.group_node(material)
-    inputs = node_group.input_sockets(group)
+    inputs = group_interface.input_sockets(group)
     params = node_group.read_params(material)
     if size is None:
         size = colour_layer.layer_size(params["tiles"], inputs[shader_params.UV_SCALE].default_value)

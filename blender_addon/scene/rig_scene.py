@@ -151,8 +151,7 @@ def set_engine(scene, engine: str, samples: int | None = None) -> None:
         eevee.use_shadows = True
         # The backend averages samples over the pixel (a box). EEVEE's film filter is a Gaussian of sigma
         # 0.284 filter_size pixels; the default 1.5 blurs the yarns (2 to 4 pixels a tile here) and halved
-        # the spectrum correlation. Measured on the seed-1 draws: 0.5 best (twill0 and satin1: mean
-        # correlation 0.375 at 1.5, 0.464 at 0.75, 0.519 at 0.5, 0.460 at 0.25).
+        # the spectrum correlation; 0.5 keeps it highest.
         scene.render.filter_size = 0.5
         # The rig's lights are points of radius 0 with exact inverse-square falloff (see build_scene).
         if hasattr(eevee, "light_threshold"):

@@ -1,41 +1,25 @@
 """Batch fitting from the sidebar: pick a folder, its photo pairs are fitted in the background.
 
-``fabric.batch_fit_folder`` asks for a folder, then runs core/batch_queue.BatchQueue: one backend
-subprocess per pair, one after another, polled from a window-manager timer, so Blender stays
-responsive. Each fitted pair becomes an asset material in this file (scene/materials.py, as a
-single fit does), with the panel's rig, weave and fit settings. The Batch panel shows a row per
-pair (waiting, a progress bar while it runs, its material, or why it failed) and a Cancel button;
-ESC cancels too. Loading another file or disabling the add-on stops the running fit.
+``fabric.batch_fit_folder`` asks for a folder, then runs core/batch_queue.BatchQueue as a modal
+job (modal_job.py): one backend subprocess per pair, one after another, polled from a timer, so
+Blender stays responsive. Each fitted pair becomes an asset material in this file
+(scene/materials.py, as a single fit does), with the panel's rig, weave and fit settings. The
+Batch panel shows a row per pair (waiting, a progress bar while it runs, its material, or why it
+failed) and a Cancel button; ESC cancels too. Loading another file or disabling the add-on stops the running fit.
 The headless batch (``blender --command fabric_fit``) is ui/batch.py.
 """
 from __future__ import annotations
 
-import time
-
 import bpy
 
-from ..core import backend_bridge, batch, batch_queue, rig_settings
+from ..core import backend_bridge, batch_queue, rig_settings
 from ..scene import materials
-from . import panels, preferences, properties
+from . import modal_job, panels, preferences, properties
 
-TIMER_INTERVAL_S = 0.2
-STATE_ICONS = {batch_queue.WAITING: "TIME", batch_queue.RUNNING: "PLAY", batch_queue.DONE: "CHECKMARK",
+STATE_ICONS = {batch_queue.PENDING: "TIME", batch_queue.RUNNING: "PLAY", batch_queue.DONE: "CHECKMARK",
                batch_queue.FAILED: "ERROR", batch_queue.CANCELLED: "CANCEL"}
 
-
-class ActiveBatch:
-    """The last batch of this session: its rows stay in the panel after it ends."""
-
-    queue: batch_queue.BatchQueue | None = None
-
-    @classmethod
-    def running(cls) -> bool:
-        return cls.queue is not None and not cls.queue.done
-
-    @classmethod
-    def cancel(cls, wait: bool = False) -> None:
-        if cls.running():
-            cls.queue.cancel(wait=wait)
+batch_job = modal_job.ActiveJob()  # the last batch of this session: its rows stay in the panel after it ends
 
 
 def new_batch(context, folder: str) -> batch_queue.BatchQueue:
@@ -47,20 +31,13 @@ def new_batch(context, folder: str) -> batch_queue.BatchQueue:
     def make_material(job, params, description, preview):
         return materials.new_fit_material(job.name, params, width, job.out_dir, description, preview).name
 
-    options = batch.BatchOptions(pattern=settings.pattern, iterations=settings.iterations or None,
-                                 size=settings.size or None, device=preferences.selected_device(context))
+    options = batch_queue.BatchOptions(pattern=settings.pattern, iterations=settings.iterations or None,
+                                       size=settings.size or None, device=preferences.selected_device(context))
     return batch_queue.BatchQueue(bpy.path.abspath(folder), preferences.selected_backend(context),
                                   preferences.results_parent(context), rig, make_material, options)
 
 
-def _redraw(context):
-    for window in context.window_manager.windows:
-        for area in window.screen.areas:
-            if area.type == "VIEW_3D":
-                area.tag_redraw()
-
-
-class FABRIC_OT_batch_fit_folder(bpy.types.Operator):
+class FABRIC_OT_batch_fit_folder(modal_job.ModalJobOperator, bpy.types.Operator):
     """Fit every <name>_R / <name>_T photo pair of a folder in the background; each becomes an asset
     material (ESC or Cancel stops)"""
 
@@ -69,66 +46,35 @@ class FABRIC_OT_batch_fit_folder(bpy.types.Operator):
 
     directory: bpy.props.StringProperty(subtype="DIR_PATH", name="Photos")
 
-    _timer = None
+    active = batch_job
+    timer_interval_s = 0.2
 
     @classmethod
     def poll(cls, context):
-        return not ActiveBatch.running() and context.scene is not None
+        return super().poll(context) and context.scene is not None
 
     def invoke(self, context, event):
         context.window_manager.fileselect_add(self)
         return {"RUNNING_MODAL"}
 
-    def execute(self, context):
+    def start_job(self, context):
         try:
-            queue = new_batch(context, self.directory)
+            return new_batch(context, self.directory).start()
         except (backend_bridge.BackendError, ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        ActiveBatch.queue = queue.start()
-        if bpy.app.background or context.window is None:
-            # No event loop runs timers here: wait (the headless command is the batch tool there).
-            while not queue.done:
-                queue.poll()
-                time.sleep(TIMER_INTERVAL_S)
-            return self._finish(queue)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(TIMER_INTERVAL_S, window=context.window)
-        wm.modal_handler_add(self)
+            return None
+
+    def follow_job(self, context, queue) -> bool:
+        return queue.poll()
+
+    def started(self, context, queue):
         self.report({"INFO"}, f"Fitting {len(queue.jobs)} pair(s) from {queue.folder} in the background")
-        return {"RUNNING_MODAL"}
 
-    def modal(self, context, event):
-        queue = ActiveBatch.queue
-        if queue is None:
-            return self._end(context, {"CANCELLED"})
-        if event.type == "ESC" and event.value == "PRESS":
-            queue.cancel()
-            return {"RUNNING_MODAL"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        if queue.poll():
-            _redraw(context)
-        if not queue.done:
-            return {"PASS_THROUGH"}
-        return self._end(context, self._finish(queue))
-
-    def _finish(self, queue) -> set:
+    def finish_job(self, context, queue) -> set:
         for job in queue.failures():
             self.report({"WARNING"}, f"{job.name}: {job.reason}")
         self.report({"INFO"}, f"Batch of {queue.folder}: {queue.summary()}")
         return {"FINISHED"} if not queue.cancelled else {"CANCELLED"}
-
-    def _end(self, context, result):
-        if self._timer is not None:
-            context.window_manager.event_timer_remove(self._timer)
-            self._timer = None
-        _redraw(context)
-        return result
-
-    def cancel(self, context):
-        ActiveBatch.cancel(wait=True)
-        self._end(context, {"CANCELLED"})
 
 
 class FABRIC_OT_cancel_batch(bpy.types.Operator):
@@ -139,10 +85,10 @@ class FABRIC_OT_cancel_batch(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return ActiveBatch.running()
+        return batch_job.running()
 
     def execute(self, context):
-        ActiveBatch.cancel()
+        batch_job.cancel()
         return {"FINISHED"}
 
 
@@ -152,10 +98,10 @@ class VIEW3D_PT_woven_fabric_batch(panels.FabricSubPanel, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        queue = ActiveBatch.queue
+        queue = batch_job.job
         row = layout.row(align=True)
         row.operator("fabric.batch_fit_folder", icon="FILE_FOLDER")
-        if ActiveBatch.running():
+        if batch_job.running():
             row.operator("fabric.cancel_batch", text="", icon="CANCEL")
         if queue is None:
             layout.label(text="Uses the rig, weave and fit settings above")
@@ -177,23 +123,14 @@ class VIEW3D_PT_woven_fabric_batch(panels.FabricSubPanel, bpy.types.Panel):
                 box.label(text=f"{job.name}: {job.reason}")
 
 
-@bpy.app.handlers.persistent
-def _cancel_on_load(*_args):
-    ActiveBatch.cancel(wait=True)
-
-
 CLASSES = (FABRIC_OT_batch_fit_folder, FABRIC_OT_cancel_batch, VIEW3D_PT_woven_fabric_batch)
 
 
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
-    bpy.app.handlers.load_pre.append(_cancel_on_load)
 
 
 def unregister():
-    ActiveBatch.cancel(wait=True)
-    if _cancel_on_load in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.remove(_cancel_on_load)
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -13,7 +13,7 @@ Operators (each reads the context, calls scene/ and reports):
   Blender asset library, so its fabrics appear in the Asset Browser.
 
 Handlers keep what the node group relies on: the fallback's lookup images are restored when
-changed (scene/node_group.repair_atlases: on a timer and before saving), and saving a file writes
+changed (scene/fallback_atlases.repair_atlases: on a timer and before saving), and saving a file writes
 the catalogs of its fitted fabrics beside it (scene/materials.write_catalogs).
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import bpy
 
 from ..core import colour_layer as colour_layer_rules
 from ..core import shader_status
-from ..scene import colour_layer, materials, mesh_scale, node_group
+from ..scene import colour_layer, fallback_atlases, materials, mesh_scale, node_group
 from . import panels
 
 REPAIR_INTERVAL_S = 2.0
@@ -197,7 +197,7 @@ class VIEW3D_PT_woven_fabric_material(panels.FabricSubPanel, bpy.types.Panel):
 
 def _repair_atlases() -> float:
     if bpy.data.node_groups.get(node_group.NODE_GROUP_NAME) is not None:
-        restored = node_group.repair_atlases()
+        restored = fallback_atlases.repair_atlases()
         if restored:
             print(f"Woven Fabric: restored the weave lookup image(s) {', '.join(restored)} (they are not "
                   "textures to paint on; use Add Colour Layer)")

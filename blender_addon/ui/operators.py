@@ -3,11 +3,11 @@
 Each operator reads the context, calls a plain function (core/, scene/) and reports; ``execute``
 does the work, ``invoke`` only asks for input (Load Fit's file browser).
 
-The fit operator starts a backend_bridge.FitProcess and polls it from a window-manager timer, so
-Blender stays responsive; ESC or the Cancel button asks the backend to stop (SIGTERM, then SIGKILL
-after a grace period). Loading another file or disabling the add-on cancels a running fit too, so
-no backend is left running without a reader. A finished fit becomes a new material (a new
-version if the name is taken) unless "Update Active Material" is on.
+The fit operator is a modal job (modal_job.py): it starts a backend_bridge.FitProcess, which a
+timer polls so Blender stays responsive; ESC or the Cancel button asks the backend to stop (the
+stop line, then SIGKILL after a grace period). Loading another file or disabling the add-on
+cancels a running fit too, so no backend is left running without a reader. A finished fit becomes
+a new material (a new version if the name is taken) unless "Update Active Material" is on.
 """
 from __future__ import annotations
 
@@ -19,28 +19,9 @@ import bpy
 from ..core import backend_bridge, backend_setup, captures, rig_settings
 from ..core.check_job import backend_check
 from ..scene import drape, materials
-from . import layout, preferences, properties
+from . import layout, modal_job, preferences, properties
 
-TIMER_INTERVAL_S = 0.1
-
-
-class ActiveFit:
-    """The one fit that may run at a time, reachable from the Cancel button and the handlers."""
-
-    process: backend_bridge.FitProcess | None = None
-
-    @classmethod
-    def running(cls) -> bool:
-        return cls.process is not None and not cls.process.done
-
-    @classmethod
-    def cancel(cls, wait: bool = False):
-        if cls.running():
-            cls.process.cancel() if wait else cls.process.request_cancel()
-
-
-def active_fit() -> backend_bridge.FitProcess | None:
-    return ActiveFit.process if ActiveFit.running() else None
+fit_job = modal_job.ActiveJob()  # the one fit that may run at a time
 
 
 def _abspath(path: str) -> Path:
@@ -67,7 +48,7 @@ def new_fit(context, settings) -> backend_bridge.FitProcess:
                             size=settings.size or None, device=preferences.selected_device(context))
 
 
-class FABRIC_OT_fit(bpy.types.Operator):
+class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
     """Fit the woven-fabric parameters to the photo pair with the backend (ESC cancels)"""
 
     bl_idname = "fabric.fit"
@@ -75,66 +56,49 @@ class FABRIC_OT_fit(bpy.types.Operator):
     # UNDO: the new material gets its own undo step when the fit finishes.
     bl_options = {"REGISTER", "UNDO"}
 
-    _timer = None
+    active = fit_job
     _scene_name = ""
     _warned = 0
 
     @classmethod
     def poll(cls, context):
-        return not ActiveFit.running() and context.scene is not None
+        return super().poll(context) and context.scene is not None
 
-    def execute(self, context):
+    def start_job(self, context):
         settings = context.scene.woven_fabric
         try:
             fit = new_fit(context, settings)
         except (backend_bridge.BackendError, ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return None
         fit.start()
         if fit.done:  # could not even start
             self.report({"ERROR"}, fit.error)
             settings.fit_status = fit.error
-            return {"CANCELLED"}
-        ActiveFit.process = fit
+            return None
         self._scene_name = context.scene.name
         self._warned = 0
         settings.fit_progress, settings.fit_status = 0.0, fit.status
         settings.last_result_folder = str(fit.request.out_dir)
-        if bpy.app.background or context.window is None:
-            # No event loop runs timers here (background mode): wait; the batch is the headless tool.
-            fit.wait()
-            return self._finish(context, fit, settings)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(TIMER_INTERVAL_S, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return fit
 
-    def modal(self, context, event):
-        fit = ActiveFit.process
-        if fit is None:
-            return self._end(context, {"CANCELLED"})
-        if event.type == "ESC" and event.value == "PRESS":
-            fit.request_cancel()
-            return {"RUNNING_MODAL"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
+    def follow_job(self, context, fit) -> bool:
         fit.poll()
-        settings = self._settings()
         for warning in fit.warnings[self._warned:]:
             self.report({"WARNING"}, warning)
         self._warned = len(fit.warnings)
-        if settings is not None and (settings.fit_progress, settings.fit_status) != (fit.progress, fit.status):
-            settings.fit_progress, settings.fit_status = fit.progress, fit.status
-            layout.redraw_areas("VIEW_3D")
-        if not fit.done:
-            return {"PASS_THROUGH"}
-        return self._end(context, self._finish(context, fit, settings))
+        settings = self._settings()
+        if settings is None or (settings.fit_progress, settings.fit_status) == (fit.progress, fit.status):
+            return False
+        settings.fit_progress, settings.fit_status = fit.progress, fit.status
+        return True
 
     def _settings(self):
         scene = bpy.data.scenes.get(self._scene_name)
         return scene.woven_fabric if scene is not None else None
 
-    def _finish(self, context, fit, settings) -> set:
+    def finish_job(self, context, fit) -> set:
+        settings = self._settings()
         if fit.state == backend_bridge.CANCELLED:
             self.report({"WARNING"}, fit.error)
             return {"CANCELLED"}
@@ -168,18 +132,6 @@ class FABRIC_OT_fit(bpy.types.Operator):
         name = captures.fit_name(_material_name(settings), fit.request.reflection)
         return materials.new_fit_material(name, params, width, folder)
 
-    def _end(self, context, result):
-        if self._timer is not None:
-            context.window_manager.event_timer_remove(self._timer)
-            self._timer = None
-        layout.redraw_areas("VIEW_3D")
-        return result
-
-    def cancel(self, context):
-        # Blender ends modal operators without asking when a file is loaded or the window closes.
-        ActiveFit.cancel(wait=True)
-        self._end(context, {"CANCELLED"})
-
 
 class FABRIC_OT_cancel_fit(bpy.types.Operator):
     """Stop the running fit; its partial results stay in its folder"""
@@ -189,10 +141,10 @@ class FABRIC_OT_cancel_fit(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return ActiveFit.running()
+        return fit_job.running()
 
     def execute(self, context):
-        ActiveFit.cancel()
+        fit_job.cancel()
         return {"FINISHED"}
 
 
@@ -380,12 +332,6 @@ class FABRIC_OT_open_fit_log(bpy.types.Operator):
         return {"FINISHED"}
 
 
-@bpy.app.handlers.persistent
-def _cancel_on_load(*_args):
-    """A fit reads into the old file's scene: stop it before another file replaces that scene."""
-    ActiveFit.cancel(wait=True)
-
-
 CLASSES = (FABRIC_OT_fit, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_OT_detect_python,
            FABRIC_OT_reset_rig, FABRIC_OT_load_fit, FABRIC_OT_assign_material, FABRIC_OT_add_drape_preview,
            FABRIC_OT_open_results, FABRIC_OT_open_fit_log)
@@ -394,12 +340,8 @@ CLASSES = (FABRIC_OT_fit, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_
 def register():
     for cls in CLASSES:
         bpy.utils.register_class(cls)
-    bpy.app.handlers.load_pre.append(_cancel_on_load)
 
 
 def unregister():
-    ActiveFit.cancel(wait=True)
-    if _cancel_on_load in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.remove(_cancel_on_load)
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

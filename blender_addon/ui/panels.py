@@ -11,8 +11,7 @@ import bpy
 import bpy.utils.previews
 
 from ..core import backend_bridge, declarations, rig_settings
-from . import layout as text_layout
-from . import operators
+from . import modal_job, operators
 
 _previews = None
 
@@ -81,7 +80,7 @@ class VIEW3D_PT_woven_fabric_fit(FabricSubPanel, bpy.types.Panel):
     def draw(self, context):
         settings = context.scene.woven_fabric
         layout = self.layout
-        fit = operators.active_fit()
+        fit = operators.fit_job.current
         column = _property_style(layout.column())
         column.enabled = fit is None
         column.prop(settings, "iterations")
@@ -90,23 +89,14 @@ class VIEW3D_PT_woven_fabric_fit(FabricSubPanel, bpy.types.Panel):
         column.prop(settings, "update_active_material")
         if fit is None:
             layout.operator("fabric.fit", icon="PLAY")
-            last = operators.ActiveFit.process
+            last = operators.fit_job.job
             if last is not None and last.state == backend_bridge.FAILED:
-                _draw_fit_error(layout.box(), last, context)
+                modal_job.draw_error(layout.box(), last.error, context, last.log_path)
             elif settings.fit_status:
                 layout.label(text=settings.fit_status)
         else:
-            row = layout.row(align=True)
-            row.progress(factor=settings.fit_progress, text=settings.fit_status, type="BAR")
-            row.operator("fabric.cancel_fit", text="", icon="CANCEL")
+            modal_job.draw_progress(layout, settings.fit_progress, settings.fit_status, "fabric.cancel_fit")
             layout.label(text="ESC or the button cancels", icon="INFO")
-
-
-def _draw_fit_error(box, fit, context):
-    """The failed fit's message, wrapped, and a button that opens its log in the text editor."""
-    text_layout.wrapped_labels(box, fit.error, context, icon="ERROR")
-    if fit.log_path is not None and fit.log_path.is_file():
-        box.operator("fabric.open_fit_log", icon="TEXT").filepath = str(fit.log_path)
 
 
 class VIEW3D_PT_woven_fabric_result(FabricSubPanel, bpy.types.Panel):

@@ -12,8 +12,10 @@ and whether Cycles can run the OSL shader; it is filled by a backend check on a 
 (core/check_job.py), started when the preferences are first drawn and by *Check Backend*.
 
 The GPU route (platform zips only): *Install GPU PyTorch* downloads a CUDA build of PyTorch into the
-extension's user folder (core/gpu_env.py) with a progress bar and *Cancel*, only when Blender
-allows online access; once installed, *Use the GPU PyTorch* puts it before the bundled packages.
+extension's user folder (core/gpu_env.py), only when Blender allows online access. It is a modal
+job (modal_job.py) with a progress bar, *Cancel* and ESC; closing the preferences window does not
+stop the download (a timer follows it to the end). Once installed, *Use the GPU PyTorch* puts it
+before the bundled packages.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ import bpy
 from ..core import backend_bridge, backend_setup, captures, checklist, gpu_env, paths
 from ..core.check_job import backend_check
 from ..scene import cycles_osl
-from . import layout
+from . import layout, modal_job
 
 # Preferences belong to the add-on's package, not to this ui sub-package.
 ADDON_PACKAGE = __package__.rpartition(".")[0]
@@ -109,18 +111,16 @@ def _start_first_check():
 
 def _draw_gpu_route(box, prefs, context):
     box.label(text="GPU PyTorch (NVIDIA CUDA, optional)", icon="MEMORY")
-    job = GpuInstall.job
+    job = gpu_install.job
     if job is not None and not job.done:
-        row = box.row(align=True)
-        row.progress(factor=job.progress, text=job.status, type="BAR")
-        row.operator("fabric.cancel_gpu_torch", text="", icon="CANCEL")
+        modal_job.draw_progress(box, job.progress, job.status, "fabric.cancel_gpu_torch")
         return
     folder = gpu_folder()
     if gpu_env.installed(folder):
         box.prop(prefs, "use_gpu_torch")
         layout.wrapped_labels(box, f"Installed in {folder}", context, icon="CHECKMARK")
     if job is not None and job.state == gpu_env.FAILED:
-        layout.wrapped_labels(box, job.error, context, icon="ERROR")
+        modal_job.draw_error(box, job.error, context)
     column = box.column()
     column.enabled = online_access()
     column.operator("fabric.install_gpu_torch", icon="IMPORT",
@@ -133,27 +133,20 @@ def _draw_gpu_route(box, prefs, context):
     column.prop(prefs, "cuda_index")
 
 
-class GpuInstall:
-    """The one GPU PyTorch install that may run, reachable from its buttons and its timer."""
-
-    job: gpu_env.TorchInstall | None = None
-
-    @classmethod
-    def running(cls) -> bool:
-        return cls.job is not None and not cls.job.done
+gpu_install = modal_job.ActiveJob(survives_file=True)  # the one GPU PyTorch install that may run
 
 
-class FABRIC_OT_install_gpu_torch(bpy.types.Operator):
+class FABRIC_OT_install_gpu_torch(modal_job.ModalJobOperator, bpy.types.Operator):
     """Download a CUDA build of PyTorch (a few GB) into the extension's user folder, for NVIDIA GPUs"""
 
     bl_idname = "fabric.install_gpu_torch"
     bl_label = "Install GPU PyTorch"
 
-    @classmethod
-    def poll(cls, context):
-        return not GpuInstall.running()
+    active = gpu_install
+    timer_interval_s = layout.REDRAW_INTERVAL_S
+    redraw_area = "PREFERENCES"
 
-    def execute(self, context):
+    def start_job(self, context):
         prefs = preferences(context)
         packages = backend_setup.bundled_backend(sys.executable, extensions_site_packages()) \
             if paths.bundled_wheels() else backend_bridge.Backend(sys.executable)
@@ -163,11 +156,18 @@ class FABRIC_OT_install_gpu_torch(bpy.types.Operator):
             job.start(online=online_access())
         except gpu_env.InstallRefused as exc:
             self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        GpuInstall.job = job
-        bpy.app.timers.register(_poll_gpu_install, first_interval=layout.REDRAW_INTERVAL_S)
+            return None
         self.report({"INFO"}, f"Installing {job.requirement} into {job.folder} ...")
-        return {"FINISHED"}
+        return job
+
+    def finish_job(self, context, job) -> set:
+        _use_installed(job)
+        return {"FINISHED"} if job.state == gpu_env.SUCCEEDED else {"CANCELLED"}
+
+    def cancel(self, context):
+        # The preferences window closed (or a file was loaded): the download goes on, a timer follows it.
+        bpy.app.timers.register(_follow_install, first_interval=layout.REDRAW_INTERVAL_S)
+        self._end(context, {"CANCELLED"})
 
 
 class FABRIC_OT_cancel_gpu_torch(bpy.types.Operator):
@@ -178,22 +178,28 @@ class FABRIC_OT_cancel_gpu_torch(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return GpuInstall.running()
+        return gpu_install.running()
 
     def execute(self, context):
-        GpuInstall.job.cancel()
+        gpu_install.cancel()
         return {"FINISHED"}
 
 
-def _poll_gpu_install():
-    """Timer: follows the install; once it succeeds, the GPU PyTorch is chosen and checked."""
-    job = GpuInstall.job
+def _follow_install():
+    """Timer: follows an install whose operator has ended before it did, to the same end."""
+    job = gpu_install.job
     if job is None:
         return None
     job.poll()
     layout.redraw_areas("PREFERENCES")
     if not job.done:
         return layout.REDRAW_INTERVAL_S
+    _use_installed(job)
+    return None
+
+
+def _use_installed(job) -> None:
+    """Once the install succeeded, the GPU PyTorch is chosen and checked."""
     prefs = preferences()
     if job.state == gpu_env.SUCCEEDED and prefs is not None:
         prefs.use_gpu_torch = True
@@ -201,7 +207,6 @@ def _poll_gpu_install():
             prefs.device = "CUDA"
         backend_check.start(selected_backend(), selected_device())
         layout.redraw_while(lambda: backend_check.running, "PREFERENCES")
-    return None
 
 
 def preferences(context=None):
@@ -275,9 +280,7 @@ def register():
 
 
 def unregister():
-    if GpuInstall.running():
-        GpuInstall.job.cancel()
-    if bpy.app.timers.is_registered(_poll_gpu_install):
-        bpy.app.timers.unregister(_poll_gpu_install)
+    if bpy.app.timers.is_registered(_follow_install):
+        bpy.app.timers.unregister(_follow_install)
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)

@@ -86,7 +86,7 @@ class WovenFabricSettings(bpy.types.PropertyGroup):
         description="Write the fit into the active object's Woven Fabric material instead of creating "
                     "a new material")
 
-    # State of the last fit, for the panel (whether one runs now is operators.active_fit()).
+    # State of the last fit, for the panel (whether one runs now is operators.fit_job.running()).
     fit_progress: bpy.props.FloatProperty(name="Progress", subtype="FACTOR", min=0.0, max=1.0)
     fit_status: bpy.props.StringProperty(name="Status")
     last_result_folder: bpy.props.StringProperty(name="Last Result", subtype="DIR_PATH")

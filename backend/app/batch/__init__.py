@@ -1,6 +1,7 @@
 """Batch fits on Ray: every photo pair of a folder a task, from one machine to a cluster.
 
-- :mod:`.scheduler`: the driver: the pairs, submitting, retrying once, Ctrl+C, progress, catalogue;
+- :mod:`.scheduler`: the driver: the shared job model's jobs (backend/core/pair_jobs.py) submitted, retried
+  once, Ctrl+C, progress, catalogue;
 - :mod:`.job`: one pair's fit as a task (``backend.app.folder``, the fit command's function, in the
   Ray worker), photos in and result files out as bytes;
 - :mod:`.ray_executor`: the only module that imports Ray (the optional ``cluster`` extra);

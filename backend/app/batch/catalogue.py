@@ -26,10 +26,10 @@ import json
 import os
 from pathlib import Path
 
+from ...core.pair_jobs import DONE, KEPT, PairJob
 from ...core.results import METRICS_FILE, PARAMS_FILE
 
 JSON_NAME, CSV_NAME = "catalogue.json", "catalogue.csv"
-STATUSES = ("done", "kept", "failed", "cancelled", "pending")
 _PER_YARN = ("tiles", "roughness", "thickness")
 _RGB = "diffuse_reflection"
 _METRICS = ("flip", "colour_l1", "spectrum_corr")
@@ -44,23 +44,25 @@ class CatalogueError(ValueError):
     """A results folder whose params.json or metrics.json cannot be read; the message names the file."""
 
 
-def row(name: str, status: str, *, reflection: str | Path = "", transmission: str | Path = "", attempts: int = 0,
-        reason: str | None = None, wall_s: float | None = None) -> dict:
-    """A row without fitted values (a failed, cancelled or pending pair)."""
-    if status not in STATUSES:
-        raise ValueError(f"unknown catalogue status {status!r}")
+def row(job: PairJob, fitted: dict | None = None) -> dict:
+    """A job's row: its state, and, for a done or kept job, ``fitted`` (:func:`fitted_values`). A job
+    not finished yet is ``pending``, without attempts or a reason."""
     out = dict.fromkeys(COLUMNS)
-    out.update(name=name, status=status, attempts=attempts, reason=reason,
-               wall_s=None if wall_s is None else round(wall_s, 2),
-               reflection=str(reflection) if reflection else None,
-               transmission=str(transmission) if transmission else None)
+    files = {side: str(path) if path else None for side, path in (("reflection", job.reflection),
+                                                                   ("transmission", job.transmission))}
+    if not job.finished:
+        return {**out, "name": job.name, "status": "pending", "attempts": 0, **files}
+    out.update(name=job.name, status=job.state, attempts=job.attempts, reason=job.reason,
+               wall_s=None if job.wall_s is None else round(job.wall_s, 2), **files)
+    if job.state in (DONE, KEPT):
+        out.update(fitted or {})
     return out
 
 
-def fitted_row(name: str, status: str, folder: Path, out_dir: Path, **fields) -> dict:
-    """A row for a complete results folder: ``row(...)`` plus the fitted values read from its files."""
+def fitted_values(folder: Path, out_dir: Path) -> dict:
+    """The columns a complete results folder fills, read from its params.json and metrics.json."""
     params, metrics = _read(folder / PARAMS_FILE), _read(folder / METRICS_FILE)
-    out = row(name, status, **fields)
+    out = {}
     try:
         for key in _PER_YARN:
             out[f"{key}_warp"], out[f"{key}_weft"] = (float(v) for v in params[key])

@@ -7,9 +7,10 @@ command's) and returns a :class:`FitOutcome`. Only the driver writes DIR (output
 of a cluster needs to see the photo folder or DIR. The fit sees temporary copies of the photos; the
 paths it records (params.json's ``photos``, warnings, errors) are mapped back to the originals.
 
-``status`` of the outcome: done (exit code 0), input (2: the photos are bad), internal (1),
-cancelled (Ray cancelled the task: Ctrl+C on the driver), timeout (no result after ``timeout_s``:
-the fit is stopped through its own ``should_stop``).
+``status`` of the outcome, one of the job model's outcomes (backend/core/pair_jobs.py): done (exit
+code 0), input (2: the photos are bad), internal (1), cancelled (Ray cancelled the task: Ctrl+C on
+the driver), timeout (no result after ``timeout_s``: the fit is stopped through its own
+``should_stop``); lost is the driver's (the engine lost the task).
 
 The fit runs in the worker process, not as a ``python -m backend fit`` subprocess, because a fresh
 process pays again for what a worker keeps: importing torch, the five weave signatures the lattice
@@ -33,7 +34,7 @@ from pathlib import Path
 import cv2
 import torch
 
-from ...core.pairs import PhotoFiles
+from ...core.pair_jobs import CANCELLED, DONE, INPUT, INTERNAL, TIMEOUT, PairJob
 from ...core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_OK, ProtocolError, Reporter, decode
 from ..folder import FolderFitOptions, fit_reporting
 
@@ -52,7 +53,7 @@ class FitJob:
     out_dir: str = ""               # where the driver will put the results (named in the log)
 
     @classmethod
-    def of(cls, pair: PhotoFiles, out_dir: Path, options: dict, rig_text: str | None, threads: int,
+    def of(cls, pair: PairJob, out_dir: Path, options: dict, rig_text: str | None, threads: int,
            timeout_s: float | None) -> FitJob:
         """The job of a pair, its photos read (OSError when one cannot be)."""
         return cls(pair.name, str(pair.reflection), str(pair.transmission), pair.reflection.read_bytes(),
@@ -62,7 +63,7 @@ class FitJob:
 @dataclass
 class FitOutcome:
     name: str
-    status: str                                  # done, input, internal, cancelled, timeout (lost: the driver's)
+    status: str                                  # an outcome of core/pair_jobs.py (lost: the driver's)
     reason: str | None = None                    # the fit's error line, or why the task ended
     files: dict[str, bytes] = field(default_factory=dict)  # the results folder (done only)
     log: str = ""                                # warnings, the error, a traceback
@@ -93,17 +94,17 @@ def run_fit_job(job: FitJob) -> FitOutcome:
                 code = fit_reporting(reflection, transmission, out, FolderFitOptions(**options), reporter,
                                      lambda: deadline is not None and time.monotonic() > deadline)
         except KeyboardInterrupt:  # Ray's cancel
-            return FitOutcome(job.name, "cancelled", "cancelled while fitting", log=restore(log.getvalue()))
+            return FitOutcome(job.name, CANCELLED, "cancelled while fitting", log=restore(log.getvalue()))
         error, text = _error_and_log(events.getvalue(), log.getvalue())
         if code == EXIT_OK:
             files = {path.name: path.read_bytes() for path in sorted(out.iterdir()) if path.is_file()}
             if "params.json" in files:
                 files["params.json"] = _path_restorer(moves, json_escaped=True)(files["params.json"].decode()).encode()
-            return FitOutcome(job.name, "done", files=files, log=restore(text))
+            return FitOutcome(job.name, DONE, files=files, log=restore(text))
         if code == EXIT_CANCELLED and deadline is not None and time.monotonic() > deadline:
-            status, error = "timeout", f"no result after {job.timeout_s:g} s (--timeout)"
+            status, error = TIMEOUT, f"no result after {job.timeout_s:g} s (--timeout)"
         else:
-            status = {EXIT_INPUT: "input", EXIT_CANCELLED: "cancelled"}.get(code, "internal")
+            status = {EXIT_INPUT: INPUT, EXIT_CANCELLED: CANCELLED}.get(code, INTERNAL)
         return FitOutcome(job.name, status, restore(error or f"the fit ended with exit code {code}"), log=restore(text))
 
 

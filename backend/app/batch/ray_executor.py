@@ -22,14 +22,14 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...core.pair_jobs import CANCELLED
 from .job import FitJob, FitOutcome, run_fit_job
 from .scheduler import BatchError, TaskLost
 
 INSTALL_HINT = "pip install -e '.[cluster]' (or pip install ray)"
-MAX_FITS_PER_WORKER = 20
-# A fit's peak memory: about 2.0 GB for a default fit (--size 256, 512-pixel film; metrics.json's
-# peak_mb), 1.1 GB for the tests' tiny ones. Reserving it keeps a many-core, little-memory machine
-# from running more fits than it can hold.
+MAX_FITS_PER_WORKER = 20  # then a fresh worker: nothing a fit leaves in memory piles up
+# A default fit's peak memory (metrics.json's peak_mb): reserving it keeps a many-core, little-memory
+# machine from running more fits than it can hold.
 DEFAULT_MEMORY_GB = 2.0
 _BACKEND = Path(__file__).resolve().parents[1]  # the backend package the workers import
 
@@ -143,7 +143,7 @@ class RayExecutor:
         try:
             return self.ray.get(handle)
         except exceptions.TaskCancelledError:
-            return FitOutcome("", "cancelled", "cancelled before it started")
+            return FitOutcome("", CANCELLED, "cancelled before it started")
         except exceptions.RayError as exc:
             first_line = next((line for line in str(exc).splitlines() if line.strip()), "")
             raise TaskLost(f"{type(exc).__name__}: {first_line}"[:500]) from None

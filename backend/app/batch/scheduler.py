@@ -1,19 +1,16 @@
-"""The batch's driver loop: every pair a task, at most ``workers`` at a time, nothing lost or done twice.
+"""The batch's driver loop on an engine: every pair a task, at most ``workers`` at a time, nothing lost or done twice.
 
 :func:`plan` reads the photo folder and DIR before any engine starts (a bad folder fails in a
 second, not after Ray's start); :func:`run` then hands one :class:`~.job.FitJob` per pair to an
-:class:`Executor` (ray_executor.py's on Ray; the tests use a plain one) and, as each ends:
-
-- ``done``: its files are written as ``DIR/<name>`` (output.py) and its row joins the catalogue;
-- ``input`` (the photos are bad: the fit's exit code 2): failed at once; a second try would fail the same way;
-- ``internal``, ``timeout``, ``cancelled`` by anyone but the batch, or a task the engine lost (its
-  worker or machine died, an out-of-memory kill): reported with the reason and tried once more;
-  failed after the second failure.
+:class:`Executor` (ray_executor.py's on Ray; the tests use a plain one). The jobs, their states
+and the retry rule are the shared job model's (backend/core/pair_jobs.py; two attempts here: a
+worker or a machine may die); here each finished attempt becomes files: a done job's results are
+written as ``DIR/<name>`` (output.py) and its row joins the catalogue, rewritten after every
+finished pair; a failed attempt's log goes to ``DIR/logs``.
 
 Pairs are submitted as workers free up, so a catalogue of thousands never has its photos in the
 engine's memory at once. ``should_stop()`` (Ctrl+C) cancels the running fits, waits a little for
-them to stop, keeps what finished and marks the rest cancelled. The catalogue is rewritten after
-every finished pair.
+them to stop, keeps what finished and marks the rest cancelled.
 
 The time left: ``(queued * m + sum over running fits of max(m - their time so far, 0)) / w``, with
 m the mean wall time of this run's finished fits and w the fits that can run at once.
@@ -21,20 +18,20 @@ m the mean wall time of this run's finished fits and w the fits that can run at 
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from ...core.pairs import PhotoFiles, find_pairs
+from ...core import pair_jobs
+from ...core.pair_jobs import CANCELLED, DONE, FAILED, KEPT, PENDING, PairJob, PairJobs
 from ...core.protocol import Reporter
 from . import catalogue, output
 from .job import FitJob, FitOutcome
 
-RETRIED = ("internal", "timeout", "cancelled", "lost")  # "cancelled" while the batch is not stopping
+ATTEMPTS = 2  # fits of a pair at most: a second try after a failure it may not repeat (pair_jobs.RETRIED)
 PROGRESS_EVERY_S = 5.0  # the progress line is also refreshed this often (its time left changes)
-POLL_S = 0.5
+POLL_S = 0.5  # how long the driver waits for a finished fit before it looks at Ctrl+C again
 
 
 class BatchError(ValueError):
@@ -59,13 +56,22 @@ class Executor(Protocol):
 class BatchPlan:
     photos: Path
     out: Path
-    to_fit: list[PhotoFiles]
-    rows: dict[str, dict]                    # every pair's catalogue row so far (kept, failed, pending)
+    jobs: list[PairJob]                      # every pair's job (kept and failed ones included)
+    fitted: dict[str, dict]                  # the catalogue values of each kept (later also done) pair
     moved: list[Path] = field(default_factory=list)  # incomplete folders moved aside
 
     @property
+    def to_fit(self) -> list[PairJob]:
+        return [job for job in self.jobs if job.state == PENDING]
+
+    @property
+    def rows(self) -> dict[str, dict]:
+        """Every pair's catalogue row so far (kept, failed, pending, ...)."""
+        return {job.name: catalogue.row(job, self.fitted.get(job.name)) for job in self.jobs}
+
+    @property
     def total(self) -> int:
-        return len(self.rows)
+        return len(self.jobs)
 
 
 @dataclass
@@ -91,39 +97,33 @@ class BatchSummary:
 
     @property
     def failed(self) -> int:
-        return self.count("failed")
+        return self.count(FAILED)
 
 
 def plan(photos: str | Path, out: str | Path, resume: bool) -> BatchPlan:
-    """The pairs of ``photos`` and what DIR already holds; raises BatchError or output.OutputError."""
+    """The jobs of ``photos`` and what DIR already holds; raises BatchError or output.OutputError."""
     photos, out = Path(photos).resolve(), Path(out).resolve()
-    if not photos.is_dir():
-        raise BatchError(f"{photos}: not a folder")
-    pairs, problems = find_pairs(photos)
-    rows = {p.name: catalogue.row(p.name, "failed", reason=p.message) for p in problems}
-    usable = []
-    for pair in pairs:
-        problem = output.name_problem(pair.name)
+    try:
+        jobs = pair_jobs.folder_jobs(photos)
+    except pair_jobs.FolderError as exc:
+        raise BatchError(str(exc)) from None
+    for job in jobs:
+        problem = output.name_problem(job.name) if job.state == PENDING else None
         if problem:
-            rows[pair.name] = catalogue.row(pair.name, "failed", reflection=pair.reflection,
-                                            transmission=pair.transmission, reason=problem)
-        else:
-            usable.append(pair)
-    if not usable and not problems:
-        raise BatchError(f"{photos}: no <name>_R.* / <name>_T.* photo pairs")
-    kept, moved = output.prepare(out, [p.name for p in usable], resume)
-    to_fit = []
-    for pair in usable:
-        files = {"reflection": pair.reflection, "transmission": pair.transmission}
-        if pair.name in kept:
+            job.end(FAILED, problem)
+    usable = [job for job in jobs if job.state == PENDING]
+    if not usable and all(job.reflection is not None for job in jobs):  # only names DIR cannot take
+        raise BatchError(str(pair_jobs.no_pairs(photos)))
+    kept, moved = output.prepare(out, [job.name for job in usable], resume)
+    fitted = {}
+    for job in usable:
+        if job.name in kept:
             try:
-                rows[pair.name] = catalogue.fitted_row(pair.name, "kept", out / pair.name, out, **files)
-                continue
+                fitted[job.name] = catalogue.fitted_values(out / job.name, out)
+                job.end(KEPT)
             except catalogue.CatalogueError:  # complete by its files, unreadable by its contents: fit again
-                moved.append(output.move_aside(out / pair.name))
-        rows[pair.name] = catalogue.row(pair.name, "pending", **files)
-        to_fit.append(pair)
-    return BatchPlan(photos, out, to_fit, rows, moved)
+                moved.append(output.move_aside(out / job.name))
+    return BatchPlan(photos, out, jobs, fitted, moved)
 
 
 def run(plan: BatchPlan, options: BatchOptions, executor: Executor | None, reporter: Reporter,
@@ -136,24 +136,23 @@ def run(plan: BatchPlan, options: BatchOptions, executor: Executor | None, repor
 class _Run:
     def __init__(self, plan: BatchPlan, options: BatchOptions, executor: Executor, reporter: Reporter):
         self.plan, self.options, self.executor, self.reporter = plan, options, executor, reporter
-        self.queue: deque[tuple[PhotoFiles, int]] = deque((pair, 1) for pair in plan.to_fit)
-        self.running: dict[Any, tuple[PhotoFiles, int, float]] = {}  # handle -> (pair, attempt, started)
+        self.jobs = PairJobs(plan.jobs, max_attempts=ATTEMPTS)
+        self.running: dict[Any, tuple[PairJob, float]] = {}  # handle -> (job, started)
         self.fit_walls: list[float] = []
         self.header = {"photos": str(plan.photos), "out": str(plan.out), "settings": options.settings}
         self.catalogue_paths = self._write_catalogue()
         self._shown, self._shown_at = None, 0.0
-        self.stopping = False
 
     def loop(self, should_stop) -> BatchSummary:
-        for name, row in sorted(self.plan.rows.items()):
-            if row["status"] in ("kept", "failed"):
-                self.reporter.pair(name, row["status"], reason=row["reason"],
-                                   out_dir=str(self.plan.out / name) if row["status"] == "kept" else None)
+        for job in sorted(self.plan.jobs, key=lambda j: j.name):
+            if job.state in (KEPT, FAILED):
+                self.reporter.pair(job.name, job.state, reason=job.reason,
+                                   out_dir=str(self.plan.out / job.name) if job.state == KEPT else None)
         self._progress(force=True)
         cancelled = False
-        while self.queue or self.running:
+        while self.jobs.waiting or self.running:
             if should_stop():
-                cancelled = self.stopping = True
+                cancelled = True
                 self._cancel()
                 break
             self._fill()
@@ -167,69 +166,64 @@ class _Run:
     # -- submitting and finishing ------------------------------------------------------------------
 
     def _fill(self):
-        while self.queue and len(self.running) < self.options.workers:
-            pair, attempt = self.queue.popleft()
+        while self.jobs.waiting and len(self.running) < self.options.workers:
+            job = self.jobs.start_next()
             try:
-                job = FitJob.of(pair, self.plan.out / pair.name, self.options.fit_options, self.options.rig_text,
-                                self.options.threads, self.options.timeout_s)
+                fit_job = FitJob.of(job, self.plan.out / job.name, self.options.fit_options, self.options.rig_text,
+                                    self.options.threads, self.options.timeout_s)
             except OSError as exc:
-                self._final(pair, "failed", attempt, reason=f"{exc.filename}: cannot read ({exc.strerror or exc})")
+                self._final(job, FAILED, f"{exc.filename}: cannot read ({exc.strerror or exc})")
                 continue
-            self.running[self.executor.submit(job)] = (pair, attempt, time.monotonic())
-            self.reporter.pair(pair.name, "started", attempt)
+            self.running[self.executor.submit(fit_job)] = (job, time.monotonic())
+            self.reporter.pair(job.name, "started", job.attempts)
 
     def _finish(self, handle):
-        pair, attempt, started = self.running.pop(handle)
+        job, started = self.running.pop(handle)
         try:
             outcome = self.executor.outcome(handle)
         except TaskLost as exc:
-            outcome = FitOutcome(pair.name, "lost", reason=str(exc))
+            outcome = FitOutcome(job.name, pair_jobs.LOST, reason=str(exc))
         wall = time.monotonic() - started
         if outcome.log:
-            output.write_log(self.plan.out, pair.name, attempt, outcome.log)
-        if outcome.status == "done":
+            output.write_log(self.plan.out, job.name, job.attempts, outcome.log)
+        if outcome.status == DONE:
             try:
-                folder = output.write_result(self.plan.out, pair.name, outcome.files)
-                row = catalogue.fitted_row(pair.name, "done", folder, self.plan.out, reflection=pair.reflection,
-                                           transmission=pair.transmission, attempts=attempt, wall_s=wall)
+                folder = output.write_result(self.plan.out, job.name, outcome.files)
+                self.plan.fitted[job.name] = catalogue.fitted_values(folder, self.plan.out)
             except (OSError, catalogue.CatalogueError) as exc:
-                self._final(pair, "failed", attempt, reason=f"results not saved: {exc}", wall_s=wall)
+                self._final(job, FAILED, f"results not saved: {exc}", wall)
                 return
             self.fit_walls.append(wall)
-            self._final(pair, "done", attempt, row=row, wall_s=wall)
-        elif self.stopping:
-            self._final(pair, "cancelled" if outcome.status == "cancelled" else "failed", attempt,
-                        reason=outcome.reason, wall_s=wall)
-        elif outcome.status in RETRIED and attempt == 1:
-            self.reporter.pair(pair.name, "retrying", attempt, reason=outcome.reason, wall_s=wall)
-            self.queue.appendleft((pair, attempt + 1))
+        attempt = job.attempts
+        if self.jobs.end(job, outcome.status, outcome.reason, wall) == PENDING:
+            self.reporter.pair(job.name, "retrying", attempt, reason=outcome.reason, wall_s=wall)
         else:
-            self._final(pair, "failed", attempt, reason=outcome.reason, wall_s=wall)
+            self._reported(job)
 
-    def _final(self, pair: PhotoFiles, status: str, attempt: int, reason: str | None = None,
-               wall_s: float | None = None, row: dict | None = None):
-        self.plan.rows[pair.name] = row or catalogue.row(pair.name, status, reflection=pair.reflection,
-                                                         transmission=pair.transmission, attempts=attempt,
-                                                         reason=reason, wall_s=wall_s)
-        out_dir = str(self.plan.out / pair.name) if status == "done" else None
-        self.reporter.pair(pair.name, status, attempt, reason=reason, out_dir=out_dir, wall_s=wall_s)
+    def _final(self, job: PairJob, state: str, reason: str | None = None, wall_s: float | None = None):
+        job.end(state, reason, wall_s)
+        self._reported(job)
+
+    def _reported(self, job: PairJob):
+        """Says how a job ended and rewrites the catalogue."""
+        out_dir = str(self.plan.out / job.name) if job.state == DONE else None
+        self.reporter.pair(job.name, job.state, job.attempts, reason=job.reason, out_dir=out_dir, wall_s=job.wall_s)
         self.catalogue_paths = self._write_catalogue()
 
     def _cancel(self):
         """Stops the running fits; those that finish within the grace time are kept."""
+        not_started = self.jobs.stop()
         for handle in self.running:
             self.executor.cancel(handle)
         deadline = time.monotonic() + self.options.cancel_grace_s
         while self.running and time.monotonic() < deadline:
             for handle in self.executor.wait(list(self.running), POLL_S):
                 self._finish(handle)
-        for pair, attempt, started in self.running.values():
-            self._final(pair, "cancelled", attempt, reason="still running when the batch was stopped",
-                        wall_s=time.monotonic() - started)
+        for job, started in self.running.values():
+            self._final(job, CANCELLED, "still running when the batch was stopped", time.monotonic() - started)
         self.running.clear()
-        while self.queue:
-            pair, attempt = self.queue.popleft()
-            self._final(pair, "cancelled", attempt - 1, reason="not started: the batch was stopped")
+        for job in not_started:
+            self._reported(job)
 
     # -- reporting ---------------------------------------------------------------------------------
 
@@ -237,19 +231,17 @@ class _Run:
         return catalogue.write(self.plan.out, list(self.plan.rows.values()), self.header)
 
     def counts(self) -> dict:
-        rows = self.plan.rows.values()
-        return {"total": len(self.plan.rows), "done": sum(r["status"] in ("done", "kept") for r in rows),
-                "running": len(self.running), "failed": sum(r["status"] == "failed" for r in rows),
-                "queued": len(self.queue)}
+        return {"total": self.plan.total, "done": self.jobs.count(DONE, KEPT), "running": len(self.running),
+                "failed": self.jobs.count(FAILED), "queued": len(self.jobs.waiting)}
 
     def eta_s(self) -> float | None:
         if not self.fit_walls:
             return None
         mean = sum(self.fit_walls) / len(self.fit_walls)
         now = time.monotonic()
-        left = len(self.queue) * mean + sum(max(mean - (now - started), 0.0) for _, _, started in
-                                            self.running.values())
-        return left / max(1, min(self.options.workers, len(self.queue) + len(self.running)))
+        left = len(self.jobs.waiting) * mean + sum(max(mean - (now - started), 0.0) for _, started in
+                                                   self.running.values())
+        return left / max(1, min(self.options.workers, len(self.jobs.waiting) + len(self.running)))
 
     def _progress(self, force: bool = False):
         counts = self.counts()
