@@ -277,24 +277,27 @@ def turn(rotation, score):
     return Placement(score, rotation, rotation, Lattice(40.0, 50.0, score))
 
 
-def test_two_readings_agreeing_on_a_turn_outweigh_the_generic_harmonics_whatever_the_order():
+def test_a_rival_is_measured_against_the_summed_scans_turn_whatever_the_others():
     summed, mapped_turn, peak_turn = turn(4.76, 1.03), turn(5.9, 1.13), turn(2.73, 1.095)
     scan = Judged(2.75, beaten_on_each_photo=(5.9, 2.73))
-    # the peak-pair turn agrees with the sieves: its standing 1.1 x 1.095 beats the map turn's 1.13,
-    # and would whichever generator had proposed which
+    # the peak-pair turn agrees with the sieves (the summed turn does not): it needs no gain; the map
+    # turn does not, and 1.13 is under rival_turn_gain x 1.03
     assert select.select_turn(scan, [summed], [], [mapped_turn], [peak_turn]) == peak_turn
-    assert select.select_turn(scan, [summed], [], [peak_turn], [mapped_turn]) == peak_turn
-    assert select.select_turn(scan, [summed, peak_turn], [mapped_turn], [], []) == peak_turn
-    # a turn the sieves do not back wins only by rival_turn_gain over one they do
-    stronger = turn(5.9, 1.1 * 1.095 + 0.01)
-    assert select.select_turn(scan, [summed], [], [stronger], [peak_turn]) == stronger
+    # both qualify: the standing decides (1.1 x 1.095 against 1.15), whichever generator proposed which
+    stronger = turn(5.9, 1.15)
+    assert select.select_turn(scan, [summed], [], [stronger], [peak_turn]) == peak_turn
+    assert select.select_turn(scan, [summed], [], [peak_turn], [stronger]) == peak_turn
+    strongest = turn(5.9, 1.1 * 1.095 + 0.01)
+    assert select.select_turn(scan, [summed], [strongest], [], [peak_turn]) == strongest
+    # a rival that agrees with the sieves as the summed turn does needs the gain as well
+    assert select.select_turn(Judged(4.75, (4.6,)), [summed], [], [], [turn(4.6, 1.1)]) == summed
 
 
-def test_the_summed_scans_turns_compete_on_the_same_standing():
-    # two maxima of the summed scan scoring alike: the one at the sieves' strongest turn stands
-    at_sieve, elsewhere = turn(4.42, 1.0153), turn(-0.26, 1.0152)
-    assert select.select_turn(Judged(4.5), [elsewhere, at_sieve], [], [], []) == at_sieve
-    assert select.select_turn(Judged(4.5), [turn(-0.26, 1.12), at_sieve], [], [], []).rotation_deg == -0.26
+def test_summed_scan_turns_scoring_alike_give_the_smallest_turn():
+    alike, stronger = turn(4.42, 1.0153), turn(-0.26, 1.0152)
+    assert select.incumbent([alike, stronger]) == stronger
+    assert select.incumbent([turn(4.42, 1.0152 * GATES.tie_ratio + 1e-4), stronger]).rotation_deg == 4.42
+    assert select.select_turn(Judged(4.5), [alike, stronger], [], [], []) == stronger
 
 
 def test_map_and_peak_turns_must_explain_each_photo_better_paired_ones_need_not():

@@ -44,8 +44,9 @@ class Gates:
     peak_pair_peaks: int = gate(6, "each photo's strongest peaks read in pairs as two low harmonics of one lattice")
     peak_pair_order: int = gate(2, "the harmonics (m, n), |m|, n <= this, a strong peak is taken for")
     # -- choosing among them (texture/placement/select.py) --
-    rival_turn_gain: float = gate(1.1, "how many times better a rival turn must explain the maps than one backed "
-                                       "by two readings")
+    tie_ratio: float = gate(1.01, "turns scoring within this ratio of the best are not told apart: the smallest wins")
+    rival_turn_gain: float = gate(1.1, "how many times better a rival turn must explain the maps than the summed "
+                                       "scan's best")
     sieve_agreement_deg: float = gate(0.3, "a turn this close to the summed sieve scan's strongest agrees with it")
     shear_gain: float = gate(1.15, "how many times better, on each photo, a shear must explain it than a turn")
     # -- the lattice candidates (texture/candidates.py) --

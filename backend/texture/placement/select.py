@@ -1,17 +1,18 @@
-"""Choosing the placement among the generators' hypotheses: one rule, the same whatever their order.
+"""Choosing the placement among the generators' hypotheses, in an order that cannot matter.
 
-Every refined turn competes on its *standing*: its generic score, times ``rival_turn_gain`` where
-its turn agrees with the summed sieve scan's strongest (within ``sieve_agreement_deg``):
-
-    standing(h) = score(h) * (rival_turn_gain if |turn(h) - sieve turn| <= sieve_agreement_deg else 1)
-
-Two readings of the peaks agreeing (their positions or the maps, and the sieves over all of them)
-outweigh the generic harmonics alone, which score any lattice: a turn the sieves do not back must
-explain the maps ``rival_turn_gain`` times better than one they do. The turns from the map scan
-(:mod:`.mapped`) and from peak pairs (:mod:`.peaked`) must also explain each photo alone better than
-the best summed-scan turn (:meth:`.scan.Scan.beats_on_each_photo`): a true turn shows in both
-photos of one fabric, a chance one in one photo's noise or aliased harmonics. The highest standing
-wins; a tie goes to the earlier generator (summed scan, paired angles, maps, peak pairs).
+The incumbent is the best refined turn at the summed sieve scan's maxima (:mod:`.turned`); scores
+within ``tie_ratio`` of the best do not tell turns apart, and of those the smallest turn is taken
+(a sample is laid in the holder roughly straight). Each rival, the best turn at the middle of
+paired angles (:mod:`.paired`), at the map scan's maxima (:mod:`.mapped`) and from peak pairs
+(:mod:`.peaked`), is measured against the incumbent alone. The generic harmonics score any lattice,
+and more hypotheses give them more chances to prefer a wrong one, so a rival qualifies only where it
+explains the maps ``rival_turn_gain`` times better; the map and peak-pair rivals must also explain
+each photo alone better (:meth:`.scan.Scan.beats_on_each_photo`: a true turn shows in both photos of
+one fabric, a chance one in one photo's noise or aliased harmonics). A rival whose turn agrees with
+the summed scan's strongest (within ``sieve_agreement_deg``), where the incumbent does not, needs no
+gain: two readings of the peaks agree against the generic harmonics alone. Of the rivals that
+qualify, the highest *standing* wins: the score, times ``rival_turn_gain`` where the turn agrees
+with the sieves.
 
 A shear (:mod:`.paired`) has one more degree of freedom, so it explains the noise or aliased
 harmonics of unsheared samples better too; it is kept only where, on each photo alone, it explains
@@ -29,22 +30,39 @@ def _best(placements: list[Placement]) -> Placement | None:
     return max(placements, key=lambda p: p.score, default=None)
 
 
+def _agrees(placement: Placement, sieve_turn_deg: float) -> bool:
+    return abs(placement.rotation_deg - sieve_turn_deg) <= GATES.sieve_agreement_deg
+
+
+def incumbent(turned: list[Placement]) -> Placement:
+    """The best-scoring turn; among those within ``tie_ratio`` of it, the smallest."""
+    top = max(p.score for p in turned)
+    return min((p for p in turned if p.score * GATES.tie_ratio >= top), key=lambda p: abs(p.rotation_deg))
+
+
 def standing(placement: Placement, sieve_turn_deg: float) -> float:
-    """The score a turn competes on (module docstring)."""
-    agrees = abs(placement.rotation_deg - sieve_turn_deg) <= GATES.sieve_agreement_deg
-    return placement.score * (GATES.rival_turn_gain if agrees else 1.0)
+    """The score, times ``rival_turn_gain`` where the turn agrees with the sieves (module docstring)."""
+    return placement.score * (GATES.rival_turn_gain if _agrees(placement, sieve_turn_deg) else 1.0)
+
+
+def rival_gain(rival: Placement, current: Placement, sieve_turn_deg: float) -> float:
+    """How many times better than ``current`` ``rival`` must explain the maps (module docstring)."""
+    agreeing = _agrees(rival, sieve_turn_deg) and not _agrees(current, sieve_turn_deg)
+    return 1.0 if agreeing else GATES.rival_turn_gain
 
 
 def select_turn(scan: Scan, turned: list[Placement], paired: list[Placement], mapped: list[Placement],
                 peaked: list[Placement]) -> Placement:
     """The turn chosen among the generators' refined hypotheses (module docstring)."""
-    def rank(placements: list[Placement]) -> Placement | None:
-        return max(placements, key=lambda p: standing(p, scan.sieve_turn_deg), default=None)
+    held = incumbent(turned)
 
-    summed = rank(turned)
-    contenders = [summed, rank(paired)] + [rival for rival in (rank(mapped), rank(peaked))
-                                           if rival is not None and scan.beats_on_each_photo(rival, [summed])]
-    return rank([c for c in contenders if c is not None])
+    def qualifies(rival: Placement | None, each_photo: bool) -> bool:
+        return (rival is not None and rival.score > rival_gain(rival, held, scan.sieve_turn_deg) * held.score
+                and (not each_photo or scan.beats_on_each_photo(rival, [held])))
+
+    rivals = [(_best(paired), False), (_best(mapped), True), (_best(peaked), True)]
+    qualified = [rival for rival, each_photo in rivals if qualifies(rival, each_photo)]
+    return max(qualified, key=lambda p: standing(p, scan.sieve_turn_deg), default=held)
 
 
 def select_shear(sheared: list[Placement]) -> Placement | None:
