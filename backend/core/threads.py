@@ -10,9 +10,10 @@ compile's C++ compiler) the spinning threads hold the cores the working ones nee
 region waits for threads that are not running: the fit slows far beyond its fair share.
 
 A short spin lets a fit beside another busy process run several times faster, costs a fit alone
-next to nothing, and leaves the fitted parameters the same bit for bit. So the backend spins :data:`SPIN_COUNT` times, unless the user has set either variable (or
-``OMP_WAIT_POLICY``, which sets both runtimes' own default). ``KMP_BLOCKTIME`` gets 1 ms, Intel's own
-advice for PyTorch on shared machines.
+next to nothing, and leaves the fitted parameters the same bit for bit. So the backend spins
+:data:`SPIN_COUNT` times, unless the user has set either variable (or ``OMP_WAIT_POLICY``, which sets
+both runtimes' own default). ``KMP_BLOCKTIME`` gets 1 ms, Intel's own advice for PyTorch on shared
+machines.
 
 The runtimes read these variables once, when they load: :func:`wait_briefly` must run before torch
 is imported (``python -m backend`` calls it first).
