@@ -47,6 +47,7 @@ from ..model.memory import peak_memory_mb
 from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
 from ..model.spacing_warp import SpacingWarp
+from .environment import renderer_compiles
 from .report import write_report
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -180,7 +181,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                            camera_blur=_given(options.camera_blur, rig.camera_blur_px),
                            sample_rotation=_given(options.sample_rotation, rig.sample_rotation_deg),
                            light_falloff=options.light_falloff == "fit", spacing_warp=options.spacing_warp == "fit",
-                           subpixel_blur=BLUR_ON[options.blur_on])
+                           subpixel_blur=BLUR_ON[options.blur_on], compile=renderer_compiles())
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
