@@ -324,10 +324,8 @@ def _framing_verdict(label: str, peaks_r: Sequence, peaks_t: Sequence, scale: fl
                 "same fabric at the same scale"]
     zoom = f"the transmission photo's yarn lattice matches the reflection's magnified {scale:.2f}x"
     agree = f"{matched} matching peak{'s' if matched != 1 else ''}"
-    # Refused only on REFUSE_MATCHES peaks agreeing on a ratio that is not harmonic: a photo may show
-    # 2f where the other shows f (same lattice, same framing), and where the yarns have 2-3 px each
-    # their harmonics alias to low frequencies that differ between the photos, which one peak can
-    # match at a chance ratio.
+    # Refused only on REFUSE_MATCHES peaks agreeing on a ratio that is not harmonic: one photo may show 2f
+    # where the other shows f, and a dense weave's aliased harmonics can match a peak at a chance ratio.
     strong = matched >= REFUSE_MATCHES and not _harmonic(scale)
     if abs(math.log(scale)) <= math.log(1 + FRAMING_REFUSE):
         return [f"{label}: {zoom} ({agree}; {dominant}): the photos may be framed at slightly "

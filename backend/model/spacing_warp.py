@@ -3,7 +3,7 @@
 A real sample is never woven or laid quite evenly (a cloth not quite flat in its holder, yarns
 pulled a little closer in one place, the lens's distortion), so its yarns are spaced 1-3 % more
 or less densely from one part of the photo to another (the photo-like set draws such a warp:
-:mod:`.phone`). The lattice's mean spacing is the material's (``tiles``); the rest is this photo's,
+:mod:`devtools.phone`). The lattice's mean spacing is the material's (``tiles``); the rest is this photo's,
 and a render that lacks it shows each harmonic as one sharp line where the photo spreads it over a
 few frequencies, with less modulation in every region than the photo keeps (the fit answers with
 a smoother, rougher fabric).
