@@ -2,9 +2,9 @@
 
 The two photos are taken by hand, one after the other; the phone moves a little between them, and
 the same fabric can show its lattice magnified and turned by several percent and a degree in one
-of them. The model has one framing for both; fitted as they are,
-no lattice fits both photos and the fit washes the weave out to a compromise. The map between the
-two lattices is linear in frequency:
+of them. The model has one framing for both; fitted as they are, no lattice fits both photos and
+the fit washes the weave out to a compromise. The map between the two lattices is linear in
+frequency:
 
     k_R = A k_T          (cycles per image, fx to the right, fy down the image; A is 2 x 2)
 
@@ -25,9 +25,8 @@ under MAX_RESIDUAL cycles (RMS), and a map that moves the matched peaks by more 
 cycles and by more than SHIFT_OVER_RESIDUAL times the residual (RMS). One sample's non-uniform yarn
 spacing alone moves the fitted map off the identity: the two photos weigh different parts of the
 fabric (the reflection its lit top, the transmission its glowing centre), by a cycle or two where
-a moved phone shifts the peaks by many. A magnification past
-MAX_MAGNIFICATION is left alone (the framing check refuses such a pair, or has called its ratio one
-of the lattice's own harmonics).
+a moved phone shifts the peaks by many. A magnification past MAX_MAGNIFICATION is left alone (the
+framing check refuses such a pair, or has called its ratio one of the lattice's own harmonics).
 """
 from __future__ import annotations
 
