@@ -13,6 +13,7 @@ import torch
 from conftest import ROOT
 
 from backend.app.cli.main import build_parser
+from backend.app.environment import renderer_compiles
 from backend.app.folder import FolderFitOptions, fit_reporting, fit_settings
 from backend.core.fit_options import (
     AUTO_OR_NUMBER,
@@ -123,7 +124,8 @@ BEFORE = [
 @pytest.mark.parametrize("words,rig,expected", BEFORE)
 def test_the_same_command_lines_give_the_same_fit_settings(words, rig, expected):
     rig = DEFAULT_RIG if rig is None else CaptureRig(**rig)
-    assert fit_settings(options_of(parse_fit(*words)), rig) == FitSettings(**expected)
+    # (whether the renderer compiles is the machine's: backend.app.environment)
+    assert fit_settings(options_of(parse_fit(*words)), rig) == FitSettings(**expected, compile=renderer_compiles())
 
 
 # -- every option's values, from the declaration ---------------------------------------------

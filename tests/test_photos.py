@@ -1,8 +1,8 @@
 """Photo input (backend/image): formats, RAW decoding, crop/resize, flat-field, errors, pair checks, spectrum.
 
 Test images are written here, in tmp dirs. The swap check is also run on the real photo pairs and the
-golden renders in ../shared (CI has it beside the checkout; where it is missing those tests fail, or
-skip with the reason under WFC_ALLOW_NO_SHARED=1) and on a fresh render of the forward model.
+golden renders in ../shared (CI has it beside the checkout; where it is missing those tests fail
+and say where it should be) and on a fresh render of the forward model.
 """
 from __future__ import annotations
 

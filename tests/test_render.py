@@ -10,6 +10,7 @@ import pytest
 import torch
 from oracles import reference
 
+from backend.app.environment import renderer_compiles
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
@@ -21,7 +22,7 @@ from backend.model.imaging import display_transform, gaussian_blur, subpixel_blu
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
 from backend.model.projections import project
-from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, Renderer, compile_available
+from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, Renderer
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
@@ -179,7 +180,7 @@ def test_jitter_is_stratified():
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not compile_available(), reason="torch.compile needs a C++ compiler, none found")
+@pytest.mark.skipif(not renderer_compiles(), reason="torch.compile needs a C++ compiler, none found")
 def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     params = FabricParams.from_interchange(
         "plain_R_0.49,0.49_S_1.5,1.5_T_1.48,1.48_N_0.0_UV_150.6,150.6_Kd_0.077,0.282,0.077,0.147,0.245,0.205"

@@ -18,7 +18,6 @@ from backend.core.weave import (
     WeaveError,
     face_twin,
     mirrored,
-    weave_from_matrix,
 )
 from backend.model.layers import GAP, WeaveLookup
 
@@ -75,7 +74,7 @@ def test_a_face_twin_is_the_weave_turned_over_at_every_crossing():
         rows, cols = len(mine), len(mine[0])
         assert any(all(mine[r][c] == 1 - theirs[(r + i) % rows][(c + j) % cols]
                        for r in range(rows) for c in range(cols)) for i in range(rows) for j in range(cols))
-    assert face_twin(weave_from_matrix(["0011", "0110", "1100", "1001"])) is None   # a 2/2 twill: none of the presets
+    assert face_twin(Weave("custom", ["0011", "0110", "1100", "1001"])) is None   # a 2/2 twill: none of the presets
 
 
 def test_segment_figures_of_the_spec():
@@ -147,7 +146,7 @@ def test_layer_lookup_matches_the_reference_walk(name):
 
 
 def test_custom_matrix_and_band_layout():
-    basket = weave_from_matrix(["1100", "1100", "0011", "0011"], name="basket")
+    basket = Weave("basket", ["1100", "1100", "0011", "0011"])
     assert (basket.rows, basket.cols) == (4, 4)
     # A warp of the basket weave floats over two wefts then under two.
     assert sorted((s.length, s.layer) for s in basket.segments(WARP, 0)) == [(2.0, FRONT), (2.0, BACK)]
@@ -158,7 +157,7 @@ def test_custom_matrix_and_band_layout():
 
 
 def test_a_yarn_that_never_goes_under_is_one_segment():
-    weave = weave_from_matrix(["11", "10"])
+    weave = Weave("custom", ["11", "10"])
     assert [(s.length, s.layer) for s in weave.segments(WARP, 0)] == [(2.0, FRONT)]
     lookup = WeaveLookup(weave)
     front, _ = lookup.layers(torch.tensor([0.5]), torch.tensor([1.5]), (1.0, 1.0))

@@ -51,6 +51,7 @@ from ..model.memory import peak_memory_mb
 from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
 from ..model.spacing_warp import SpacingWarp
+from .environment import renderer_compiles
 from .report import write_report
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -78,12 +79,13 @@ FolderFitOptions = dataclasses.make_dataclass(
 def fit_settings(options: FolderFitOptions, rig: CaptureRig) -> FitSettings:
     """The FitSettings of ``options``: each option's value as the setting FIT_OPTIONS names for it;
     a capture value left at auto (camera blur, sample rotation) takes a rig file's non-zero value
-    (the same camera and holder again), else the fit reads it from the photos."""
+    (the same camera and holder again), else the fit reads it from the photos; the renderer compiles
+    where this machine can (:func:`.environment.renderer_compiles`)."""
     values = {o.setting: o.setting_value(getattr(options, o.name)) for o in FIT_OPTIONS if o.setting}
     for name, rig_value in (("camera_blur", rig.camera_blur_px), ("sample_rotation", rig.sample_rotation_deg)):
         if values[name] is None and rig_value != 0:
             values[name] = rig_value
-    return FitSettings(**values)
+    return FitSettings(**values, compile=renderer_compiles())
 
 
 def make_example(folder: Path, rig: CaptureRig = DEFAULT_RIG) -> tuple[Path, Path, FabricParams]:

@@ -32,12 +32,6 @@ class Dependency:
                 return self.requirement[:index]
         return self.requirement
 
-    @property
-    def pinned_version(self) -> str:
-        """The version of an ``==`` pin (``torch==2.13.0`` -> ``2.13.0``), else ''."""
-        name, separator, version = self.requirement.partition("==")
-        return version if separator and name == self.project else ""
-
 
 RUNTIME = (
     Dependency("torch==2.13.0", "torch", "PyTorch", "renders and fits the fabric model"),

@@ -1,18 +1,28 @@
-"""Model variants (the ablations of spec section 4 and the golden cases' ``flags``)."""
+"""Model variants: the ablations of spec section 4, as the golden cases' ``flags`` name them.
+
+    ================  ===============  =====================================================
+    diffuse           bool (true)      the diffuse term
+    glow              bool (true)      the out-of-focus back light seen through the gaps
+    multiple_lobe     'asggx'          the multiple-scattering lobe: 'asggx' (the paper's)
+                                       or 'sggx' (the single-scattering lobe's shape)
+    layers            2                2, or 1 (the front layer only)
+    tension           bool (true)      tension-aware yarn thickness (spec 3.4)
+    vignette          bool (true)      the vignetting mask
+    ================  ===============  =====================================================
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
 
 class OptionsError(ValueError):
-    pass
+    """An option or flag is unknown or out of range; the message names it."""
 
 
 @dataclass(frozen=True)
 class RenderOptions:
-    """diffuse: the diffuse term; glow: the out-of-focus back light through gaps;
-    multiple_lobe: 'asggx' (the paper's) or 'sggx' (ablation); layers: 2 or 1 (front only);
-    tension: tension-aware thickness; vignette: the vignetting mask."""
+    """Which parts of the model a render includes (the module docstring's table); the defaults are
+    the full model."""
 
     diffuse: bool = True
     glow: bool = True

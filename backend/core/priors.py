@@ -138,9 +138,9 @@ def prior_nll(pattern: str, height_scale, gap_scale, roughness, roughness_multip
                                                                with s = MULTIPLE_ROUGHNESS_SPREAD.
 
     The ratio term is 0 over the dataset's range. Without it a fit of a real photo can drive one
-    yarn's multiple-scattering lobe to the bound 0.01 under a rough single-scattering one (dev real
-    twill2: alpha_m .01 under alpha .76), a razor-thin lobe that draws a streak across the back-lit
-    render, through the light, that the photo does not have."""
+    yarn's multiple-scattering lobe to its lower bound under a rough single-scattering one: a
+    razor-thin lobe that draws a streak across the back-lit render, through the light, that the
+    photo does not have."""
     fam = family(pattern)
     (mh, sh), (mg, sg) = HEIGHT_PRIOR[fam], GAP_PRIOR[fam]
     lo, hi = (math.log(r) for r in MULTIPLE_ROUGHNESS_RATIO)

@@ -13,23 +13,39 @@ normalised to a maximum of 1 (d in pixels of the ``film_size`` film, from the fi
 The transmission image adds ``glow_strength * exp(-d^2 / glow_sigma_px^2)`` (same normalised
 form) to samples that see no yarn, before the clamp.
 
-``camera_blur_px`` is the camera's point spread (lens, demosaicing, the photo's resize): the linear
-radiance of each image is blurred by a Gaussian of that standard deviation, in film pixels, before
-the output transform. The paper's renderer has none (0, the default, is exact); a phone photo shows
-about a pixel, and a sharp render of yarns beside a soft photo pushes a fit to wash them out.
+The sample's placement: turned by ``sample_rotation_deg`` about the centre of the visible square
+(counter-clockwise as the camera sees it) and sheared by ``sample_skew_deg`` (a cloth pulled a
+little out of square when it was laid flat): the warps are turned by rotation + skew / 2, the wefts
+by rotation - skew / 2, so they cross at 90 + skew degrees (:attr:`CaptureRig.yarn_angles_deg`);
+each yarn keeps its own shape. A real sample sits a few degrees off and a little skewed, enough to
+move the lattice by more than a cycle across the image; the fit reads both from the photos' spectra.
 
-``sample_rotation_deg`` is how the sample lies in the holder: the fabric is turned by that angle
-about the centre of the visible square (counter-clockwise as the camera sees it), so its warp runs
-that many degrees off the image's vertical. The paper's renderer has none (0, the default); a real
-sample sits a few degrees off, which the fit reads from the photos' spectra.
+Parameters of :class:`CaptureRig` (the paper's renderer has no blur, rotation or skew):
 
-``sample_skew_deg`` is how far the sample is sheared in the holder (fabric skew: a cloth pulled a
-little out of square when it was laid flat): the warps are turned by rotation + skew / 2 and the
-wefts by rotation - skew / 2, so they cross at 90 + skew degrees (:attr:`yarn_angles_deg`). Each
-yarn keeps its own shape; only its direction changes. The paper's renderer has none; the dev real
-twills show 1.5-4 degrees, enough to move the lattice by more than a cycle across the image.
+    ===================  ==================  =====================================================
+    film_size            px (512)            side of the rendered film
+    plane_size           units (10)          side of the fabric plane
+    camera_height        units (8)           height of the pinhole camera
+    fov_deg              degrees (53)        full field of view, in (0, 170)
+    front_light          units (0, 8, 8)     reflection light, from the view centre; z > 0
+    back_light           units (0, 0, -9)    transmission light, from the view centre; z < 0
+    front_intensity      (300)               intensity of the front light
+    back_intensity       (300)               intensity of the back light
+    vignette_sigma_px    film px (450)       sigma of the vignetting mask
+    glow_strength        (8)                 strength of the back light's glow through the gaps
+    glow_sigma_px        film px (20)        sigma of the glow
+    gamma                (2.2)               display encoding
+    clamp                (1)                 radiance clamped here before encoding
+    camera_blur_px       film px (0)         the camera's Gaussian point spread (lens,
+                                             demosaicing, resize), applied to linear radiance
+                                             before the output transform; 0 to 4
+    sample_rotation_deg  degrees (0)         the sample's turn in the holder; -45 to 45
+    sample_skew_deg      degrees (0)         the sample's shear in the holder; -10 to 10
+    width_cm             cm (None)           real width of the visible square, when known
+    ===================  ==================  =====================================================
 
-``width_cm`` is the real width of the visible square when known (for physical scale).
+A phone photo shows about a pixel of camera blur; a sharp render of yarns beside a soft photo pushes
+a fit to wash them out, which is why the blur is part of the rig.
 """
 from __future__ import annotations
 
@@ -40,9 +56,9 @@ from pathlib import Path
 
 from .jsonfile import read_json
 
-MAX_CAMERA_BLUR_PX = 4.0
-MAX_SAMPLE_ROTATION_DEG = 45.0
-MAX_SAMPLE_SKEW_DEG = 10.0
+MAX_CAMERA_BLUR_PX = 4.0        # film px a rig may declare; a phone photo shows about one
+MAX_SAMPLE_ROTATION_DEG = 45.0  # beyond it the warp and the weft would trade directions
+MAX_SAMPLE_SKEW_DEG = 10.0      # a cloth laid flat by hand is a few degrees off square
 
 
 def yarn_angles(rotation_deg: float, skew_deg: float) -> tuple[float, float]:
@@ -62,6 +78,8 @@ class RigError(ValueError):
 
 @dataclass(frozen=True)
 class CaptureRig:
+    """The rig's geometry, lights, output transform, camera blur and sample placement (module docstring)."""
+
     film_size: int = 512
     plane_size: float = 10.0
     camera_height: float = 8.0
@@ -81,43 +99,47 @@ class CaptureRig:
     width_cm: float | None = None
 
     def __post_init__(self):
-        def positive(name):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise RigError(f"rig.{name}: must be a positive number, got {value!r}")
-
         for name in ("film_size", "plane_size", "camera_height", "front_intensity", "back_intensity",
                      "vignette_sigma_px", "glow_sigma_px", "gamma", "clamp"):
-            positive(name)
+            self._check_positive(name)
         if self.width_cm is not None:
-            positive("width_cm")
+            self._check_positive("width_cm")
+        self._check_ranges()
+        for name, side in (("front_light", 1), ("back_light", -1)):
+            object.__setattr__(self, name, self._checked_light(name, side))
+        object.__setattr__(self, "film_size", int(self.film_size))
+
+    def _check_positive(self, name: str) -> None:
+        value = getattr(self, name)
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+            raise RigError(f"rig.{name}: must be a positive number, got {value!r}")
+
+    def _check_ranges(self) -> None:
+        """The field of view, the camera blur, the sample's placement and the glow within their ranges."""
         if not 0 < self.fov_deg < 170:
             raise RigError(f"rig.fov_deg: must be in (0, 170), got {self.fov_deg!r}")
         if not isinstance(self.camera_blur_px, (int, float)) or not 0 <= self.camera_blur_px <= MAX_CAMERA_BLUR_PX:
             raise RigError(f"rig.camera_blur_px: must be in [0, {MAX_CAMERA_BLUR_PX}], got {self.camera_blur_px!r}")
-        rotation = self.sample_rotation_deg
-        if not isinstance(rotation, (int, float)) or not abs(rotation) <= MAX_SAMPLE_ROTATION_DEG:
-            raise RigError(f"rig.sample_rotation_deg: must be in [-{MAX_SAMPLE_ROTATION_DEG:g}, "
-                           f"{MAX_SAMPLE_ROTATION_DEG:g}] degrees, got {rotation!r}")
-        skew = self.sample_skew_deg
-        if not isinstance(skew, (int, float)) or not abs(skew) <= MAX_SAMPLE_SKEW_DEG:
-            raise RigError(f"rig.sample_skew_deg: must be in [-{MAX_SAMPLE_SKEW_DEG:g}, "
-                           f"{MAX_SAMPLE_SKEW_DEG:g}] degrees, got {skew!r}")
+        for name, limit in (("sample_rotation_deg", MAX_SAMPLE_ROTATION_DEG), ("sample_skew_deg", MAX_SAMPLE_SKEW_DEG)):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not abs(value) <= limit:
+                raise RigError(f"rig.{name}: must be in [-{limit:g}, {limit:g}] degrees, got {value!r}")
         if self.glow_strength < 0:
             raise RigError(f"rig.glow_strength: must be >= 0, got {self.glow_strength!r}")
-        for name, side in (("front_light", 1), ("back_light", -1)):
-            value = getattr(self, name)
-            try:
-                value = tuple(float(x) for x in value)
-            except (TypeError, ValueError):
-                raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}") from None
-            if len(value) != 3 or not all(math.isfinite(x) for x in value):
-                raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}")
-            if value[2] * side <= 0:
-                where = "above (z > 0)" if side > 0 else "below (z < 0)"
-                raise RigError(f"rig.{name}: the light must be {where} the fabric, got z = {value[2]}")
-            object.__setattr__(self, name, value)
-        object.__setattr__(self, "film_size", int(self.film_size))
+
+    def _checked_light(self, name: str, side: int) -> tuple[float, float, float]:
+        """The light ``name`` as three finite floats, above the fabric (``side`` 1) or below it (-1)."""
+        value = getattr(self, name)
+        try:
+            value = tuple(float(x) for x in value)
+        except (TypeError, ValueError):
+            raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}") from None
+        if len(value) != 3 or not all(math.isfinite(x) for x in value):
+            raise RigError(f"rig.{name}: expected [x, y, z], got {value!r}")
+        if value[2] * side <= 0:
+            where = "above (z > 0)" if side > 0 else "below (z < 0)"
+            raise RigError(f"rig.{name}: the light must be {where} the fabric, got z = {value[2]}")
+        return value
 
     @property
     def view_size(self) -> float:

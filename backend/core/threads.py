@@ -9,16 +9,11 @@ a wake-up per region. Beside any other busy process (Blender rendering, a second
 compile's C++ compiler) the spinning threads hold the cores the working ones need, and each
 region waits for threads that are not running: the fit slows far beyond its fair share.
 
-Measured (2-core Linux machine, ``python -m backend fit`` on photo-like seed 7 plain_000 and
-satin0_003, 512 px; ``/usr/bin/time``): two fits started together took 528 and 541 s with the
-default spin count, 126 and 141 s with 10,000 spins, 93 and 114 s with none
-(``OMP_WAIT_POLICY=PASSIVE``); alone, plain_000 took 53.7 and 56.3 s by default, 56.8 and 56.1 s
-with 10,000 spins (the second of each run one after the other), 58.9 s with 3,000 and 64.2 s with
-none; satin0_003 74.3 s by default, 74.2 s with 10,000. The parameters fitted are the same bit for
-bit. So the backend spins SPIN_COUNT times, unless the user has set either
-variable (or ``OMP_WAIT_POLICY``, which sets both runtimes' own default). ``KMP_BLOCKTIME`` gets 1 ms,
-Intel's own advice for PyTorch on shared machines; no macOS or Windows machine was at hand to
-measure it.
+A short spin lets a fit beside another busy process run several times faster, costs a fit alone
+next to nothing, and leaves the fitted parameters the same bit for bit. So the backend spins
+:data:`SPIN_COUNT` times, unless the user has set either variable (or ``OMP_WAIT_POLICY``, which sets
+both runtimes' own default). ``KMP_BLOCKTIME`` gets 1 ms, Intel's own advice for PyTorch on shared
+machines.
 
 The runtimes read these variables once, when they load: :func:`wait_briefly` must run before torch
 is imported (``python -m backend`` calls it first).

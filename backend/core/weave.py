@@ -15,15 +15,26 @@ under-crossings, and open stretches always belong to front segments.
 Tension (spec 3.4): along each yarn, mu = 0 at the centre of its longest segments, 1 at the centre
 of the shorter ones, linear in between.
 
+Parameters of :class:`Weave`:
+
+    ===============  ===================  ==========================================================
+    name             str                  the preset's name, or ``custom``
+    matrix           rows of 0 / 1        P, top to bottom (a row may be a string, ``"0110"``)
+    warp_width       tile units (1)       width of a warp band, at most ``warp_pitch``
+    warp_pitch       tile units (1)       distance from one warp band to the next
+    warp_offset      tile units (0)       where the band starts in its pitch
+    weft_*           tile units           the same for the wefts, measured downwards
+    umax_deg         degrees (24, 24)     (warp, weft) inclination of a yarn at its segment ends
+    s_min            (0, 1] (0.5)         thickness scale at full tension; 1 disables tension
+    ===============  ===================  ==========================================================
+
 This module is plain Python; :mod:`backend.model.layers` turns :meth:`Weave.interval_table` into tensors
 and evaluates the layers per sample point.
 """
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
-from typing import Sequence
 
 WARP, WEFT = 0, 1
 FRONT, BACK = 0, 1
@@ -92,33 +103,45 @@ class Weave:
     _tables: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self):
+        object.__setattr__(self, "matrix", self._checked_matrix())
+        for yarn in ("warp", "weft"):
+            self._check_band(yarn)
+        object.__setattr__(self, "umax_deg", self._checked_umax())
+        if not 0 < self.s_min <= 1:
+            raise WeaveError(f"weave {self.name!r}: s_min must be in (0, 1]")
+
+    def _checked_matrix(self) -> tuple[tuple[int, ...], ...]:
+        """The matrix as rows of 0/1 ints (a row may be a string such as ``"0110"``), all one length."""
         matrix = self.matrix
         if isinstance(matrix, (str, bytes)) or not hasattr(matrix, "__len__") or not matrix:
             raise WeaveError(f"weave {self.name!r}: matrix must be a non-empty list of rows")
-        rows = []
-        for r, row in enumerate(matrix):
-            cells = list(row) if not isinstance(row, str) else [c for c in row if not c.isspace()]
-            try:
-                cells = [int(c) for c in cells]
-            except (TypeError, ValueError):
-                raise WeaveError(f"weave {self.name!r}: row {r} {row!r} must hold only 0 and 1") from None
-            if any(c not in (0, 1) for c in cells):
-                raise WeaveError(f"weave {self.name!r}: row {r} {row!r} must hold only 0 and 1")
-            rows.append(tuple(cells))
+        rows = [self._checked_row(r, row) for r, row in enumerate(matrix)]
         if len({len(r) for r in rows}) != 1 or not rows[0]:
             raise WeaveError(f"weave {self.name!r}: all rows must have the same non-zero length")
-        object.__setattr__(self, "matrix", tuple(rows))
-        for yarn in ("warp", "weft"):
-            width, pitch, offset = (float(getattr(self, f"{yarn}_{k}")) for k in ("width", "pitch", "offset"))
-            if not (pitch > 0 and 0 < width <= pitch and 0 <= offset and offset + width <= pitch + 1e-12):
-                raise WeaveError(f"weave {self.name!r}: {yarn} band needs 0 < width <= pitch and "
-                                 f"0 <= offset <= pitch - width (got width {width}, pitch {pitch}, offset {offset})")
+        return tuple(rows)
+
+    def _checked_row(self, r: int, row) -> tuple[int, ...]:
+        cells = list(row) if not isinstance(row, str) else [c for c in row if not c.isspace()]
+        try:
+            cells = [int(c) for c in cells]
+        except (TypeError, ValueError):
+            raise WeaveError(f"weave {self.name!r}: row {r} {row!r} must hold only 0 and 1") from None
+        if any(c not in (0, 1) for c in cells):
+            raise WeaveError(f"weave {self.name!r}: row {r} {row!r} must hold only 0 and 1")
+        return tuple(cells)
+
+    def _check_band(self, yarn: str) -> None:
+        """A band of ``yarn`` ("warp" or "weft") fits inside its pitch."""
+        width, pitch, offset = (float(getattr(self, f"{yarn}_{k}")) for k in ("width", "pitch", "offset"))
+        if not (pitch > 0 and 0 < width <= pitch and 0 <= offset and offset + width <= pitch + 1e-12):
+            raise WeaveError(f"weave {self.name!r}: {yarn} band needs 0 < width <= pitch and "
+                             f"0 <= offset <= pitch - width (got width {width}, pitch {pitch}, offset {offset})")
+
+    def _checked_umax(self) -> tuple[float, float]:
         umax = tuple(float(x) for x in self.umax_deg)
         if len(umax) != 2 or not all(0 <= x < 90 for x in umax):
             raise WeaveError(f"weave {self.name!r}: umax_deg must be two angles in [0, 90)")
-        object.__setattr__(self, "umax_deg", umax)
-        if not 0 < self.s_min <= 1:
-            raise WeaveError(f"weave {self.name!r}: s_min must be in (0, 1]")
+        return umax
 
     # -- sizes -------------------------------------------------------------------------------
     @property
@@ -303,11 +326,3 @@ def paper_preset(pattern: str) -> str:
 def is_mirrored(pattern: str) -> bool:
     return pattern in MIRRORED_OF
 
-
-def umax_radians(weave: Weave) -> tuple[float, float]:
-    return tuple(math.radians(x) for x in weave.umax_deg)
-
-
-def weave_from_matrix(matrix: Sequence[Sequence[int]] | Sequence[str], name: str = "custom", **bands) -> Weave:
-    """A custom weave from a 0/1 matrix (rows top to bottom, 1 = warp over weft)."""
-    return Weave(name, tuple(tuple(int(c) for c in row) for row in matrix), **bands)

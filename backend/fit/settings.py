@@ -51,7 +51,7 @@ class FitSettings:
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
     device: str = "cpu"
-    compile: bool | None = None      # None: torch.compile where a C++ compiler is found
+    compile: bool = False            # torch.compile the renderer (the fit command decides: backend.app.environment)
     vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
     gram_weight: float = 1.0
     camera_blur: float | None = None  # film pixels; None: estimated from the photos

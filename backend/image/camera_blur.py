@@ -13,8 +13,8 @@ with S the blurred part, N the white part after the optics and H what the high-p
 lattice's peaks, so the lattice does not count. A real phone's processing removes most sensor noise
 (N is small: the ring medians fall to the Nyquist band); a photo-like pair, or a raw one, keeps it
 (P falls to a floor a decade below S at about f = 0.6 / (2 pi sigma), then stays flat). Fitting
-N along with S is what lets one reading serve both: ignoring the floor, the fall of a photo-like
-pair blurred by 1-2 px reads as 0.15-0.4 px.
+N along with S is what lets one reading serve both: ignoring the floor, a soft pair with sensor noise
+reads as far sharper than it is.
 
 Both photos come through one camera, so the pair is fitted together: sigma on a grid of
 :data:`SIGMA_STEP` px, S and N per photo by non-negative least squares of the relative error, the
@@ -23,13 +23,9 @@ lighting's own spectrum leaks through the high-pass). A render or a golden image
 a lattice: sigma = 0 (S and N then collinear, one flat level) fits it about as well as any other
 sigma, while a soft photo's fall is fitted far better by its own. So the pair reads as blurred only
 where the best sigma's misfit is :data:`MIN_GAIN` times smaller than the flat one's, or where one
-photo on its own does (:func:`pair_blur`); otherwise 0. Measured: the 11 golden renders of the full
-model gain at most 2.6 a pair and 2.7 a photo, photo-like pairs (blur 0.5-2 px, noise after the
-optics; seeds 7, 23 and 53) 8 or more a pair but one (3.8, its transmission 7.3), the three real dev
-pairs 190 or more (``tests/test_camera_blur.py``). Two golden ablations read soft: the plain weave
-without the glow (gain 18, 1.2 px), whose transmission's black gaps have hard edges with a falling
-spectrum of their own, and the multiple-scattering one's transmission (6.4, 1.9 px); no fit is
-compared on them.
+photo on its own does (:func:`pair_blur`); otherwise 0. Renders stay well under that gain, blurred
+photos well over it (``tests/test_camera_blur.py``). A render whose black gaps have hard edges (no
+glow behind them) has a falling spectrum of its own and can read soft.
 
 The estimate is model-free, which is the point: the fit's loss also rewards blur wherever the render's
 yarns disagree with the photo's (a softer render hides the disagreement), so the loss alone cannot
@@ -133,9 +129,7 @@ def pair_blur(reflection: np.ndarray, transmission: np.ndarray) -> BlurReading:
     A photo whose sensor noise buries its blurred part has a flat spectrum, as a render's does, and
     says nothing of the blur; fitted together with the other photo it dilutes a fall that the other
     shows plainly. So where the pair does not read blurred, a photo that does on its own (the one with
-    the larger gain) speaks for the camera. Measured: photo-like seed 53 ``twill1_002`` (phone blur
-    1.77 px, sensor noise over its reflection) gains 3.8 as a pair (R 2.9, T 7.3: 1.26 px); no single
-    photo of the 11 golden renders of the full model gains more than 2.7.
+    the larger gain) speaks for the camera; no single render reads blurred.
     """
     rings = [ring_medians(reflection), ring_medians(transmission)]  # each photo's spectrum read once
     reading = _reading(rings)

@@ -8,6 +8,9 @@
   :mod:`.containers` has checked for truncation and read the EXIF orientation, which is then applied.
   OpenCV decodes EXR only when ``OPENCV_IO_ENABLE_OPENEXR`` is set, and reads that variable once, at
   the first EXR decode of the process: it is set (unless already set) right before decoding an EXR.
+  That is this module's own switch, not a user's setting: reading EXR is what :func:`read_image`
+  promises every caller (the fit command, the tests, the developer tools), and only here is it sure
+  to be set before OpenCV's first EXR decode; a value the user has set (``0``) is left alone.
 - Camera RAW is decoded by rawpy (LibRaw) linearly: camera white balance, no auto-brightness,
   16 bits, gamma (1, 1), sRGB primaries (:data:`RAW_POSTPROCESS`); LibRaw applies the camera's
   orientation.
@@ -116,7 +119,8 @@ def _name_unsupported(data: bytes) -> str:
 
 def _decode(data: bytes, kind: str, path: Path) -> np.ndarray:
     if kind == "exr":
-        # OpenCV's EXR codec is off unless this is set; OpenCV reads it once, at the first EXR decode.
+        # OpenCV's EXR codec is off unless this is set, and OpenCV reads it once, at the first EXR
+        # decode: set here, where it is sure to come first (module docstring).
         os.environ.setdefault(_EXR_SWITCH, "1")
     buffer = np.frombuffer(data, dtype=np.uint8)  # imdecode, not imread: non-ASCII paths on Windows
     try:

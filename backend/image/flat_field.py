@@ -24,7 +24,7 @@ from .errors import PhotoError
 from .tone import GAMMA, encode, resize_linear, to_linear
 
 FLAT_FIELD_SMOOTHING = 1 / 32  # sigma of the smoothing, in working-image sizes
-FLAT_FIELD_FLOOR = 0.05
+FLAT_FIELD_FLOOR = 0.05        # gain floor: a near-black corner of the target would multiply noise
 
 
 def flat_field_gain(flat: SourceImage, box: Box, size: int) -> tuple[np.ndarray, list[str]]:

@@ -22,32 +22,38 @@ SPECTRUM_HIGHPASS_PX = 16     # sigma of the Gaussian subtracted before the FFT
 SPECTRUM_POWER_BLUR = 1.5     # sigma of the blur of the power spectrum, in bins
 SPECTRUM_KEEP = 0.5           # the central part of the band that is compared
 SPECTRUM_DC_HALF = 2          # the (2 h + 1)^2 bins around DC that are dropped
+COLOUR_GRID = 16              # side of the area downsample colour_l1 compares
 
 
-def colour_l1(photo: np.ndarray, render: np.ndarray, size: int = 16) -> float:
+def colour_l1(photo: np.ndarray, render: np.ndarray) -> float:
+    """Mean |photo - render| of the two images' COLOUR_GRID x COLOUR_GRID area downsamples."""
+    size = COLOUR_GRID
     a = cv2.resize(np.asarray(photo, np.float32), (size, size), interpolation=cv2.INTER_AREA)
     b = cv2.resize(np.asarray(render, np.float32), (size, size), interpolation=cv2.INTER_AREA)
     return float(np.abs(a - b).mean())
 
 
-def _log_spectrum(image: np.ndarray, keep: float, blur: float) -> np.ndarray:
-    power = cv2.GaussianBlur(power_spectrum(windowed_highpass(image, SPECTRUM_HIGHPASS_PX)), (0, 0), blur)
+def _log_spectrum(image: np.ndarray) -> np.ndarray:
+    """The log power of the central band of the high-passed luminance's blurred spectrum, DC dropped (NaN)."""
+    power = cv2.GaussianBlur(power_spectrum(windowed_highpass(image, SPECTRUM_HIGHPASS_PX)), (0, 0),
+                             SPECTRUM_POWER_BLUR)
     h, w = power.shape
-    ch, cw = int(h * keep / 2), int(w * keep / 2)
+    ch, cw = int(h * SPECTRUM_KEEP / 2), int(w * SPECTRUM_KEEP / 2)
     band = power[h // 2 - ch: h // 2 + ch, w // 2 - cw: w // 2 + cw].copy()
     d = SPECTRUM_DC_HALF  # the DC neighbourhood (lighting residue) is dropped, as the checker drops it
     band[ch - d: ch + d + 1, cw - d: cw + d + 1] = np.nan
     return np.log(band + 1e-12)
 
 
-def spectrum_corr(photo: np.ndarray, render: np.ndarray, keep: float = SPECTRUM_KEEP,
-                  blur: float = SPECTRUM_POWER_BLUR) -> float:
-    a, b = _log_spectrum(photo, keep, blur), _log_spectrum(render, keep, blur)
+def spectrum_corr(photo: np.ndarray, render: np.ndarray) -> float:
+    """Correlation of the two images' :func:`_log_spectrum` over the bins both hold."""
+    a, b = _log_spectrum(photo), _log_spectrum(render)
     valid = np.isfinite(a) & np.isfinite(b)
     return float(np.corrcoef(a[valid], b[valid])[0, 1])
 
 
 def flip(photo: np.ndarray, render: np.ndarray) -> float:
+    """Mean LDR FLIP error of the render against the photo."""
     _, value, _ = flip_evaluator.evaluate(np.asarray(photo, np.float32), np.asarray(render, np.float32), "LDR")
     return float(value)
 

@@ -21,9 +21,9 @@ Framing
     within 5 %. When they do not, the magnification that best aligns them (:func:`best_lattice_scale`)
     tells a framing difference: more than 20 %, with REFUSE_MATCHES peaks agreeing on it at a ratio
     that is not harmonic, is refused; anything less certain is a warning
-    (:func:`check_framing_frequency`). The two
-    photos may emphasise different peaks of one lattice (a satin's diagonals in reflection, its yarn
-    gaps in transmission), hence the comparison of peak sets, not of single peaks.
+    (:func:`check_framing_frequency`). The two photos may emphasise different peaks of one lattice (a
+    satin's diagonals in reflection, its yarn gaps in transmission), hence the comparison of peak
+    sets, not of single peaks.
 Order
     The front light sits above the top edge of the image, so a reflection photo is brighter towards
     the top; the back light sits behind the image centre, so a transmission photo is even from top to
@@ -44,29 +44,26 @@ from .errors import PhotoError
 from .spectrum import chance_peakness, hann, highpass, power_spectrum, shows_weave, spectral_peaks
 from .tone import GAMMA, luminance
 
-BLACK_LEVEL = 0.002      # linear; the darkest usable photo seen (twill2_T) has 99.9 % of its pixels above 0.04
+BLACK_LEVEL = 0.002      # linear: brightest pixels (99.9th percentile) under it, the photo is black
 CLIPPED_LEVEL = 0.995    # display value of a clipped channel
-MAX_CLIPPED = 0.5        # the photos seen clip at most 2.3 % of their pixels
+MAX_CLIPPED = 0.5        # share of pixels clipped in some channel over which a photo is overexposed
 # A photo whose linear luminance spans (1st to 99th percentile) less than this share of its mean shows
-# nothing: no texture, no sensor noise, not even the rig's light falloff (a uniform fill, a blank). Of
-# the 80 photos of the dev real, golden and photo-like pairs, the flattest spans 0.73 of its mean
-# (golden example_twill1_no_vignette, transmission); 8-bit levels 127-129 alone span about 0.035.
+# nothing: no texture, no sensor noise, not even the rig's light falloff (a uniform fill, a blank).
+# Usable photos span many times more; 8-bit levels 127-129 alone span about 0.035.
 FEATURELESS_SPREAD = 0.02
-# The rules and the values measured on real and rendered pairs are in check_order,
-# check_framing_frequency and yarn_peaks.
-TOP_BIAS_THRESHOLD = 0.35
-FREQUENCY_TOLERANCE = 0.05
-FRAMING_REFUSE = 0.20
-MIN_YARN_CYCLES = 16
-MAX_PEAKS = 8
-MIN_PEAK_POWER = 0.05
-MIN_PEAK_PROMINENCE = 10.0
-HARMONIC_RATIOS = (2.0, 1.5, 4 / 3, 3 / 4, 2 / 3, 0.5)
-# Peaks that must agree on a framing ratio for a refusal. A harmonic ratio is recognised within 3 %,
-# but a phone that moves between the shots (the lattices 1-1.15 times apart: the dev real twill1,
-# photolike --moved) moves a harmonic ratio by as much: photo-like seed 137 --moved plain_005 (moved
-# 1.076x) was refused at 0.54x = 0.5 x 1.076 on two peaks. With three, none of the 70 photo-like pairs
-# of seeds 127, 131 and 137 --moved, 67 and 113, the dev real and the dev golden pairs is refused.
+TOP_BIAS_THRESHOLD = 0.35  # log(top / bottom brightness) that tells a front-lit photo (check_order)
+FREQUENCY_TOLERANCE = 0.05  # relative distance within which two spectral peaks are one
+FRAMING_REFUSE = 0.20      # framing ratio off 1 beyond which strong evidence refuses a pair
+MIN_YARN_CYCLES = 16       # cycles per image: below, the lighting's spectrum, not the yarns'
+MAX_PEAKS = 8              # spectral peaks kept per photo
+MIN_PEAK_POWER = 0.05      # a kept peak's power, relative to the strongest
+MIN_PEAK_PROMINENCE = 10.0  # the strongest peak over the median power: below, no clear yarn pattern
+HARMONIC_RATIOS = (2.0, 1.5, 4 / 3, 3 / 4, 2 / 3, 0.5)  # ratios the two photos of one lattice can show
+HARMONIC_TOLERANCE = 0.03  # |log(scale / ratio)| within which a framing ratio is one of HARMONIC_RATIOS
+SAME_DIRECTION_DEG = 3.0   # peaks this close in direction may be one lattice magnified (the stand does not turn)
+DISTINCT_DIRECTION_DEG = 10.0  # two peaks this far apart in direction span the lattice
+# Peaks that must agree on a framing ratio for a refusal: a phone moved between the shots moves a
+# harmonic ratio by as much as the harmonic tolerance, and two peaks can agree on such a ratio.
 REFUSE_MATCHES = 3
 
 
@@ -116,10 +113,7 @@ def check_order(reflection_cues: dict, transmission_cues: dict) -> list[str]:
       looks lit by the front light;
     - the reflection photo has top_bias < 0.35: it does not look lit by the front light;
     - the order score (:func:`order_score`) is negative: the pair reads better the other way round.
-    Measured (working images): the 3 real pairs, top_bias R 0.66 .. 1.09, T -0.14 .. -0.03, score
-    >= 0.92; the 17 golden renders (512 px), R 0.70 .. 1.96, |T| <= 0.002, score >= 0.95; the golden
-    cases and 40 draws of the dataset prior (spec 5.4) rendered at 256 px, 4 spp: R >= 0.69,
-    |T| <= 0.007, score >= 0.68. No pair in order was flagged; every swapped one was, by all three.
+    Real pairs and renders in order pass all three with a wide margin; swapped, they fail all three.
     """
     reasons = []
     ratio_t = math.exp(transmission_cues["top_bias"])
@@ -218,13 +212,13 @@ def with_lattice_combinations(peaks: Sequence) -> list:
     (over 10 degrees apart), each as strong as the weaker of the two: the lattice's other low
     harmonics, which the other photo of the pair may show instead. A plain weave's reflection shows
     its checkerboard's diagonals (1, 1) and (-1, 1); its transmission shows the gaps between the
-    yarns, (2, 0) and (0, 2), their sum and difference (photo-like set seed 31: 7 of 22 plain weaves
-    at 2-4 px per yarn shared no peak directly)."""
+    yarns, (2, 0) and (0, 2), their sum and difference: at a few pixels per yarn the two photos of a
+    plain weave often share no peak directly."""
     if len(peaks) < 2:
         return list(peaks)
     p = peaks[0]
     for q in peaks[1:]:
-        if _direction_gap(p, q) > math.radians(10):
+        if _direction_gap(p, q) > math.radians(DISTINCT_DIRECTION_DEG):
             power = min(p[2], q[2])
             return [*peaks, (p[0] + q[0], p[1] + q[1], power), (p[0] - q[0], p[1] - q[1], power)]
     return list(peaks)
@@ -247,7 +241,7 @@ def best_lattice_scale(peaks_a: Sequence, peaks_b: Sequence) -> tuple[float, flo
     best = (1.0, *lattice_match(peaks_a, peaks_b, 1.0))
     for p in peaks_a:
         for q in peaks_b:
-            if _direction_gap(p, q) > math.radians(3):
+            if _direction_gap(p, q) > math.radians(SAME_DIRECTION_DEG):
                 continue
             scale = math.hypot(p[0], p[1]) / max(math.hypot(q[0], q[1]), 1e-9)
             if 0.5 <= scale <= 2.0:
@@ -259,7 +253,7 @@ def best_lattice_scale(peaks_a: Sequence, peaks_b: Sequence) -> tuple[float, flo
 
 def _harmonic(scale: float) -> bool:
     """Whether ``scale`` is within 3 % of a ratio of small harmonics (2, 3/2, 4/3 or their inverses)."""
-    return any(abs(math.log(scale / ratio)) < 0.03 for ratio in HARMONIC_RATIOS)
+    return any(abs(math.log(scale / ratio)) < HARMONIC_TOLERANCE for ratio in HARMONIC_RATIOS)
 
 
 def _describe_peak(peak) -> str:
@@ -294,10 +288,11 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
 
     The photos agree when their peaks coincide at scale 1 (:func:`same_lattice_score`: the two photos
     may show different low harmonics of the same lattice) at least half as well as at the best scale
-    (:func:`best_lattice_scale`). Otherwise: when the best scale is more than 20 % away from 1, at
-    least two peaks agree on it and it is not a ratio of small harmonics (2, 3/2, 4/3 or their
-    inverses, within 3 %), the photos were framed at different scales (or show different fabrics):
-    :class:`PhotoError`; within 20 %, or with less evidence, a warning.
+    (:func:`best_lattice_scale`). Otherwise (:func:`_framing_verdict`): when the best scale is more
+    than FRAMING_REFUSE away from 1, at least REFUSE_MATCHES peaks agree on it and it is not a ratio
+    of small harmonics (:data:`HARMONIC_RATIOS`), the photos were framed at different scales (or
+    show different fabrics): :class:`PhotoError`; within FRAMING_REFUSE, or with less evidence, a
+    warning.
     """
     peaks_r, peaks_t = yarn_peaks(reflection), yarn_peaks(transmission)
     info = {"reflection": [list(p[:2]) for p in peaks_r], "transmission": [list(p[:2]) for p in peaks_t],
@@ -316,27 +311,30 @@ def check_framing_frequency(reflection: np.ndarray, transmission: np.ndarray, na
     info["scale"] = scale
     if score_at_one >= 0.5 * score and score_at_one > 0:
         return [], info
+    return _framing_verdict(label, peaks_r, peaks_t, scale, matched), info
+
+
+def _framing_verdict(label: str, peaks_r: Sequence, peaks_t: Sequence, scale: float, matched: int) -> list[str]:
+    """The warning for a pair whose lattices agree best at ``scale`` (``matched`` peaks), or
+    :class:`PhotoError` where that is clearly a different framing (:func:`check_framing_frequency`)."""
     dominant = (f"dominant yarn frequencies {_describe_peak(peaks_r[0])} (reflection) and "
                 f"{_describe_peak(peaks_t[0])} (transmission)")
     if matched == 0:
         return [f"{label}: the yarn patterns share no spectral peak ({dominant}): check that both photos show the "
-                "same fabric at the same scale"], info
+                "same fabric at the same scale"]
     zoom = f"the transmission photo's yarn lattice matches the reflection's magnified {scale:.2f}x"
     agree = f"{matched} matching peak{'s' if matched != 1 else ''}"
-    # Refused only on REFUSE_MATCHES peaks agreeing on a ratio that is not harmonic: a photo may show
-    # 2f where the other shows f (same lattice, same framing), and where the yarns have 2-3 px each
-    # their harmonics alias to low frequencies that differ between the photos; one such peak matched
-    # at a chance ratio refused 1 of 50 photo-like pairs (set seed 31), and a plain weave at 0.5x
-    # another.
+    # Refused only on REFUSE_MATCHES peaks agreeing on a ratio that is not harmonic: one photo may show 2f
+    # where the other shows f, and a dense weave's aliased harmonics can match a peak at a chance ratio.
     strong = matched >= REFUSE_MATCHES and not _harmonic(scale)
     if abs(math.log(scale)) <= math.log(1 + FRAMING_REFUSE):
         return [f"{label}: {zoom} ({agree}; {dominant}): the photos may be framed at slightly "
-                "different scales"], info
+                "different scales"]
     if not strong:
         return [f"{label}: {zoom} ({agree}; {dominant}): the photos may be framed at different scales, "
                 f"but the evidence is weak (fewer than {REFUSE_MATCHES} peaks, or a harmonic ratio the same lattice "
                 "can show, perhaps with the phone moved between the shots); "
-                "check the framing if the fit looks wrong"], info
+                "check the framing if the fit looks wrong"]
     raise PhotoError(f"{label}: the photos are framed differently: {zoom} ({agree}; {dominant}), more "
                      f"than {FRAMING_REFUSE:.0%} off; the same fabric on the same stand shows the same yarn density "
                      "in both photos")

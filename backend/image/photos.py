@@ -113,9 +113,7 @@ class PhotoPair:
         cropped to what the fit saw (:meth:`seen_boxes`: outside it a carried-back re-render is made up).
 
         Compared magnified instead, a moved photo flatters the comparison: the resampling (bilinear)
-        takes off the fine grain and noise a re-render lacks (measured on the dev real twill1, the
-        reflection magnified 1.148x: spectrum correlation .680 against the magnified photo, .533
-        against the photo as taken)."""
+        takes off the fine grain and noise a re-render lacks."""
         photos, renders = framed
 
         def seen(image, box):

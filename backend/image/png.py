@@ -1,5 +1,4 @@
-"""Writing the project's images: RGB float in [0, 1] -> 8/16-bit PNG (re-renders, reports), or an
-8-bit JPEG."""
+"""Writing the project's images: RGB float in [0, 1] -> 8/16-bit PNG (re-renders, reports)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,22 +14,13 @@ def to_numpy(image) -> np.ndarray:
     return np.asarray(image, dtype=np.float64)
 
 
-def _write(path: str | Path, image, bits: int, params: list[int]) -> Path:
+def write_png(path: str | Path, image, bits: int = 16) -> Path:
+    """Writes an RGB image in [0, 1] as an 8- or 16-bit PNG (values are clipped)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     rgb = np.clip(to_numpy(image), 0.0, 1.0)
     top = 65535 if bits == 16 else 255
     data = np.round(rgb * top).astype(np.uint16 if bits == 16 else np.uint8)
-    if not cv2.imwrite(str(path), np.ascontiguousarray(data[..., ::-1]), params):
+    if not cv2.imwrite(str(path), np.ascontiguousarray(data[..., ::-1])):
         raise OSError(f"{path}: could not write the image")
     return path
-
-
-def write_png(path: str | Path, image, bits: int = 16) -> Path:
-    """Writes an RGB image in [0, 1] as an 8- or 16-bit PNG (values are clipped)."""
-    return _write(path, image, bits, [])
-
-
-def write_jpeg(path: str | Path, image, quality: int) -> Path:
-    """Writes an RGB image in [0, 1] as an 8-bit JPEG of ``quality`` (0-100)."""
-    return _write(path, image, 8, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])

@@ -1,10 +1,10 @@
 """Registering a photo pair: one framing for both photos, so that one yarn lattice explains both.
 
 The two photos are taken by hand, one after the other; the phone moves a little between them, and
-the same fabric can show its lattice magnified and turned by a few percent in one of them (the dev
-real pair twill1: 14.7 % and 1.1 degrees). The model has one framing for both; fitted as they are,
-no lattice fits both photos and the fit washes the weave out to a compromise. The map between the
-two lattices is linear in frequency:
+the same fabric can show its lattice magnified and turned by several percent and a degree in one
+of them. The model has one framing for both; fitted as they are, no lattice fits both photos and
+the fit washes the weave out to a compromise. The map between the two lattices is linear in
+frequency:
 
     k_R = A k_T          (cycles per image, fx to the right, fy down the image; A is 2 x 2)
 
@@ -24,11 +24,9 @@ M^T k):
 under MAX_RESIDUAL cycles (RMS), and a map that moves the matched peaks by more than MIN_SHIFT
 cycles and by more than SHIFT_OVER_RESIDUAL times the residual (RMS). One sample's non-uniform yarn
 spacing alone moves the fitted map off the identity: the two photos weigh different parts of the
-fabric (the reflection its lit top, the transmission its glowing centre); on 37 dev golden and
-photo-like pairs (one framing for both photos, yarn spacing non-uniform by 1-3 %) the shift stays
-under 1.6 cycles, on the dev real twill1 (14.7 % apart) it is 18. A magnification past
-MAX_MAGNIFICATION is left alone (the framing check refuses such a pair, or has called its ratio one
-of the lattice's own harmonics).
+fabric (the reflection its lit top, the transmission its glowing centre), by a cycle or two where
+a moved phone shifts the peaks by many. A magnification past MAX_MAGNIFICATION is left alone (the
+framing check refuses such a pair, or has called its ratio one of the lattice's own harmonics).
 """
 from __future__ import annotations
 
@@ -41,14 +39,14 @@ import numpy as np
 from ..core.threads import ordered_map
 from .spectrum import spectral_peaks
 
-START_TOLERANCE = 0.03
-MATCH_CYCLES = 1.0
-ROUNDS = 4
-MIN_MATCHES = 4
-MAX_RESIDUAL = 0.75
-MIN_SHIFT = 3.0
-SHIFT_OVER_RESIDUAL = 2.0
-MAX_MAGNIFICATION = 1.2
+START_TOLERANCE = 0.03      # relative: first matches, at the framing check's scale
+MATCH_CYCLES = 1.0          # cycles per image: later matches, around the fitted map's prediction
+ROUNDS = 4                  # refits of the map after the first
+MIN_MATCHES = 4             # peaks a map needs to be trusted (it has four unknowns)
+MAX_RESIDUAL = 0.75         # cycles (RMS): matched peaks must agree with one linear map
+MIN_SHIFT = 3.0             # cycles (RMS): smaller moves are the fabric's own uneven spacing
+SHIFT_OVER_RESIDUAL = 2.0   # the move must stand clear of the map's own misfit
+MAX_MAGNIFICATION = 1.2     # beyond: a framing the check refuses, or a harmonic of the lattice
 
 
 @dataclass(frozen=True)

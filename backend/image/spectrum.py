@@ -61,7 +61,7 @@ def peakness(image: np.ndarray, pad: int = 2, blur: float = 1.0) -> np.ndarray:
     h, w = y.shape
     spectrum = np.abs(np.fft.fft2(y, s=(h * pad, w * pad))) ** 2
     logp = np.log(np.fft.fftshift(spectrum) + 1e-12)
-    # float32: OpenCV's wide blur is 4x faster on it (0.23 vs 0.86 s at 2048 px), within 1e-6 of float64
+    # float32: OpenCV's wide blur is several times faster on it, within 1e-6 of float64
     background = cv2.GaussianBlur(logp.astype(np.float32), (0, 0), 6 * pad)
     excess = np.clip(logp - background, 0.0, None)
     return cv2.GaussianBlur(excess, (0, 0), blur * pad) if blur > 0 else excess
@@ -74,8 +74,13 @@ class Peak:
     strength: float  # peakness (log power above the local background)
 
 
-def spectral_peaks(image: np.ndarray, count: int = 24, threshold: float = 2.5, pad: int = 4) -> list[Peak]:
-    """The strongest isolated spectral peaks (half plane), with sub-bin positions."""
+PEAK_PAD = 4          # zero-padding of the peaks' FFT: a quarter-bin grid before the sub-bin fit
+PEAK_THRESHOLD = 2.5  # peakness a local maximum needs to count as a peak at all
+
+
+def spectral_peaks(image: np.ndarray, count: int = 24) -> list[Peak]:
+    """The ``count`` strongest isolated spectral peaks (half plane), with sub-bin positions."""
+    pad, threshold = PEAK_PAD, PEAK_THRESHOLD
     q = peakness(image, pad=pad, blur=0.0).astype(np.float32)
     size = image.shape[0]
     local_max = q >= cv2.dilate(q, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8))
@@ -99,9 +104,9 @@ EULER_GAMMA = 0.5772156649015329
 NOISE_FALSE_ALARM = 1e-6  # the chance that a photo of noise alone shows a peak above chance_peakness
 
 
-def chance_peakness(size: int, false_alarm: float = NOISE_FALSE_ALARM) -> float:
+def chance_peakness(size: int) -> float:
     """The peakness that the strongest bin of a spectrum of noise alone (a ``size`` x ``size`` image)
-    exceeds with probability ``false_alarm``.
+    exceeds with probability :data:`NOISE_FALSE_ALARM`.
 
     Where the image holds only noise, the power of a bin is its local mean times E, E ~ Exp(1) (a
     chi-square of 2 degrees of freedom, halved), and the mean of log E is -gamma (Euler's constant),
@@ -110,12 +115,11 @@ def chance_peakness(size: int, false_alarm: float = NOISE_FALSE_ALARM) -> float:
 
         P(max > s) = 1 - (1 - exp(-exp(s - gamma)))^n ~ n exp(-exp(s - gamma)),
 
-    so s = gamma + ln ln(n / false_alarm): 3.82 at 512 px, 3.92 at 2048. A phone's noise is not
-    white (JPEG, demosaicing), so the level was checked on photos: those that show their weave have
-    sharpest peaks of 4.07-13.7 (dev real satin1's transmission 4.21), the photo-like photos of dense
-    plains behind the phone's blur that show none 3.02-3.49 (seeds 7, 23, 53, 97)."""
+    so s = gamma + ln ln(n / NOISE_FALSE_ALARM): 3.82 at 512 px, 3.92 at 2048. A phone's noise is not
+    white (JPEG, demosaicing), so the level was checked on photos: those that show their weave stand
+    above it, dense weaves lost behind a phone's blur below it."""
     bins = size * size / 2
-    return EULER_GAMMA + math.log(math.log(bins / false_alarm))
+    return EULER_GAMMA + math.log(math.log(bins / NOISE_FALSE_ALARM))
 
 
 def shows_weave(peaks: list[Peak], size: int) -> bool:

@@ -22,8 +22,8 @@ import numpy as np
 GAMMA = 2.2
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear RGB
 
-AUTO_EXPOSURE_PERCENTILE = 99.0
-AUTO_EXPOSURE_LEVEL = 0.5
+AUTO_EXPOSURE_PERCENTILE = 99.0  # the bright end of a photo, short of its few clipped highlights
+AUTO_EXPOSURE_LEVEL = 0.5        # where that percentile goes: the renders' level, with headroom
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:

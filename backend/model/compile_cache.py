@@ -2,9 +2,8 @@
 
 torch's own default is ``<temp>/torchinductor_<user>``, which a reboot empties on Linux (/tmp is
 often a tmpfs), macOS's clean-up of unused temporary files empties after a few days, and Windows'
-Storage Sense may empty too. Every fit after that compiles again: a 512-px photo-like fit took
-166 s on a cold cache against 140 s on a warm one (one C++ compile of about 25-35 s per working
-size), and the first example fit 81 s against 42 s.
+Storage Sense may empty too. Every fit after that compiles again, a C++ compile of tens of seconds
+per working size.
 
 So the kernels go to the user's cache folder instead:
 
@@ -20,11 +19,9 @@ stale kernels.
 The compiled backward is kept there too (:func:`allow_cached_custom_gradients`): the BSDF's
 phi(y) = (1 - exp(-y)) / y has a hand-written derivative (a ``torch.autograd.Function``,
 :func:`backend.model.spongecake.one_minus_exp_over`), and AOTAutograd's cache skips any graph
-holding one unless told otherwise, so each process traced the forward and backward graphs anew:
-about 4-5 s at every fit's start (the first compiled forward + backward at 512 px, 4 spp, warm
-cache: 6.5-8.9 s against 2.8-4.2 s). The same phi as plain tensor operations would be cached by
-default, but its compiled steps measured slower (by how much is uncertain: step times on the
-2-core development machine vary by up to 45 % from one process to the next).
+holding one unless told otherwise, so each process would trace the forward and backward graphs
+anew, seconds at every fit's start. The same phi as plain tensor operations would be cached by
+default, but its compiled steps are slower.
 """
 from __future__ import annotations
 

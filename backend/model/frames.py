@@ -21,15 +21,9 @@ def cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
                         a[0] * b[1] - a[1] * b[0]))
 
 
-def normalize(a: torch.Tensor, eps: float = 1e-20) -> torch.Tensor:
-    """a / |a|; a zero vector stays (near) zero instead of becoming NaN."""
-    return a * torch.rsqrt(dot(a, a).clamp_min(eps))
-
-
-def vec3(x, y, z, like: torch.Tensor) -> torch.Tensor:
-    """Stacks three components (tensors or numbers) into a (3, *batch) field shaped like `like`."""
-    parts = [c if isinstance(c, torch.Tensor) else torch.full_like(like, float(c)) for c in (x, y, z)]
-    return torch.stack(torch.broadcast_tensors(*parts))
+def normalize(a: torch.Tensor) -> torch.Tensor:
+    """a / |a|; a zero vector stays (near) zero instead of becoming NaN (|a|^2 is floored at 1e-20)."""
+    return a * torch.rsqrt(dot(a, a).clamp_min(1e-20))
 
 
 def safe_sqrt(x: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:

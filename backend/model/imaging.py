@@ -53,12 +53,9 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
       (n^3 per plane) is the same at any radius, where a convolution's grows with it (the spectrum's
       16-px high-pass has 97 taps at 512 px);
     - a depthwise convolution of the mirror-padded image, rows then columns (:func:`_convolved`),
-      for colour images whose kernel has at most CONV_TAPS_PER_PIXEL taps per pixel of the side.
-      Measured forward + backward, (512, 512, 3), 2 cores: 25-32 ms against 61-65 ms for the
-      products at sigma 0.5-4 px (the camera's blur at 512 px: about 10 % of a fit's step there);
-      at 256 px 6-10 ms against 9-13; at 1024 px 95-121 ms against 460. On one plane (the
-      spectrum's blurs) PyTorch's convolution is slower than the products (18-138 ms against 20 at
-      512 px), so a single channel keeps the products.
+      for colour images whose kernel has at most CONV_TAPS_PER_PIXEL taps per pixel of the side:
+      faster for the camera's short kernels. On a single plane (the spectrum's blurs) PyTorch's
+      convolution is the slower, so one channel keeps the products.
     """
     if sigma <= NO_BLUR_PX:
         return image
@@ -90,8 +87,7 @@ def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
     radius = blur_radius(2.0 * as_float(sigma), min(image.shape[0], image.shape[1]) - 1)
     # The blur and the 2 x 2 mean in one kernel (the Gaussian's taps convolved with (1/2, 1/2)),
     # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, and the whole
-    # blurred sub-pixel image is never made (1024 px, 0.9 px, 2 cores: 30-60 ms forward against 90-140,
-    # 100-170 ms with the backward against 290-300).
+    # blurred sub-pixel image is never made.
     if isinstance(sigma, torch.Tensor):
         taps = gaussian_taps(2.0 * sigma, radius, image.dtype)
         return _convolved(image, 0.5 * (F.pad(taps, (1, 0)) + F.pad(taps, (0, 1))), radius, stride=2)
@@ -110,9 +106,9 @@ def _pooled(image: torch.Tensor) -> torch.Tensor:
 
 def gaussian_blur_products(image: torch.Tensor, sigma: float) -> torch.Tensor:
     """:func:`gaussian_blur` always by the matrix products ``B_H @ plane @ B_W^T``: the photo-like
-    benchmark's phone (:mod:`.phone`) blurs this way, so that its images stay bit-identical to those
-    of earlier versions (the convolution's rounding moves a few of their JPEG pixels by up to 3
-    levels, and a placement on the edge of a decision with them)."""
+    benchmark's phone (:mod:`devtools.phone`) blurs this way, so that its images stay bit-identical
+    to those of earlier versions (the convolution rounds differently, which moves a few of their
+    JPEG pixels)."""
     if sigma <= NO_BLUR_PX:
         return image
     height, width = image.shape[0], image.shape[1]

@@ -3,9 +3,9 @@ lamps do not model.
 
 A phone photo of the rig is never lit exactly as the rig says: the lamps are not ideal points, the
 holder and the diffuser shade, the phone's own lens shading is not the rig's vignetting. What that
-leaves is a smooth gain across each photo (on the dev real pairs a render of the best fit and the
-photo differ by a log-brightness tilt of up to about 0.2 across the reflection photo). Each photo
-gets a gain on its linear radiance, after the camera blur and before the display transform:
+leaves is a smooth gain across each photo (a render of the best fit and a real photo differ by a
+tilt in log brightness across the reflection photo). Each photo gets a gain on its linear radiance,
+after the camera blur and before the display transform:
 
     L'(x, y) = L(x, y) exp(c_x x + c_y y + c_r (x^2 + y^2 - mean(x^2 + y^2)))
 

@@ -3,33 +3,22 @@
     pixel radiance   = mean over the pixel's samples of  BSDF * intensity / distance^2
                        (+ glow * fraction of samples seeing no yarn, transmission only)
     displayed value  = min(gain * blur(radiance), clamp) ** (1 / gamma) * vignette
-                       (blur: the rig's camera point spread, a Gaussian; none by default; gain: the
-                       photos' light falloff, :mod:`.photo_light`, when a fit has found one)
 
-Renders made to be looked at (:func:`render_pair`: a fit's re-renders, the ``render`` command) blur
-as a camera does, the light before the sensor integrates it over each pixel (as the photo-like
-benchmark's phone does, :mod:`.phone`): with ``k x k`` stratified samples per pixel, k even, the
-samples of each quarter of a pixel make a sub-pixel image at twice the size, which is blurred there
-and then averaged 2 x 2 (``subpixel_blur=True``, :func:`subpixel_size`,
-:func:`backend.model.imaging.subpixel_blur`). Blurring the pixel means instead leaves the aliases
-of a dense weave's harmonics above the pixels' Nyquist frequency as a false lattice that the optics
-would have taken off: the dev real fits' re-renders from the same samples against the photos,
-spectrum correlation .535 -> .588 (twill1's reflection), .712 -> .742 (twill2's), FLIP and colour
-within .0002. A fit's own renders blur the pixel means (the default): with sub-pixel images at
-every step a fit of the dev real twills took 42 % longer (178 -> 253 s, 196 -> 280 s), and the
-three pairs' fits traded reflection for transmission (spectrum correlation .647 -> .664 and
-.649 -> .636, reflection FLIP .117 -> .121). Other sample counts blur the pixel means.
-``subpixel_blur=None`` (``fit --blur-on auto``) takes the sub-pixels only for blurs under
-:data:`AUTO_SUBPIXEL_BELOW_PX`: on the seed-53 photo-like set's four plains (2.2-2.8 px per yarn) the
-thickness error 1.14 -> 0.30, roughness .042 -> .031, novel-light colour .016 -> .011, and 25-45 %
-longer optimisations (on the held-out seed-7 set's plains, three of four fitted at blurs over the
-threshold and are unchanged; plain_010, fitted as satin1 on the pixel means, is fitted plain,
-roughness error .243 -> .052, thickness 2.03 -> .31); its 16 twills and satins fitted alike
-(roughness .0735 -> .0723, thickness .326 -> .349); the dev real pairs' spectrum correlation .659 ->
-.657 (R), .660 -> .632 (T), twill1's fit 93 -> 132 s; with sub-pixels at every blur (``True``)
-twill1's fit is the same as with auto (transmission spectrum .678 -> .614, camera blur .89 -> .74
-px): the sub-pixel imaging, not auto's threshold (where the loss steps as the blur crosses it). So
-the pixel means stay the default.
+with blur the rig's camera point spread (a Gaussian; none by default) and gain the photos' light
+falloff (:mod:`.photo_light`) when a fit has found one.
+
+Where the blur acts. A camera blurs the light before the sensor integrates it over each pixel. With
+``k x k`` stratified samples per pixel, k even, the samples of each quarter of a pixel make a
+sub-pixel image at twice the size, which is blurred there and then averaged 2 x 2
+(``subpixel_blur=True``, :func:`subpixel_size`, :func:`backend.model.imaging.subpixel_blur`): the
+blur takes off a dense weave's harmonics above the pixels' Nyquist frequency before they alias into
+a false lattice. Blurring the pixel means instead (``False``, the default) is cheaper and leaves
+that alias damped only by the blur. Renders made to be looked at
+(:func:`render_pair`: a fit's re-renders, the ``render`` command) use the sub-pixels; a fit's own
+renders the pixel means, since sub-pixels at every step make a fit markedly slower without fitting
+real photos better. ``None`` (``fit --blur-on auto``) takes the sub-pixels only for blurs under
+:data:`AUTO_SUBPIXEL_BELOW_PX`, too narrow to damp the pixel means' aliases. Other sample counts
+blur the pixel means.
 
 Work is split into chunks of film rows (``max_chunk_samples`` samples each) so that memory stays
 bounded at any resolution and sample count; when gradients are needed over several chunks each
@@ -38,29 +27,43 @@ chunk is checkpointed (recomputed in the backward pass) instead of keeping its i
 For optimisation, a :class:`Renderer` keeps its camera samples (the fixed jitter) and the
 geometry of the last few discrete states (pattern, tiles, gap scale, twist), so an iteration
 only evaluates the differentiable BSDF. With ``compile=True`` that evaluation is fused by
-``torch.compile`` when gradients are wanted (forward and backward 2-3x faster on the CPU, see
-:meth:`Renderer._terms`, once a compile of 25-45 s is paid, a few seconds once it is cached on disk:
-:mod:`.compile_cache`); ``compile=None`` compiles only where a C++ compiler is found, and any
-compile failure falls back to the eager path with a warning. ``WFC_COMPILE=0`` or ``1`` in the
-environment overrides the automatic choice.
+``torch.compile`` when gradients are wanted (several times faster on the CPU once the compile is
+paid; the kernels are cached on disk, :mod:`.compile_cache`), and any compile failure falls back to
+the eager path with a warning. Whether to compile is the caller's choice: the fit command's is made
+from the machine and the environment by :mod:`backend.app.environment`.
 
 Renders without gradients (a fit's starting points, scans and discrete steps) go through the same
 compiled graph once it is known which inputs need gradients (``gradient_inputs``, which a fit
 declares, or else those of the last render with gradients): the inputs are given that pattern and
 grad mode is on, so nothing compiles again, and the outputs are detached (nothing is kept for a
 backward pass). Before that, and in renderers that never take gradients (the final re-renders, the
-placement's signatures), they stay eager: a graph of their own would cost a second
-compile per working size, about 25 s on a cold cache (measured when it was tried: a photo-like 512-px
-fit 166 s instead of 199 s on a cold cache). Through the gradient graph the BSDF's forward at 512 px
-and 4 spp takes 123 ms against 400 ms eager (``bench render``), and a fit of the dev real twill2
-(about 100 such renders) 159 s instead of 171-176 s (one session, 2 cores, warm compile caches).
+placement's signatures), they stay eager: a graph of their own would cost a second compile per
+working size.
+
+Parameters of :class:`Renderer`:
+
+    ==================  ====================  ==================================================
+    rig                 CaptureRig            the rig rendered (the paper's)
+    size                px (512)              side of the image; smaller is a downsample of the film
+    spp                 (4)                   samples per pixel (k x k stratified, any more uniform)
+    seed                (0)                   the camera jitter's seed: one fixed jitter per seed
+    options             RenderOptions         the model variant (the full model)
+    device, dtype       ("cpu", float32)      where and in which precision to render
+    max_chunk_samples   (2^20)                samples per chunk of film rows: bounds the memory
+    cache_samples       (2^21)                renders of at most this many samples keep their
+                                              camera samples and geometry from call to call
+    geometry_cache      (4)                   discrete states whose geometry is kept
+    compile             bool (False)          fuse the BSDF's evaluation with ``torch.compile``
+    subpixel_blur       True/False/None       where the camera blur acts (above; False)
+    gradient_inputs     names (None)          the parameters a fit differentiates; None: those of
+                                              the last render with gradients
+    warp                SpacingWarp (None)    the photos' uneven yarn spacing (:mod:`.spacing_warp`)
+    ==================  ====================  ==================================================
 """
 from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import shutil
 import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -92,19 +95,6 @@ class RenderedPair:
     transmission_radiance: torch.Tensor
 
 
-def compile_available() -> bool:
-    """Whether the renderer compiles: ``WFC_COMPILE=0`` or ``1`` decides, else :func:`compiler_found`."""
-    forced = os.environ.get("WFC_COMPILE")
-    if forced in ("0", "1"):
-        return forced == "1"
-    return compiler_found()
-
-
-def compiler_found() -> bool:
-    """Whether torch.compile can build CPU kernels here (it needs a C++ compiler)."""
-    return any(shutil.which(c) for c in (os.environ.get("CXX", "g++"), "c++", "clang++"))
-
-
 # Where a Renderer's subpixel_blur is None (auto), blurs of this many render pixels and wider act on
 # the pixel means. Not alias-free: there the false lattice of an alias at 1 - f is damped to G(1 - f)
 # (the worst, f near 1, to about 0.1 / sigma of the harmonic's amplitude), a trade against the cost
@@ -119,14 +109,14 @@ def subpixel_size(spp: int) -> int:
     return k // 2 if k * k == spp and k % 2 == 0 else 0
 
 
-# Inductor's cap on the nodes fused into one kernel (default 64). Under it, the BSDF's backward wrote
-# about 90 per-sample buffers in one loop and read them back in reductions of 16 parameters' sums
-# each; at 256 the reductions recompute them instead. The gradients are bit-identical (the same sums
-# in the same order). At 512 px and 4 spp the compiled backward took 57-63 ms instead of 133-152, a
-# whole Adam step 306 ms instead of 407 (median of 40, interleaved in one process), and a fit of
-# photo-like satin1m_009 (seed 67) the same parameters with its 120 steps 35.5 s instead of 44.6;
-# the cold compile stayed 37-39 s. 128 fused too little to gain.
+# Inductor's cap on the nodes fused into one kernel (default 64). At 256 the BSDF's backward recomputes
+# its per-sample values inside its reductions instead of writing and reading back about 90 buffers:
+# faster, and the gradients are bit-identical (the same sums in the same order).
 COMPILE_OPTIONS = {"max_fusion_size": 256}
+
+# Samples per block of rows on the eager path: small enough for a block's tensors to stay in the CPU's
+# caches from one operation to the next.
+EAGER_BLOCK_SAMPLES = 1 << 17
 
 
 class Renderer:
@@ -135,11 +125,11 @@ class Renderer:
     def __init__(self, rig: CaptureRig = DEFAULT_RIG, size: int = 512, spp: int = 4, seed: int = 0,
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
-                 compile: bool | None = False, block_samples: int = 1 << 17, subpixel_blur: bool | None = False,
+                 compile: bool = False, subpixel_blur: bool | None = False,
                  gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
-        self.size, self.spp, self.block_samples = size, spp, block_samples
+        self.size, self.spp = size, spp
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
@@ -159,8 +149,6 @@ class Renderer:
         if self.glow is not None and self.subpixel:
             fine = CameraSamples(rig, 2 * size, 1, seed, self.device, dtype)
             self._glow_fine = fine.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
-        if compile is None:
-            compile = compile_available()
         if compile:
             use_persistent_compile_cache()
             allow_cached_custom_gradients()
@@ -206,8 +194,8 @@ class Renderer:
     def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> SampleProjections:
         """The chunk's projections in the state ``key``, kept for the last few states rendered; a new
         state at another twist of a kept one computes only what the twist changes (the fiber
-        directions' projections, :func:`.projections.retwisted`): a discrete search's twist steps
-        (17 of a photo-like fit's 76 new states, 0.11-0.12 s each instead of 0.16-0.21 s)."""
+        directions' projections, :func:`.projections.retwisted`): a discrete search tries several
+        twists on each lattice and gap scale."""
         cache_key = (key, rows)
         if cache_key in self._geometry:
             self._geometry.move_to_end(cache_key)
@@ -312,7 +300,7 @@ class Renderer:
         """:meth:`_pixels` in blocks of rows small enough for the CPU's caches: every eager operation
         reads and writes whole tensors, and a block's tensors stay in cache from one to the next."""
         rows = samples.no_yarn.shape[0] // (self.size * self.spp)
-        step = max(1, self.block_samples // (self.size * self.spp))
+        step = max(1, EAGER_BLOCK_SAMPLES // (self.size * self.spp))
         if step >= rows:
             return self._pixels(samples, self._terms(samples, fabric), glow, fine)
         scale = 2 if fine else 1  # glow rows per film row
@@ -329,9 +317,7 @@ class Renderer:
         the compiled graph fuses; the average over each pixel's samples stays outside it, because
         with fewer samples per pixel than a vector register holds (4 at 512 px) the backward of that
         average, fused in, indexes sample s at pixel s // spp and inductor falls back to scalar code
-        for the whole BSDF. Measured with ``bench render`` (forward + backward, 2 cores): 490 ms
-        fused against 268 ms like this at 512 px and 4 spp (eager: 580-690 ms); about 200 ms
-        either way at 256 px and 16 spp."""
+        for the whole BSDF."""
         reflection, transmission = eval_projected(samples, fabric, self.options)
         return reflection.colours, reflection.weights, transmission.colours, transmission.weights
 

@@ -32,10 +32,7 @@ def local_frame(layer: Layer, twist_rad: tuple[float, float]) -> tuple[torch.Ten
 
     Each world component is picked once from the local frame's (a weft's swapped, flat segments'
     and gaps' constants) rather than by whole-vector selects: a new discrete state of a fit computes
-    this for every sample of both layers, and its passes over memory are most of the state's cost
-    (this, with one turn per layer in :func:`.geometry.turned`, lazily picked ids and the float32 z
-    products of :mod:`.projections`, took a state's geometry at 512 px and 4 spp from 0.29-0.40 s to
-    0.23-0.24 s, with the same numbers)."""
+    this for every sample of both layers, and its passes over memory are most of the state's cost."""
     angles = _Angles.of(layer)
     return _normal(angles), _fiber(angles, twist_rad)
 

@@ -19,9 +19,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+from backend.app.environment import compiler_found
 from backend.app.folder import make_example
 from backend.core.params import PARAMETERS
-from backend.model.render import compiler_found
 
 from .fit import run_fit
 from .ledger import NOT_RECORDED, Ledger

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from backend.app.environment import renderer_compiles
 from backend.core import priors
 from backend.core.params import FabricParams
 from backend.core.rig import DEFAULT_RIG
@@ -152,7 +153,8 @@ def _reach(trace, level: float) -> tuple[int | None, float | None]:
 
 def evaluate_fits(model: init_net.InitModel, folder: str | Path, names: list[str] | None, iterations: int | None,
                   log=sys.stderr, ledger: Ledger = NOT_RECORDED) -> dict:
-    settings = FitSettings() if iterations is None else FitSettings(iterations=iterations)
+    settings = FitSettings(compile=renderer_compiles()) if iterations is None else FitSettings(
+        iterations=iterations, compile=renderer_compiles())
     rows, true_patterns = [], {}
     for name, r_path, t_path, truth in golden_cases(folder):
         if names and name not in names:

@@ -23,6 +23,7 @@ import time
 
 import torch
 
+from backend.app.environment import renderer_compiles
 from backend.core.params import PARAMETERS, FabricParams
 from backend.model.memory import peak_memory_mb
 from backend.model.param_tensors import ParamTensors
@@ -80,7 +81,7 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
 
     # The compiled path first: the process peak after it is its own (the eager path keeps far more
     # tensors for the backward pass, and a peak never goes down).
-    compiled_renderer = Renderer(size=size, spp=spp, device=device, compile=None)
+    compiled_renderer = Renderer(size=size, spp=spp, device=device, compile=renderer_compiles())
     fast = _measure(compiled_renderer, fabric, runs, device) if compiled_renderer.compiled else None
     fast_peak = peak_memory_mb(device)
     del compiled_renderer  # free its caches before the eager run

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from backend.app.cli.common import positive_int
+from backend.app.environment import renderer_compiles
 from backend.core import priors
 
 from ..dataset import DatasetSettings, generate
@@ -14,7 +15,8 @@ def run_dataset(args) -> int:
     settings = DatasetSettings(size=args.size, spp=args.spp, seed=args.seed, photo_scale=args.photo_scale)
     try:
         generate(args.out, args.per_pattern, args.workers, settings,
-                 compile={"auto": None, "on": True, "off": False}[args.compile], patterns=tuple(args.patterns))
+                 compile={"auto": renderer_compiles(), "on": True, "off": False}[args.compile],
+                 patterns=tuple(args.patterns))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
