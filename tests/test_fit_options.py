@@ -91,7 +91,7 @@ def test_the_default_options_give_the_default_fit_settings():
     settings = {f.name for f in dataclasses.fields(FitSettings)}
     targets = [o.setting for o in FIT_OPTIONS if o.setting]
     assert set(targets) <= settings and len(set(targets)) == len(targets)
-    assert fit_settings(FolderFitOptions(), DEFAULT_RIG) == FitSettings()
+    assert fit_settings(FolderFitOptions(), DEFAULT_RIG) == FitSettings(compile=renderer_compiles())
 
 
 def test_the_options_without_a_setting_are_read_by_the_job():
