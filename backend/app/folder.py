@@ -11,7 +11,9 @@ overwritten without ``overwrite``.
 
 params.json is written as soon as the fit ends, before anything optional: a failure in the
 re-renders, metrics or report afterwards is a warning (with its traceback on stderr) and loses
-nothing; the run still ends with its result.
+nothing; the run still ends with its result. Each file is written whole or not at all (a temporary
+file renamed over it: :func:`backend.core.jsonfile.replacing`), so a fit killed midway leaves no
+half-written file in the folder.
 
 :func:`fit_reporting` is the command's contract around it: progress through a
 :class:`~backend.core.protocol.Reporter`, every failure one protocol error line and an exit code (2
@@ -37,6 +39,7 @@ import torch
 
 from .. import __version__
 from ..core.fit_options import FIT_OPTIONS, FitOptionError, check_values
+from ..core.jsonfile import replacing, write_whole
 from ..core.params import PARAMETERS, FabricParams
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig, RigError
@@ -108,8 +111,7 @@ def fit_reporting(reflection: str | Path | None, transmission: str | Path | None
             message = (f"the fit was cancelled after it ended: its parameters are in {written['params']}; "
                        "the re-renders, metrics or report may be missing")
         elif cancelled.params is not None and out.is_dir():
-            (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True)
-                                                     + "\n")
+            write_whole(out / "params.partial.json", cancelled.params.to_json(version=__version__, partial=True) + "\n")
             message = "the fit was cancelled; the best parameters so far are in params.partial.json"
         else:
             message = "the fit was cancelled before any result"
@@ -196,7 +198,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
-    (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
+    write_whole(out / "params.json", result.params.to_json(**extra) + "\n")
     written["params"] = str(out / "params.json")
 
     # Everything below is optional: a failure is a warning, params.json stays.
@@ -223,7 +225,9 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                                 render_progress)
         framed = photos.in_own_framing(images)  # (photos, re-renders), each in its photo's framing
         for name, image in zip(("reflection", "transmission"), framed[1]):
-            written[name] = str(write_png(out / f"{name}.png", image))
+            with replacing(out / f"{name}.png") as temporary:
+                write_png(temporary, image)
+            written[name] = str(out / f"{name}.png")
         return framed
 
     framed = optional("the re-renders (and so the metrics and report)", write_renders)
@@ -264,7 +268,7 @@ def _write_metrics(out: Path, photos, framed, result, rig: CaptureRig, settings:
                "compared_region": dict(zip(("reflection", "transmission"), map(list, photos.seen_boxes())))}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_whole(out / "metrics.json", json.dumps(summary, indent=2) + "\n")
     return metrics
 
 

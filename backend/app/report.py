@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..core.jsonfile import replacing
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.photo_light import PhotoLight
@@ -141,6 +142,7 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
         canvas[crop_top + LINE: crop_top + LINE + CROP_PANEL, x:x + CROP_PANEL] = panel
         _text(canvas, label, x + 8, crop_top + LINE + CROP_PANEL - 10, 0.5)
     path = Path(path)
-    if not cv2.imwrite(str(path), canvas):
-        raise OSError(f"{path}: could not write the report")
+    with replacing(path) as temporary:
+        if not cv2.imwrite(str(temporary), canvas):
+            raise OSError(f"{path}: could not write the report")
     return path

@@ -1,7 +1,12 @@
-"""Reading a JSON file with errors that name the file and the problem (one rule for every input)."""
+"""Files in and out, whole: a JSON file read with errors that name the file and the problem (one rule
+for every input), and every output written through a temporary file renamed over it (one rule for
+every output), so that a reader never finds half a file, even when the writer is killed midway."""
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -18,3 +23,30 @@ def read_json(path: str | Path, error: type[Exception]):
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON ({exc})") from None
+
+
+@contextmanager
+def replacing(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write the new file to: renamed over ``path`` once the block
+    ends (``os.replace``, atomic within a file system), deleted where the block raises. So ``path``
+    holds the old file whole or the new one whole, never a part. The temporary keeps the suffix
+    (image writers choose the format by it) and is hidden: ``.<stem>.writing<suffix>``."""
+    path = Path(path)
+    temporary = path.with_name(f".{path.stem}.writing{path.suffix}")
+    try:
+        yield temporary
+        with open(temporary, "rb+") as written:  # on the disk before the rename: a crash keeps one whole file
+            os.fsync(written.fileno())
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+def write_whole(path: str | Path, content: str | bytes) -> Path:
+    """Writes ``content`` (text as UTF-8, line ends as given) to ``path`` through :func:`replacing`."""
+    with replacing(path) as temporary:
+        if isinstance(content, str):
+            temporary.write_text(content, encoding="utf-8", newline="")
+        else:
+            temporary.write_bytes(content)
+    return Path(path)
