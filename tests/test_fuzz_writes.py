@@ -142,3 +142,17 @@ def test_a_fit_killed_while_writing_over_an_earlier_result_leaves_each_file_whol
         assert image is not None and np.all(np.array(image.shape[:2]) > 0), name
     assert (out / killed_at).read_bytes() == before[killed_at]  # the killed write left the earlier file
     assert {p.name for p in out.iterdir() if not p.name.startswith(".")} == set(RESULT_FILES)
+
+
+def test_the_batch_catalogue_is_renamed_into_place(tmp_path, monkeypatch):
+    from backend.app.batch import catalogue
+
+    renamed, rename = [], os.replace
+    monkeypatch.setattr(os, "replace", lambda source, target: renamed.append((source, target)) or rename(source,
+                                                                                                       target))
+    rows = [catalogue.row("denim", "failed", reason="torn"), catalogue.row("linen", "pending")]
+    json_path, csv_path = catalogue.write(tmp_path, rows, {"photos": "P"})
+    assert [(os.path.basename(s), t) for s, t in renamed] == [(".catalogue.writing.json", json_path),
+                                                              (".catalogue.writing.csv", csv_path)]
+    assert [row["name"] for row in json.loads(json_path.read_text())["pairs"]] == ["denim", "linen"]
+    assert csv_path.read_bytes().count(b"\r\n") == 3  # the header and two rows, as the csv module ends them
