@@ -12,7 +12,8 @@ from pathlib import Path
 
 def read_json(path: str | Path, error: type[Exception]):
     """The parsed content of ``path``; ``error("<path>: cannot read (...)" | "<path>: not valid JSON
-    (...)")`` when it cannot be read or parsed."""
+    (...)" | "<path>: not usable JSON (...)")`` when it cannot be read or parsed, or holds more than
+    Python reads (arrays nested thousands deep, integers of thousands of digits)."""
     try:
         text = Path(path).read_text()
     except OSError as exc:
@@ -23,6 +24,10 @@ def read_json(path: str | Path, error: type[Exception]):
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise error(f"{path}: not usable JSON (arrays or objects nested too deep)") from None
+    except ValueError as exc:  # Python's limit on the digits of an integer
+        raise error(f"{path}: not usable JSON ({str(exc).split(';')[0]})") from None
 
 
 @contextmanager

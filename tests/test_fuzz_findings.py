@@ -1,0 +1,24 @@
+"""The defects the fuzz harness (devtools/fuzz, tests/test_fuzz.py) found, each now refused with one
+clear line naming the file or option and the problem (issue 91)."""
+import pytest
+
+from backend.core.jsonfile import read_json
+from backend.core.params import ParamError, load_params
+from backend.core.rig import CaptureRig, RigError
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('{"film_size": ' + "[" * 100_000 + "]" * 100_000 + "}", "not usable JSON (arrays or objects nested too deep)"),
+    ('{"film_size": ' + "9" * 5000 + "}", "not usable JSON (Exceeds the limit (4300 digits) for integer string "
+                                          "conversion: value has 5000 digits)"),
+])
+def test_json_python_cannot_hold_is_one_line_naming_the_file(tmp_path, text, problem):
+    path = tmp_path / "rig.json"
+    path.write_text(text)
+    for read in (lambda: read_json(path, RigError), lambda: CaptureRig.load(path)):
+        with pytest.raises(RigError) as error:
+            read()
+        assert str(error.value) == f"{path}: {problem}"
+    (tmp_path / "params.json").write_text(text)
+    with pytest.raises(ParamError, match=f"^{tmp_path / 'params.json'}: not usable JSON"):
+        load_params(str(tmp_path / "params.json"))
