@@ -1,9 +1,11 @@
 """The defects the fuzz harness (devtools/fuzz, tests/test_fuzz.py) found, each now refused with one
 clear line naming the file or option and the problem (issue 91)."""
+import json
+
 import pytest
 
 from backend.core.jsonfile import read_json
-from backend.core.params import ParamError, load_params
+from backend.core.params import FabricParams, ParamError, load_params
 from backend.core.rig import CaptureRig, RigError
 
 
@@ -22,3 +24,17 @@ def test_json_python_cannot_hold_is_one_line_naming_the_file(tmp_path, text, pro
     (tmp_path / "params.json").write_text(text)
     with pytest.raises(ParamError, match=f"^{tmp_path / 'params.json'}: not usable JSON"):
         load_params(str(tmp_path / "params.json"))
+
+
+def write_params(tmp_path, **changes) -> str:
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({**FabricParams().to_dict(), **changes}))
+    return str(path)
+
+
+def test_a_huge_value_is_shown_briefly_in_the_one_line(tmp_path):
+    path = write_params(tmp_path, roughness=[0.5] * 1_000_000)
+    with pytest.raises(ParamError) as error:
+        load_params(path)
+    assert str(error.value) == (f"{path}: roughness: expected a [warp, weft] pair, got [0.5, 0.5, 0.5, 0.5, 0.5, 0.5, "
+                                "0.5, 0.5, 0.5, 0.5, 0.5, 0.5,... (list of 1000000)")

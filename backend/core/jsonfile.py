@@ -30,6 +30,16 @@ def read_json(path: str | Path, error: type[Exception]):
         raise error(f"{path}: not usable JSON ({str(exc).split(';')[0]})") from None
 
 
+def shown(value, limit: int = 60) -> str:
+    """``repr(value)`` for an error message, cut to about ``limit`` characters: a value read from a
+    file may be a megabyte long, and the message must stay one readable line."""
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    size = f" ({type(value).__name__} of {len(value)})" if hasattr(value, "__len__") else ""
+    return f"{text[:limit]}...{size}"
+
+
 @contextmanager
 def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write the new file to: renamed over ``path`` once the block

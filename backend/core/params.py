@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
-from .jsonfile import read_json
+from .jsonfile import read_json, shown
 from .weave import PRESETS, Weave
 
 
@@ -137,18 +137,18 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
     """Accepts lists, tuples or numbers of the right shape; raises ParamError naming the field."""
     def numbers(seq, n, what):
         if isinstance(seq, (str, bytes)) or not hasattr(seq, "__len__") or len(seq) != n:
-            raise ParamError(f"{spec.name}: expected {what}, got {seq!r}")
+            raise ParamError(f"{spec.name}: expected {what}, got {shown(seq)}")
         out = []
         for x in seq:
             try:
                 out.append(float(x))
             except (TypeError, ValueError):
-                raise ParamError(f"{spec.name}: {x!r} is not a number") from None
+                raise ParamError(f"{spec.name}: {shown(x)} is not a number") from None
         return out
 
     if spec.per_yarn and spec.rgb:
         if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
-            raise ParamError(f"{spec.name}: expected [[warp r, g, b], [weft r, g, b]], got {value!r}")
+            raise ParamError(f"{spec.name}: expected [[warp r, g, b], [weft r, g, b]], got {shown(value)}")
         return tuple(tuple(numbers(yarn, 3, "an RGB triple per yarn")) for yarn in value)
     if spec.per_yarn:
         return tuple(numbers(value, 2, "a [warp, weft] pair"))
@@ -157,7 +157,7 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise ParamError(f"{spec.name}: expected a number, got {value!r}") from None
+        raise ParamError(f"{spec.name}: expected a number, got {shown(value)}") from None
 
 
 @dataclass(frozen=True)
@@ -192,7 +192,7 @@ class FabricParams:
             if not isinstance(self.weave, Weave):
                 raise ParamError("pattern: 'custom' needs a weave (interlacing matrix and bands)")
         elif self.pattern not in PRESETS:
-            raise ParamError(f"pattern: unknown weave {self.pattern!r}; "
+            raise ParamError(f"pattern: unknown weave {shown(self.pattern)}; "
                              f"expected one of {', '.join(PRESETS)} or 'custom'")
         for spec in PARAMETERS:
             value = _coerce(spec, getattr(self, spec.name))
