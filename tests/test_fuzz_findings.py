@@ -38,3 +38,10 @@ def test_a_huge_value_is_shown_briefly_in_the_one_line(tmp_path):
         load_params(path)
     assert str(error.value) == (f"{path}: roughness: expected a [warp, weft] pair, got [0.5, 0.5, 0.5, 0.5, 0.5, 0.5, "
                                 "0.5, 0.5, 0.5, 0.5, 0.5, 0.5,... (list of 1000000)")
+
+
+@pytest.mark.parametrize("pattern", [["plain"], {"name": "plain"}, None, 5])
+def test_a_pattern_that_is_not_a_name_is_refused(tmp_path, pattern):
+    path = write_params(tmp_path, pattern=pattern)
+    with pytest.raises(ParamError, match=rf"^{path}: pattern: expected the name of a weave, got "):
+        load_params(path)

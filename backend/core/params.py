@@ -188,6 +188,8 @@ class FabricParams:
     weave: Weave | None = None
 
     def __post_init__(self):
+        if not isinstance(self.pattern, str):
+            raise ParamError(f"pattern: expected the name of a weave, got {shown(self.pattern)}")
         if self.pattern == "custom":
             if not isinstance(self.weave, Weave):
                 raise ParamError("pattern: 'custom' needs a weave (interlacing matrix and bands)")
