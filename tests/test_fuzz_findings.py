@@ -45,3 +45,12 @@ def test_a_pattern_that_is_not_a_name_is_refused(tmp_path, pattern):
     path = write_params(tmp_path, pattern=pattern)
     with pytest.raises(ParamError, match=rf"^{path}: pattern: expected the name of a weave, got "):
         load_params(path)
+
+
+@pytest.mark.parametrize("value, shown", [("0.5", "'0.5'"), (True, "True"), (None, "None"), ({"warp": 0.5}, "{")])
+def test_a_parameter_that_is_not_numbers_is_refused(tmp_path, value, shown):
+    path = write_params(tmp_path, roughness=[0.5, value])
+    with pytest.raises(ParamError) as error:
+        load_params(path)
+    assert str(error.value).startswith(f"{path}: roughness: expected numbers, got {shown}")
+    assert FabricParams.from_dict(FabricParams().to_dict()) == FabricParams()  # numbers and lists of them still do

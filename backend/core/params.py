@@ -260,7 +260,8 @@ class FabricParams:
     def from_dict(cls, data: dict, clamp: bool = False) -> "FabricParams":
         """Reads the JSON form; extra keys (units, rig, version, ...) are ignored.
 
-        Missing parameters take the dataclass defaults. With clamp=True out-of-range values
+        Missing parameters take the dataclass defaults. A parameter holds numbers (or lists of
+        them): text, true/false, null or an object is refused. With clamp=True out-of-range values
         are pulled into range instead of raising.
         """
         if not isinstance(data, dict):
@@ -273,6 +274,8 @@ class FabricParams:
                 raise ParamError("weave: pattern 'custom' needs a 'weave' object")
             weave = Weave.from_dict(data["weave"])
         values = {spec.name: data[spec.name] for spec in PARAMETERS if spec.name in data}
+        for name, value in values.items():
+            _numbers_only(name, value)
         if clamp:
             return cls.clamped_from(pattern=data["pattern"], weave=weave, **values)
         return cls(pattern=data["pattern"], weave=weave, **values)
@@ -319,6 +322,18 @@ class FabricParams:
         if clamp:
             return cls.clamped_from(pattern=pattern, **values)
         return cls(pattern=pattern, **values)
+
+
+def _numbers_only(name: str, value) -> None:
+    """Raises ParamError where a value read from JSON holds anything but numbers and lists of them:
+    text (even "0.5"), true/false, null or an object is a wrong type, not a number to convert."""
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ParamError(f"{name}: expected numbers, got {shown(item)}")
 
 
 def _short(x: float) -> str:
