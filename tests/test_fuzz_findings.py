@@ -54,3 +54,9 @@ def test_a_parameter_that_is_not_numbers_is_refused(tmp_path, value, shown):
         load_params(path)
     assert str(error.value).startswith(f"{path}: roughness: expected numbers, got {shown}")
     assert FabricParams.from_dict(FabricParams().to_dict()) == FabricParams()  # numbers and lists of them still do
+
+
+def test_a_bad_custom_weave_names_the_file(tmp_path):
+    path = write_params(tmp_path, pattern="custom", weave={"matrix": [[0, 2], [1, 0]]})
+    with pytest.raises(ParamError, match=rf"^{path}: weave 'custom': row 0 \[0, 2\] must hold only 0 and 1$"):
+        load_params(path)

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from .jsonfile import read_json, shown
-from .weave import PRESETS, Weave
+from .weave import PRESETS, Weave, WeaveError
 
 
 class ParamError(ValueError):
@@ -356,6 +356,6 @@ def load_params(source: str) -> FabricParams:
         data = read_json(source, ParamError)
         try:
             return FabricParams.from_dict(data)
-        except ParamError as exc:
+        except (ParamError, WeaveError) as exc:
             raise ParamError(f"{source}: {exc}") from None
     return FabricParams.from_interchange(source)
