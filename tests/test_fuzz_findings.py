@@ -4,9 +4,10 @@ import json
 
 import pytest
 
+from backend.core.fit_options import MIN_WORKING_SIZE
 from backend.core.jsonfile import read_json
 from backend.core.params import FabricParams, ParamError, load_params
-from backend.core.rig import CaptureRig, RigError
+from backend.core.rig import MAX_FILM_SIZE, MIN_FILM_SIZE, CaptureRig, RigError
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -60,3 +61,29 @@ def test_a_bad_custom_weave_names_the_file(tmp_path):
     path = write_params(tmp_path, pattern="custom", weave={"matrix": [[0, 2], [1, 0]]})
     with pytest.raises(ParamError, match=rf"^{path}: weave 'custom': row 0 \[0, 2\] must hold only 0 and 1$"):
         load_params(path)
+
+
+@pytest.mark.parametrize("setting, value, problem", [
+    ("fov_deg", "wide", "rig.fov_deg: expected a finite number, got 'wide'"),          # was a TypeError traceback
+    ("camera_height", True, "rig.camera_height: expected a finite number, got True"),  # was taken as 1
+    ("glow_strength", float("nan"), "rig.glow_strength: expected a finite number, got nan"),  # was taken
+    ("front_light", "123", "rig.front_light: expected [x, y, z], three numbers, got '123'"),  # was (1, 2, 3)
+    ("back_light", [0.5] * 1_000_000, "rig.back_light: expected [x, y, z], three numbers, got [0.5, 0.5, 0.5, 0.5, "
+                                      "0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5,... (list of 1000000)"),
+    ("film_size", 64.5, f"rig.film_size: must be a whole number of pixels from {MIN_FILM_SIZE} to {MAX_FILM_SIZE}, "
+                        "got 64.5"),  # was taken as 64
+    ("film_size", 100_000, "rig.film_size: must be a whole number of pixels from 32 to 4096, got 100000"),
+    ("film_size", 16, "rig.film_size: must be a whole number of pixels from 32 to 4096, got 16"),  # the fit's least
+])
+def test_a_rig_setting_of_the_wrong_kind_is_refused_naming_it(tmp_path, setting, value, problem):
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps({setting: value}))
+    with pytest.raises(RigError) as error:
+        CaptureRig.load(path)
+    assert str(error.value) == f"{path}: {problem}"
+
+
+def test_the_rig_takes_whole_films_within_its_bounds_and_an_unknown_width():
+    assert CaptureRig(film_size=64.0).film_size == 64
+    assert CaptureRig(film_size=MIN_FILM_SIZE).film_size == MIN_FILM_SIZE == MIN_WORKING_SIZE
+    assert CaptureRig(film_size=MAX_FILM_SIZE, width_cm=None).film_size == MAX_FILM_SIZE

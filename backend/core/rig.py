@@ -35,14 +35,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
-from .jsonfile import read_json
+from .jsonfile import read_json, shown
 
 MAX_CAMERA_BLUR_PX = 4.0
 MAX_SAMPLE_ROTATION_DEG = 45.0
 MAX_SAMPLE_SKEW_DEG = 10.0
+MIN_FILM_SIZE = 32    # the smallest film the fit works on (backend.core.fit_options.MIN_WORKING_SIZE, the loss's least)
+MAX_FILM_SIZE = 4096  # 8x the paper's 512 px: a larger film is a typo (working images and re-renders are film-sized)
 
 
 def yarn_angles(rotation_deg: float, skew_deg: float) -> tuple[float, float]:
@@ -58,6 +61,27 @@ def placement_of(warp_deg: float, weft_deg: float) -> tuple[float, float]:
 
 class RigError(ValueError):
     """A rig setting is missing or out of range; the message names it."""
+
+
+def _check_kinds(rig: "CaptureRig") -> None:
+    """Raises :class:`RigError` naming the first setting that is not of its kind: every setting a
+    finite number (not true/false, not text; ``width_cm`` may be None), the lights three of them,
+    ``film_size`` a whole number of pixels from MIN_FILM_SIZE to MAX_FILM_SIZE. The ranges of the
+    others are checked after."""
+    def number(value) -> bool:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+    for field in dataclasses.fields(rig):
+        value = getattr(rig, field.name)
+        if field.name in ("front_light", "back_light"):
+            if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") or len(value) != 3 \
+                    or not all(number(x) for x in value):
+                raise RigError(f"rig.{field.name}: expected [x, y, z], three numbers, got {shown(value)}")
+        elif not number(value) and not (field.name == "width_cm" and value is None):
+            raise RigError(f"rig.{field.name}: expected a finite number, got {shown(value)}")
+    if rig.film_size != int(rig.film_size) or not MIN_FILM_SIZE <= rig.film_size <= MAX_FILM_SIZE:
+        raise RigError(f"rig.film_size: must be a whole number of pixels from {MIN_FILM_SIZE} to {MAX_FILM_SIZE}, "
+                       f"got {rig.film_size!r}")
 
 
 @dataclass(frozen=True)
@@ -81,6 +105,8 @@ class CaptureRig:
     width_cm: float | None = None
 
     def __post_init__(self):
+        _check_kinds(self)
+
         def positive(name):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
