@@ -4,9 +4,12 @@ import json
 
 import pytest
 
+from backend.app.cli.main import main
+from backend.app.folder import EXAMPLE_PARAMS
 from backend.core.fit_options import MIN_WORKING_SIZE
 from backend.core.jsonfile import read_json
 from backend.core.params import FabricParams, ParamError, load_params
+from backend.core.protocol import EXIT_INPUT
 from backend.core.rig import MAX_FILM_SIZE, MIN_FILM_SIZE, CaptureRig, RigError
 
 
@@ -87,3 +90,26 @@ def test_the_rig_takes_whole_films_within_its_bounds_and_an_unknown_width():
     assert CaptureRig(film_size=64.0).film_size == 64
     assert CaptureRig(film_size=MIN_FILM_SIZE).film_size == MIN_FILM_SIZE == MIN_WORKING_SIZE
     assert CaptureRig(film_size=MAX_FILM_SIZE, width_cm=None).film_size == MAX_FILM_SIZE
+
+
+@pytest.mark.parametrize("out, problem", [
+    ("/proc/forbidden/out", "No such file or directory"),  # the example: was a FileNotFoundError traceback
+    ("{tmp}/notes.txt/out", "Not a directory"),            # a file in the way: was a NotADirectoryError traceback
+])
+@pytest.mark.parametrize("command", ["fit", "render"])
+def test_an_output_folder_that_cannot_be_made_is_one_line(tmp_path, capsys, out, problem, command):
+    (tmp_path / "notes.txt").write_text("a file, not a folder")
+    out = out.replace("{tmp}", str(tmp_path))
+    words = ["fit", "R.png", "T.png"] if command == "fit" else ["render", EXAMPLE_PARAMS]
+    assert main([*words, "--out", out]) == EXIT_INPUT
+    assert capsys.readouterr().err.splitlines() == [f"error: {out}: cannot create the folder ({problem})"]
+
+
+@pytest.mark.parametrize("command", ["fit", "render", "batch"])
+def test_an_empty_output_folder_name_is_refused(capsys, command):
+    words = {"fit": ["fit", "R.png", "T.png"], "render": ["render", EXAMPLE_PARAMS], "batch": ["batch", "P"]}[command]
+    with pytest.raises(SystemExit) as exit_:
+        main([*words, "--out", " "])  # was the current folder
+    assert exit_.value.code == EXIT_INPUT
+    assert capsys.readouterr().err.splitlines()[-1].endswith("error: argument --out: expected a folder, got an empty "
+                                                             "name")

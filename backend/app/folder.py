@@ -39,7 +39,7 @@ import torch
 
 from .. import __version__
 from ..core.fit_options import FIT_OPTIONS, FitOptionError, check_values
-from ..core.jsonfile import replacing, write_whole
+from ..core.jsonfile import make_folder, replacing, write_whole
 from ..core.params import PARAMETERS, FabricParams
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig, RigError
@@ -132,7 +132,7 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     if (out / "params.json").exists() and not overwrite:
         raise FitInputError(f"{out}: already holds a fit (params.json); choose a new folder or pass --overwrite",
                             str(out / "params.json"))
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out, FitInputError)
 
 
 def _checked_rig(options: FolderFitOptions) -> CaptureRig:

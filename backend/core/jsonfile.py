@@ -1,6 +1,7 @@
 """Files in and out, whole: a JSON file read with errors that name the file and the problem (one rule
-for every input), and every output written through a temporary file renamed over it (one rule for
-every output), so that a reader never finds half a file, even when the writer is killed midway."""
+for every input), an output folder made or refused in one line, and every output written through a
+temporary file renamed over it (one rule for every output), so that a reader never finds half a
+file, even when the writer is killed midway."""
 from __future__ import annotations
 
 import json
@@ -38,6 +39,16 @@ def shown(value, limit: int = 60) -> str:
         return text
     size = f" ({type(value).__name__} of {len(value)})" if hasattr(value, "__len__") else ""
     return f"{text[:limit]}...{size}"
+
+
+def make_folder(path: Path, error: type[Exception]) -> Path:
+    """``path``, created with its parents where missing; ``error("<path>: cannot create the folder
+    (...)")`` where it cannot be (a file in the way, no permission, a place that takes no folders)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise error(f"{path}: cannot create the folder ({exc.strerror or exc})") from None
+    return path
 
 
 @contextmanager

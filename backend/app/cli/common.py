@@ -23,6 +23,13 @@ def input_error_message(exc: BaseException) -> str:
     return f"{exc.filename}: file not found" if isinstance(exc, FileNotFoundError) else str(exc)
 
 
+def folder_name(text: str) -> str:
+    """argparse type of ``--out``: a path, not an empty word (which would be the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty name")
+    return text
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer of at least 1."""
     try:
