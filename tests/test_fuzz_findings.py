@@ -3,6 +3,7 @@ clear line naming the file or option and the problem (issue 91)."""
 import json
 
 import pytest
+import torch
 
 from backend.app.cli.main import main
 from backend.app.folder import EXAMPLE_PARAMS
@@ -113,3 +114,22 @@ def test_an_empty_output_folder_name_is_refused(capsys, command):
     assert exit_.value.code == EXIT_INPUT
     assert capsys.readouterr().err.splitlines()[-1].endswith("error: argument --out: expected a folder, got an empty "
                                                              "name")
+
+
+@pytest.mark.parametrize("name", ["tpu", "meta", "", "cpu:-1", "gpu"])
+@pytest.mark.parametrize("command", ["fit", "render"])
+def test_a_device_the_backend_does_not_run_on_is_refused_before_any_work(tmp_path, capsys, name, command):
+    """Was taken by fit up to the fit itself (after the photos were loaded), where torch failed: an
+    internal error, exit 1; render failed the same way at once."""
+    words = ["fit", "R.png", "T.png"] if command == "fit" else ["render", EXAMPLE_PARAMS]
+    assert main([*words, "--out", str(tmp_path / "out"), "--device", name]) == EXIT_INPUT
+    assert capsys.readouterr().err.splitlines() == [
+        f"error: --device {name!r}: not a device the backend runs on (expected cpu, cuda or cuda:N)"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_cuda_device_this_machine_lacks_is_refused(tmp_path, capsys):
+    missing = torch.cuda.device_count()  # the first index past this machine's devices (none: CUDA missing)
+    assert main(["fit", "R.png", "T.png", "--out", str(tmp_path / "out"), "--device", f"cuda:{missing}"]) == EXIT_INPUT
+    reason = f"this machine has {missing} CUDA device(s)" if torch.cuda.is_available() else "CUDA is not available"
+    assert capsys.readouterr().err.startswith(f"error: --device cuda:{missing}: {reason}")

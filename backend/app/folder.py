@@ -54,6 +54,7 @@ from ..model.memory import peak_memory_mb
 from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
 from ..model.spacing_warp import SpacingWarp
+from .cli.common import InputError, device
 from .report import write_report
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
@@ -68,7 +69,7 @@ class FitInputError(ValueError):
 
 
 # exit code 2, one line naming the file or option
-INPUT_ERRORS = (FitInputError, FitOptionError, PhotoError, RigError, GramWeightsError)
+INPUT_ERRORS = (FitInputError, FitOptionError, PhotoError, RigError, GramWeightsError, InputError)
 
 
 # The fit command's options: one field per option of backend.core.fit_options (its name, type and default).
@@ -139,9 +140,7 @@ def _checked_rig(options: FolderFitOptions) -> CaptureRig:
     """The fit's rig, once the options are known good: each option's value (backend.core.fit_options),
     the device there, the working size within the rig's film size."""
     check_values(dataclasses.asdict(options))
-    if options.device.startswith("cuda") and not torch.cuda.is_available():
-        raise FitInputError(f"--device {options.device}: CUDA is not available in this PyTorch build or on this "
-                            "machine")
+    device(options.device)
     rig = CaptureRig.load(options.rig) if options.rig else DEFAULT_RIG
     if options.size is not None and options.size > rig.film_size:
         raise FitInputError(f"--size {options.size}: larger than the photos' working size ({rig.film_size} px, the "

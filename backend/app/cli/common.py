@@ -42,7 +42,16 @@ def positive_int(text: str) -> int:
 
 
 def device(name: str) -> torch.device:
-    """The torch device ``name``; an :class:`InputError` when CUDA is asked for and missing."""
-    if name.startswith("cuda") and not torch.cuda.is_available():
+    """The torch device ``name`` (cpu, cuda or cuda:N); an :class:`InputError` naming ``--device``
+    when it is no such device, or CUDA is asked for and missing."""
+    try:
+        chosen = torch.device(name)
+    except (RuntimeError, TypeError, ValueError):  # torch's word for a name it cannot parse
+        chosen = None
+    if chosen is None or chosen.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {name!r}: not a device the backend runs on (expected cpu, cuda or cuda:N)")
+    if chosen.type == "cuda" and not torch.cuda.is_available():
         raise InputError(f"--device {name}: CUDA is not available in this PyTorch build or on this machine")
-    return torch.device(name)
+    if chosen.type == "cuda" and chosen.index is not None and chosen.index >= torch.cuda.device_count():
+        raise InputError(f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return chosen

@@ -55,9 +55,10 @@ def run_render(args) -> int:
     except json.JSONDecodeError as exc:
         raise InputError(f"--flags: not valid JSON ({exc})") from None
     options = RenderOptions.from_flags(flags)
+    dev = device(args.device)
     out = make_folder(Path(args.out), InputError)
     render_and_save(params, out, ("reflection.png", "transmission.png"), rig, options,
-                    args.size, args.spp, args.seed, device(args.device))
+                    args.size, args.spp, args.seed, dev)
     (out / "params.json").write_text(params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
                                                     flags=flags, spp=args.spp, size=args.size) + "\n")
     print(f"wrote {out / 'reflection.png'}, {out / 'transmission.png'}, {out / 'params.json'}", file=sys.stderr)
@@ -70,8 +71,8 @@ def run_render_cases(args) -> int:
     if not isinstance(cases, list):
         raise InputError(f"{path}: expected a list of cases (name, params, flags)")
     prepared = [parse_case(case, index, path) for index, case in enumerate(cases)]
-    out = make_folder(Path(args.out), InputError)
     dev = device(args.device)
+    out = make_folder(Path(args.out), InputError)
     for index, (name, params, options) in enumerate(prepared, 1):
         render_and_save(params, out, (f"{name}_R.png", f"{name}_T.png"), DEFAULT_RIG, options,
                         args.size, args.spp, args.seed, dev)
