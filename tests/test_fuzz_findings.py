@@ -12,6 +12,8 @@ from backend.core.jsonfile import read_json
 from backend.core.params import FabricParams, ParamError, load_params
 from backend.core.protocol import EXIT_INPUT
 from backend.core.rig import MAX_FILM_SIZE, MIN_FILM_SIZE, CaptureRig, RigError
+from backend.image.photos import PhotoError, load_pair
+from devtools.fuzz.images import ENCODINGS, FILM, base_pair
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -133,3 +135,45 @@ def test_a_cuda_device_this_machine_lacks_is_refused(tmp_path, capsys):
     assert main(["fit", "R.png", "T.png", "--out", str(tmp_path / "out"), "--device", f"cuda:{missing}"]) == EXIT_INPUT
     reason = f"this machine has {missing} CUDA device(s)" if torch.cuda.is_available() else "CUDA is not available"
     assert capsys.readouterr().err.startswith(f"error: --device cuda:{missing}: {reason}")
+
+
+# -- photos -------------------------------------------------------------------------------------------
+
+def photo_pair(tmp_path, encoding="png8", names=("cloth_R", "cloth_T")) -> tuple:
+    """The fuzz harness's base pair (96 px) in ``encoding``."""
+    suffix, encode = ENCODINGS[encoding]
+    paths = tuple(tmp_path / f"{name}{suffix}" for name in names)
+    for path, image in zip(paths, base_pair()):
+        path.write_bytes(encode(image))
+    return paths
+
+
+@pytest.mark.parametrize("how", ["the same file twice", "a copy", "the same pixels as PNG and TIFF"])
+def test_the_same_image_twice_is_refused(tmp_path, how):
+    """Was fitted, exit 0, without a word (issue 91)."""
+    reflection, transmission = photo_pair(tmp_path)
+    if how == "a copy":
+        transmission.write_bytes(reflection.read_bytes())
+    elif how == "the same pixels as PNG and TIFF":
+        transmission = tmp_path / "cloth_T.tif"
+        transmission.write_bytes(ENCODINGS["tiff8"][1](base_pair()[0]))
+    else:
+        transmission = reflection
+    with pytest.raises(PhotoError) as error:
+        load_pair(reflection, transmission, size=FILM)
+    assert str(error.value) == (f"{reflection} / {transmission}: the two photos are the same image (the same pixels "
+                                "once decoded): give the reflection photo (front light) and the transmission photo "
+                                "(back light)")
+
+
+@pytest.mark.parametrize("side", [0, 1])
+def test_one_photo_saved_again_otherwise_reads_as_two_photos_in_one_light(tmp_path, side):
+    """Not the same pixels (a JPEG of the PNG), so not refused as the same image: the order check
+    flags it, as two photos lit from the front (or both from behind)."""
+    paths = photo_pair(tmp_path)
+    copy = tmp_path / "copy.jpg"
+    copy.write_bytes(ENCODINGS["jpeg"][1](base_pair()[side]))
+    pair = (paths[0], copy) if side == 0 else (copy, paths[1])
+    with pytest.raises(PhotoError, match="the photos may be swapped"):
+        load_pair(*pair, size=FILM, strict=True)
+    assert load_pair(*photo_pair(tmp_path), size=FILM, strict=True).warnings == []  # the pair itself is fine

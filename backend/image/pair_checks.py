@@ -13,6 +13,8 @@ Content
     (a transmission photo of a dense fabric may show little). A photo whose sharpest spectral peak
     does not stand above what noise alone shows (:func:`check_weave_shown`) is a warning too: the
     yarn lattice and the sample's placement are then read from the other photo, or are guesses.
+    Two photos holding the same pixels once decoded (one photo given twice) are refused
+    (:func:`check_not_the_same`).
 
 Framing
     The two source images must have the same pixel size (:func:`check_source_sizes`, else
@@ -68,6 +70,17 @@ HARMONIC_RATIOS = (2.0, 1.5, 4 / 3, 3 / 4, 2 / 3, 0.5)
 # 1.076x) was refused at 0.54x = 0.5 x 1.076 on two peaks. With three, none of the 70 photo-like pairs
 # of seeds 127, 131 and 137 --moved, 67 and 113, the dev real and the dev golden pairs is refused.
 REFUSE_MATCHES = 3
+
+
+def check_not_the_same(reflection: np.ndarray, transmission: np.ndarray, label: str) -> None:
+    """Refuses a pair whose two photos hold the same pixels once decoded (source pixels, before any
+    crop): the same file given twice, or one photo saved twice losslessly. A copy saved otherwise (a
+    JPEG of the other) differs in its pixels and is not refused here: it reads as two photos lit by
+    the same light, which the order check (:func:`check_order`) flags."""
+    if reflection.shape == transmission.shape and reflection.dtype == transmission.dtype \
+            and np.array_equal(reflection, transmission):
+        raise PhotoError(f"{label}: the two photos are the same image (the same pixels once decoded): give the "
+                         "reflection photo (front light) and the transmission photo (back light)")
 
 
 def check_source_sizes(reflection_size: tuple[int, int], transmission_size: tuple[int, int], label: str) -> None:
