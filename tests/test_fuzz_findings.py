@@ -2,6 +2,7 @@
 clear line naming the file or option and the problem (issue 91)."""
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -177,3 +178,30 @@ def test_one_photo_saved_again_otherwise_reads_as_two_photos_in_one_light(tmp_pa
     with pytest.raises(PhotoError, match="the photos may be swapped"):
         load_pair(*pair, size=FILM, strict=True)
     assert load_pair(*photo_pair(tmp_path), size=FILM, strict=True).warnings == []  # the pair itself is fine
+
+
+@pytest.mark.parametrize("encoding", ["exr", "tiff-float"])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_a_float_photo_with_non_finite_pixels_is_refused_with_their_count(tmp_path, encoding, value):
+    """Was fitted without a word (issue 91: 300 NaN in an EXR reflection; FLIP 0.23 / 0.25): NaN
+    became 0, infinities 1e6, which set the pair's exposure and left the other photo black."""
+    reflection, transmission = photo_pair(tmp_path, encoding)
+    image = base_pair()[0].copy()
+    flat = image.reshape(-1, 3)
+    flat[np.random.default_rng(1).choice(len(flat), 300, replace=False), 1] = value
+    reflection.write_bytes(ENCODINGS[encoding][1](image))
+    with pytest.raises(PhotoError) as error:
+        load_pair(reflection, transmission, size=FILM)
+    assert str(error.value) == (f"{reflection}: 300 of its {96 * 96} pixels hold NaN or infinite values, which no "
+                                "camera gives (a broken export?): export the photo again")
+    with pytest.raises(PhotoError, match="300 of its"):  # as a flat-field too
+        load_pair(*photo_pair(tmp_path, "png8"), size=FILM, flat_field=reflection)
+
+
+def test_negative_linear_values_are_clipped_not_refused(tmp_path):
+    reflection, transmission = photo_pair(tmp_path, "exr")
+    image = base_pair()[0].copy()
+    image[:4, :4] = -0.01  # noise about the black level of a linear export
+    reflection.write_bytes(ENCODINGS["exr"][1](image))
+    pair = load_pair(reflection, transmission, size=FILM)
+    assert pair.reflection.min() >= 0 and np.isfinite(pair.reflection).all()
