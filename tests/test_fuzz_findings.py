@@ -13,8 +13,11 @@ from backend.core.jsonfile import read_json
 from backend.core.params import FabricParams, ParamError, load_params
 from backend.core.protocol import EXIT_INPUT
 from backend.core.rig import MAX_FILM_SIZE, MIN_FILM_SIZE, CaptureRig, RigError
+from backend.image import decode
+from backend.image.containers import MAX_SOURCE_PIXELS, check_structure
 from backend.image.photos import PhotoError, load_pair
 from devtools.fuzz.images import ENCODINGS, FILM, base_pair
+from devtools.fuzz.photos import with_declared_size
 
 
 @pytest.mark.parametrize("text, problem", [
@@ -205,3 +208,24 @@ def test_negative_linear_values_are_clipped_not_refused(tmp_path):
     reflection.write_bytes(ENCODINGS["exr"][1](image))
     pair = load_pair(reflection, transmission, size=FILM)
     assert pair.reflection.min() >= 0 and np.isfinite(pair.reflection).all()
+
+
+@pytest.mark.parametrize("encoding", ["png8", "jpeg", "tiff16", "exr"])
+@pytest.mark.parametrize("width, height", [(20000, 15000), (65535, 65535)])
+def test_a_huge_declared_size_over_little_data_is_refused_before_decoding(tmp_path, monkeypatch, encoding, width,
+                                                                          height):
+    """A decompression bomb: OpenCV allocated what the header declared (2.7-12 GB) before finding the
+    data short; some decoded, some failed for want of memory."""
+    reflection, transmission = photo_pair(tmp_path, encoding)
+    reflection.write_bytes(with_declared_size(reflection.read_bytes(), encoding, width, height))
+    monkeypatch.setattr(decode.cv2, "imdecode", lambda *args: pytest.fail("decoded a bomb"))
+    with pytest.raises(PhotoError) as error:
+        load_pair(reflection, transmission, size=FILM)
+    assert str(error.value) == (f"{reflection}: the file declares {width} x {height} pixels, more than any camera's "
+                                f"photo (at most {MAX_SOURCE_PIXELS // 1_000_000} million): a damaged file?")
+
+
+def test_the_largest_photos_cameras_take_pass_the_size_check(tmp_path):
+    reflection, _ = photo_pair(tmp_path)
+    phone = with_declared_size(reflection.read_bytes(), "png8", 16320, 12240)  # a 200-megapixel phone's photo
+    assert check_structure(phone, "png", reflection) == 1
