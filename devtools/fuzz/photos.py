@@ -166,9 +166,7 @@ def _non_finite(linear, encoding, rng):
     out = linear.copy().reshape(-1, 3)
     where = rng.choice(out.shape[0], count, replace=False)
     out[where, int(rng.integers(3))] = value
-    expect = REFUSE if not np.isfinite(value) else EITHER  # negatives are clipped at 0, huge values at 1
-    if np.isfinite(value) and count == out.shape[0]:
-        expect = REFUSE  # every pixel negative (black) or huge (overexposed)
+    expect = REFUSE if not np.isfinite(value) else EITHER  # negatives are clipped at 0, huge values scaled
     return f"{count} pixel(s) set to {value}", expect, out.reshape(linear.shape)
 
 
@@ -221,6 +219,8 @@ def _photo_case(mutation, encoding, encoded, pair, rng) -> Case | None:
         side = None
     which = "" if side is None else (" (reflection)", " (transmission)")[side]
     suspects = names if side is None else (names[side],)
+    if mutation == "non-finite" and expect == EITHER:  # a linear pair shares one exposure: the other may go black
+        suspects = names
     command = ("fit", f"{{dir}}/{names[0]}", f"{{dir}}/{names[1]}", "--out", "{dir}/out", "--rig", "{dir}/rig.json",
                "--json-progress")
     rig = f'{{"film_size": {FILM}}}'.encode()

@@ -41,6 +41,8 @@ CASE_TIMEOUT_S = 60.0      # a liveness bound (a case takes well under a second)
 STARTUP_TIMEOUT_S = 300.0  # the worker imports torch and the backend before its first case
 MEMORY_LIMIT = 4 << 30     # the worker's address space: room for torch and a full-size photo, not for a bomb
 MAX_LINE = 1000            # an error line longer than this is no longer one readable line
+# What a refusal for want of memory says (OpenCV, Python): under the worker's limit, a bomb got through.
+_OUT_OF_MEMORY = ("Insufficient memory", "Failed to allocate", "MemoryError")
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,8 @@ def judge(case: Case, run: _Run) -> tuple[str, str]:
     if run.code != 2:
         return f"exit {run.code}", (_error_lines(run) or run.stderr.strip().splitlines() or [""])[-1][:300]
     lines = _error_lines(run)
+    if any(word in line for line in lines for word in _OUT_OF_MEMORY):
+        return "ran out of memory", lines[0][:300]
     if len(lines) != 1:
         return "not one error line", " | ".join(lines)[:300]
     line, multi = lines[0], _json_error_problem(run)
