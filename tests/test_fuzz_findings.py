@@ -229,3 +229,16 @@ def test_the_largest_photos_cameras_take_pass_the_size_check(tmp_path):
     reflection, _ = photo_pair(tmp_path)
     phone = with_declared_size(reflection.read_bytes(), "png8", 16320, 12240)  # a 200-megapixel phone's photo
     assert check_structure(phone, "png", reflection) == 1
+
+
+def test_thousands_of_unknown_keys_are_listed_in_one_line(tmp_path):
+    """Each was listed: a rig file with 20000 of them gave a line of 250000 characters."""
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps({f"extra_{index:05d}": 1.0 for index in range(20000)}))
+    with pytest.raises(RigError, match=rf"^{path}: rig: unknown setting\(s\) extra_00000, extra_00001, extra_00002, "
+                                       r"extra_00003, extra_00004 and 19995 more; known: back_intensity, "):
+        CaptureRig.load(path)
+    params = write_params(tmp_path, pattern="custom", weave={"matrix": [[0, 1], [1, 0]], "x" * 100: 1, "y": 2})
+    with pytest.raises(ParamError, match=rf"^{params}: weave: unknown key\(s\) 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx"
+                                         r"\.\.\. \(str of 100\), y$"):
+        load_params(params)

@@ -51,6 +51,14 @@ def make_folder(path: Path, error: type[Exception]) -> Path:
     return path
 
 
+def listed(names, limit: int = 5) -> str:
+    """The first ``limit`` of ``names`` (sorted, each :func:`shown` if long) and how many more: a file
+    may hold thousands of unknown keys, and the message must stay one readable line."""
+    names = sorted(str(name) for name in names)
+    words = [name if len(name) <= 40 else shown(name, 40) for name in names[:limit]]
+    return ", ".join(words) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
 @contextmanager
 def replacing(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` to write the new file to: renamed over ``path`` once the block

@@ -39,7 +39,7 @@ import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
-from .jsonfile import read_json, shown
+from .jsonfile import listed, read_json, shown
 
 MAX_CAMERA_BLUR_PX = 4.0
 MAX_SAMPLE_ROTATION_DEG = 45.0
@@ -192,7 +192,7 @@ class CaptureRig:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:
-            raise RigError(f"rig: unknown setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
+            raise RigError(f"rig: unknown setting(s) {listed(unknown)}; known: {', '.join(sorted(known))}")
         return cls(**data)
 
     @classmethod

@@ -110,13 +110,14 @@ def _removed(doc: _Doc, rng):
     return f"{key} removed", EITHER if key in doc.optional else (REFUSE if key in doc.read else FIT)
 
 
-def _unknown_key(doc: _Doc, rng):
-    doc.document[f"extra_{int(rng.integers(1000))}"] = 1.0
-    return "an unknown key", EITHER
+def _unknown_keys(doc: _Doc, rng):
+    count = int(rng.choice([1, 20_000]))
+    doc.document.update((f"extra_{index}", 1.0) for index in range(count))
+    return f"{count} unknown key(s)", EITHER
 
 
 MUTATIONS = {"wrong-type": _wrong_type, "non-finite": _non_finite, "out-of-range": _out_of_range,
-             "huge-array": _huge_array, "removed": _removed, "unknown-key": _unknown_key}
+             "huge-array": _huge_array, "removed": _removed, "unknown-keys": _unknown_keys}
 TEXT_MUTATIONS = ("huge-integer", "deep-nesting", "not-an-object", "syntax", "not-utf8")
 
 
