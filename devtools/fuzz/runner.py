@@ -155,18 +155,19 @@ def _render_stand_in(params, out, names, rig, options, size, spp, seed, dev):
     raise ReachedTheWork(params_problems(params) + rig_problems(rig))
 
 
-def install_stand_ins() -> None:
+def stand_ins() -> list[tuple[object, str, object]]:
+    """(module, name, stand-in) of each replacement: the fit and its initialiser, render's renders."""
     from backend.app import folder
     from backend.app.cli import render
 
-    folder.fit, folder.fit_initialiser = _fit_stand_in, _initialiser_stand_in
-    render.render_and_save = _render_stand_in
+    return [(folder, "fit", _fit_stand_in), (folder, "fit_initialiser", _initialiser_stand_in),
+            (render, "render_and_save", _render_stand_in)]
 
 
 # -- one case, in the worker ------------------------------------------------------------------------------
 
 @dataclass
-class _Run:
+class CommandRun:
     code: object = None        # the exit code, or "reached" where a stand-in stopped it
     stdout: str = ""
     stderr: str = ""
@@ -174,10 +175,10 @@ class _Run:
     raised: str = ""           # an exception that escaped the command: its traceback
 
 
-def run_command(argv: list[str]) -> _Run:
+def run_command(argv: list[str]) -> CommandRun:
     from backend.app.cli.main import main
 
-    out, err, run = io.StringIO(), io.StringIO(), _Run()
+    out, err, run = io.StringIO(), io.StringIO(), CommandRun()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             run.code = main(argv)
@@ -191,11 +192,11 @@ def run_command(argv: list[str]) -> _Run:
     return run
 
 
-def _error_lines(run: _Run) -> list[str]:
+def _error_lines(run: CommandRun) -> list[str]:
     return [line for line in run.stderr.splitlines() if "error:" in line]
 
 
-def _json_error_problem(run: _Run) -> str:
+def _json_error_problem(run: CommandRun) -> str:
     """A JSON error event whose message runs over more than one line (--json-progress cases)."""
     for line in run.stdout.splitlines():
         try:
@@ -207,7 +208,7 @@ def _json_error_problem(run: _Run) -> str:
     return ""
 
 
-def judge(case: Case, run: _Run) -> tuple[str, str]:
+def judge(case: Case, run: CommandRun) -> tuple[str, str]:
     """(result, detail) of a command run against the case's contract."""
     if run.raised or "Traceback" in run.stderr:
         trace = run.raised or run.stderr
@@ -288,7 +289,8 @@ def serve(descriptor: int, scratch: str) -> None:
     import torch
 
     torch.set_num_threads(1)
-    install_stand_ins()
+    for module, name, stand_in in stand_ins():
+        setattr(module, name, stand_in)
     connection.send("ready")
     while (case := connection.recv()) is not None:
         connection.send(run_case(case, Path(scratch)))
