@@ -214,13 +214,23 @@ def judge(case: Case, run: CommandRun) -> tuple[str, str]:
         trace = run.raised or run.stderr
         return "traceback", trace.strip().splitlines()[-1][:300]
     if run.code == "reached":
-        if run.problems:
-            return "bad inputs reached the work", "; ".join(run.problems)[:300]
-        if case.expect == REFUSE:
-            return "bad input accepted", ""
-        return FITTED, ""
+        return _judge_reached(case, run)
     if run.code != 2:
         return f"exit {run.code}", (_error_lines(run) or run.stderr.strip().splitlines() or [""])[-1][:300]
+    return _judge_refusal(case, run)
+
+
+def _judge_reached(case: Case, run: CommandRun) -> tuple[str, str]:
+    """A run that reached the work: clean inputs, and a case that may be fitted."""
+    if run.problems:
+        return "bad inputs reached the work", "; ".join(run.problems)[:300]
+    if case.expect == REFUSE:
+        return "bad input accepted", ""
+    return FITTED, ""
+
+
+def _judge_refusal(case: Case, run: CommandRun) -> tuple[str, str]:
+    """A run that ended with exit code 2: one readable line naming a suspect, for a case that may be refused."""
     lines = _error_lines(run)
     if any(word in line for line in lines for word in _OUT_OF_MEMORY):
         return "ran out of memory", lines[0][:300]
