@@ -65,9 +65,8 @@ class RigError(ValueError):
 
 def _check_kinds(rig: "CaptureRig") -> None:
     """Raises :class:`RigError` naming the first setting that is not of its kind: every setting a
-    finite number (not true/false, not text; ``width_cm`` may be None), the lights three of them,
-    ``film_size`` a whole number of pixels from MIN_FILM_SIZE to MAX_FILM_SIZE. The ranges of the
-    others are checked after."""
+    finite number (not true/false, not text; ``width_cm`` may be None), the lights three of them.
+    Their ranges are checked after."""
     def number(value) -> bool:
         return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
@@ -79,9 +78,14 @@ def _check_kinds(rig: "CaptureRig") -> None:
                 raise RigError(f"rig.{field.name}: expected [x, y, z], three numbers, got {shown(value)}")
         elif not number(value) and not (field.name == "width_cm" and value is None):
             raise RigError(f"rig.{field.name}: expected a finite number, got {shown(value)}")
-    if rig.film_size != int(rig.film_size) or not MIN_FILM_SIZE <= rig.film_size <= MAX_FILM_SIZE:
+
+
+def _check_film_size(film_size: float) -> None:
+    """Raises :class:`RigError` unless ``film_size`` (a positive number) is a whole number of pixels
+    from MIN_FILM_SIZE to MAX_FILM_SIZE."""
+    if film_size != int(film_size) or not MIN_FILM_SIZE <= film_size <= MAX_FILM_SIZE:
         raise RigError(f"rig.film_size: must be a whole number of pixels from {MIN_FILM_SIZE} to {MAX_FILM_SIZE}, "
-                       f"got {rig.film_size!r}")
+                       f"got {film_size!r}")
 
 
 @dataclass(frozen=True)
@@ -143,6 +147,7 @@ class CaptureRig:
                 where = "above (z > 0)" if side > 0 else "below (z < 0)"
                 raise RigError(f"rig.{name}: the light must be {where} the fabric, got z = {value[2]}")
             object.__setattr__(self, name, value)
+        _check_film_size(self.film_size)
         object.__setattr__(self, "film_size", int(self.film_size))
 
     @property
