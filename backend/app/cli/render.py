@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from ...core.jsonfile import make_folder, read_json
+from ...core.jsonfile import make_folder, read_json, write_whole
 from ...core.options import OptionsError, RenderOptions
 from ...core.params import FabricParams, ParamError, load_params
 from ...core.rig import DEFAULT_RIG, CaptureRig
@@ -59,7 +59,7 @@ def run_render(args) -> int:
     out = make_folder(Path(args.out), InputError)
     render_and_save(params, out, ("reflection.png", "transmission.png"), rig, options,
                     args.size, args.spp, args.seed, dev)
-    (out / "params.json").write_text(params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
+    write_whole(out / "params.json", params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
                                                     flags=flags, spp=args.spp, size=args.size) + "\n")
     print(f"wrote {out / 'reflection.png'}, {out / 'transmission.png'}, {out / 'params.json'}", file=sys.stderr)
     return 0
