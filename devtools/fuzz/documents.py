@@ -78,8 +78,9 @@ class _Doc:
 def _wrong_type(doc: _Doc, rng):
     path = doc.pick_path(rng, read_only=rng.random() < 0.8)
     value = _WRONG_TYPES[int(rng.integers(len(_WRONG_TYPES)))]
-    _set(doc.document, path[:1] if rng.random() < 0.5 else path, value)
-    return f"{'.'.join(map(str, path))} = {value!r}", doc.expect_for(path)
+    where = path[:1] if rng.random() < 0.5 else path  # the whole value, or one of its numbers
+    _set(doc.document, where, value)
+    return f"{'.'.join(map(str, where))} = {value!r}", doc.expect_for(path)
 
 
 def _non_finite(doc: _Doc, rng):

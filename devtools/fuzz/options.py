@@ -1,5 +1,6 @@
 """Option sets: the ``fit`` command on the base pair with random combinations of valid and invalid
-values for every option of :data:`backend.core.fit_options.FIT_OPTIONS`, ``--out`` and the photos.
+values for every option of :data:`backend.core.fit_options.FIT_OPTIONS` and ``--out`` (the photos'
+own problems are the photo cases', :mod:`.photos`).
 
 About two sets in five are valid throughout (each option absent or given a valid value): they must
 reach the fit. The others make one to three options invalid: they must be refused, naming one of them.
