@@ -11,7 +11,9 @@ overwritten without ``overwrite``.
 
 params.json is written as soon as the fit ends, before anything optional: a failure in the
 re-renders, metrics or report afterwards is a warning (with its traceback on stderr) and loses
-nothing; the run still ends with its result.
+nothing; the run still ends with its result. Each file is written whole or not at all (a temporary
+file renamed over it: :func:`backend.core.jsonfile.replacing`), so a fit killed midway leaves no
+half-written file in the folder.
 
 :func:`fit_reporting` is the command's contract around it: progress through a
 :class:`~backend.core.protocol.Reporter`, every failure one protocol error line and an exit code (2
@@ -37,6 +39,7 @@ import torch
 
 from .. import __version__
 from ..core.fit_options import FIT_OPTIONS, FitOptionError, check_values
+from ..core.jsonfile import make_folder, replacing, write_whole
 from ..core.params import PARAMETERS, FabricParams
 from ..core.protocol import EXIT_CANCELLED, EXIT_INPUT, EXIT_INTERNAL, Reporter
 from ..core.rig import DEFAULT_RIG, CaptureRig, RigError
@@ -51,6 +54,7 @@ from ..model.memory import peak_memory_mb
 from ..model.photo_light import PhotoLight
 from ..model.render import render_pair
 from ..model.spacing_warp import SpacingWarp
+from .cli.common import InputError, device
 from .environment import renderer_compiles
 from .report import write_report
 
@@ -66,7 +70,7 @@ class FitInputError(ValueError):
 
 
 # exit code 2, one line naming the file or option
-INPUT_ERRORS = (FitInputError, FitOptionError, PhotoError, RigError, GramWeightsError)
+INPUT_ERRORS = (FitInputError, FitOptionError, PhotoError, RigError, GramWeightsError, InputError)
 
 
 # The fit command's options: one field per option of backend.core.fit_options (its name, type and default).
@@ -110,8 +114,7 @@ def fit_reporting(reflection: str | Path | None, transmission: str | Path | None
             message = (f"the fit was cancelled after it ended: its parameters are in {written['params']}; "
                        "the re-renders, metrics or report may be missing")
         elif cancelled.params is not None and out.is_dir():
-            (out / "params.partial.json").write_text(cancelled.params.to_json(version=__version__, partial=True)
-                                                     + "\n")
+            write_whole(out / "params.partial.json", cancelled.params.to_json(version=__version__, partial=True) + "\n")
             message = "the fit was cancelled; the best parameters so far are in params.partial.json"
         else:
             message = "the fit was cancelled before any result"
@@ -132,16 +135,14 @@ def _prepare_out(out: Path, overwrite: bool) -> None:
     if (out / "params.json").exists() and not overwrite:
         raise FitInputError(f"{out}: already holds a fit (params.json); choose a new folder or pass --overwrite",
                             str(out / "params.json"))
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out, FitInputError)
 
 
 def _checked_rig(options: FolderFitOptions) -> CaptureRig:
     """The fit's rig, once the options are known good: each option's value (backend.core.fit_options),
     the device there, the working size within the rig's film size."""
     check_values(dataclasses.asdict(options))
-    if options.device.startswith("cuda") and not torch.cuda.is_available():
-        raise FitInputError(f"--device {options.device}: CUDA is not available in this PyTorch build or on this "
-                            "machine")
+    device(options.device)
     rig = CaptureRig.load(options.rig) if options.rig else DEFAULT_RIG
     if options.size is not None and options.size > rig.film_size:
         raise FitInputError(f"--size {options.size}: larger than the photos' working size ({rig.film_size} px, the "
@@ -198,7 +199,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}
-    (out / "params.json").write_text(result.params.to_json(**extra) + "\n")
+    write_whole(out / "params.json", result.params.to_json(**extra) + "\n")
     written["params"] = str(out / "params.json")
 
     # Everything below is optional: a failure is a warning, params.json stays.
@@ -225,7 +226,9 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                                 render_progress)
         framed = photos.in_own_framing(images)  # (photos, re-renders), each in its photo's framing
         for name, image in zip(("reflection", "transmission"), framed[1]):
-            written[name] = str(write_png(out / f"{name}.png", image))
+            with replacing(out / f"{name}.png") as temporary:
+                write_png(temporary, image)
+            written[name] = str(out / f"{name}.png")
         return framed
 
     framed = optional("the re-renders (and so the metrics and report)", write_renders)
@@ -266,7 +269,7 @@ def _write_metrics(out: Path, photos, framed, result, rig: CaptureRig, settings:
                "compared_region": dict(zip(("reflection", "transmission"), map(list, photos.seen_boxes())))}
     if truth is not None:
         summary["example_truth"] = truth.to_dict()
-    (out / "metrics.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_whole(out / "metrics.json", json.dumps(summary, indent=2) + "\n")
     return metrics
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..core.jsonfile import replacing
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
 from ..model.photo_light import PhotoLight
@@ -165,6 +166,7 @@ def write_report(path: str | Path, photos: tuple[np.ndarray, np.ndarray], render
     _draw_images(canvas, top, photos, renders, metrics, compared)
     _draw_crops(canvas, crop_top, photos, renders)
     path = Path(path)
-    if not cv2.imwrite(str(path), canvas):
-        raise OSError(f"{path}: could not write the report")
+    with replacing(path) as temporary:
+        if not cv2.imwrite(str(temporary), canvas):
+            raise OSError(f"{path}: could not write the report")
     return path

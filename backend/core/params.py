@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
-from .jsonfile import read_json
-from .weave import PRESETS, Weave
+from .jsonfile import read_json, shown
+from .weave import PRESETS, Weave, WeaveError
 
 
 class ParamError(ValueError):
@@ -137,18 +137,18 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
     """Accepts lists, tuples or numbers of the right shape; raises ParamError naming the field."""
     def numbers(seq, n, what):
         if isinstance(seq, (str, bytes)) or not hasattr(seq, "__len__") or len(seq) != n:
-            raise ParamError(f"{spec.name}: expected {what}, got {seq!r}")
+            raise ParamError(f"{spec.name}: expected {what}, got {shown(seq)}")
         out = []
         for x in seq:
             try:
                 out.append(float(x))
             except (TypeError, ValueError):
-                raise ParamError(f"{spec.name}: {x!r} is not a number") from None
+                raise ParamError(f"{spec.name}: {shown(x)} is not a number") from None
         return out
 
     if spec.per_yarn and spec.rgb:
         if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
-            raise ParamError(f"{spec.name}: expected [[warp r, g, b], [weft r, g, b]], got {value!r}")
+            raise ParamError(f"{spec.name}: expected [[warp r, g, b], [weft r, g, b]], got {shown(value)}")
         return tuple(tuple(numbers(yarn, 3, "an RGB triple per yarn")) for yarn in value)
     if spec.per_yarn:
         return tuple(numbers(value, 2, "a [warp, weft] pair"))
@@ -157,7 +157,7 @@ def _coerce(spec: ParamSpec, value: Any) -> Any:
     try:
         return float(value)
     except (TypeError, ValueError):
-        raise ParamError(f"{spec.name}: expected a number, got {value!r}") from None
+        raise ParamError(f"{spec.name}: expected a number, got {shown(value)}") from None
 
 
 @dataclass(frozen=True)
@@ -188,11 +188,13 @@ class FabricParams:
     weave: Weave | None = None
 
     def __post_init__(self):
+        if not isinstance(self.pattern, str):
+            raise ParamError(f"pattern: expected the name of a weave, got {shown(self.pattern)}")
         if self.pattern == "custom":
             if not isinstance(self.weave, Weave):
                 raise ParamError("pattern: 'custom' needs a weave (interlacing matrix and bands)")
         elif self.pattern not in PRESETS:
-            raise ParamError(f"pattern: unknown weave {self.pattern!r}; "
+            raise ParamError(f"pattern: unknown weave {shown(self.pattern)}; "
                              f"expected one of {', '.join(PRESETS)} or 'custom'")
         for spec in PARAMETERS:
             value = _coerce(spec, getattr(self, spec.name))
@@ -258,7 +260,8 @@ class FabricParams:
     def from_dict(cls, data: dict, clamp: bool = False) -> "FabricParams":
         """Reads the JSON form; extra keys (units, rig, version, ...) are ignored.
 
-        Missing parameters take the dataclass defaults. With clamp=True out-of-range values
+        Missing parameters take the dataclass defaults. A parameter holds numbers (or lists of
+        them): text, true/false, null or an object is refused. With clamp=True out-of-range values
         are pulled into range instead of raising.
         """
         if not isinstance(data, dict):
@@ -271,6 +274,8 @@ class FabricParams:
                 raise ParamError("weave: pattern 'custom' needs a 'weave' object")
             weave = Weave.from_dict(data["weave"])
         values = {spec.name: data[spec.name] for spec in PARAMETERS if spec.name in data}
+        for name, value in values.items():
+            _numbers_only(name, value)
         if clamp:
             return cls.clamped_from(pattern=data["pattern"], weave=weave, **values)
         return cls(pattern=data["pattern"], weave=weave, **values)
@@ -319,6 +324,18 @@ class FabricParams:
         return cls(pattern=pattern, **values)
 
 
+def _numbers_only(name: str, value) -> None:
+    """Raises ParamError where a value read from JSON holds anything but numbers and lists of them:
+    text (even "0.5"), true/false, null or an object is a wrong type, not a number to convert."""
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ParamError(f"{name}: expected numbers, got {shown(item)}")
+
+
 def _short(x: float) -> str:
     """Shortest text that reads back to the same float."""
     return repr(float(x))
@@ -339,6 +356,6 @@ def load_params(source: str) -> FabricParams:
         data = read_json(source, ParamError)
         try:
             return FabricParams.from_dict(data)
-        except ParamError as exc:
+        except (ParamError, WeaveError) as exc:
             raise ParamError(f"{source}: {exc}") from None
     return FabricParams.from_interchange(source)

@@ -51,14 +51,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
-from .jsonfile import read_json
+from .jsonfile import listed, read_json, shown
 
 MAX_CAMERA_BLUR_PX = 4.0        # film px a rig may declare; a phone photo shows about one
 MAX_SAMPLE_ROTATION_DEG = 45.0  # beyond it the warp and the weft would trade directions
 MAX_SAMPLE_SKEW_DEG = 10.0      # a cloth laid flat by hand is a few degrees off square
+MIN_FILM_SIZE = 32    # the smallest film the fit works on (backend.core.fit_options.MIN_WORKING_SIZE, the loss's least)
+MAX_FILM_SIZE = 4096  # 8x the paper's 512 px: a larger film is a typo (working images and re-renders are film-sized)
 
 
 def yarn_angles(rotation_deg: float, skew_deg: float) -> tuple[float, float]:
@@ -74,6 +77,31 @@ def placement_of(warp_deg: float, weft_deg: float) -> tuple[float, float]:
 
 class RigError(ValueError):
     """A rig setting is missing or out of range; the message names it."""
+
+
+def _check_kinds(rig: "CaptureRig") -> None:
+    """Raises :class:`RigError` naming the first setting that is not of its kind: every setting a
+    finite number (not true/false, not text; ``width_cm`` may be None), the lights three of them.
+    Their ranges are checked after."""
+    def number(value) -> bool:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
+
+    for field in dataclasses.fields(rig):
+        value = getattr(rig, field.name)
+        if field.name in ("front_light", "back_light"):
+            if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__len__") or len(value) != 3 \
+                    or not all(number(x) for x in value):
+                raise RigError(f"rig.{field.name}: expected [x, y, z], three numbers, got {shown(value)}")
+        elif not number(value) and not (field.name == "width_cm" and value is None):
+            raise RigError(f"rig.{field.name}: expected a finite number, got {shown(value)}")
+
+
+def _check_film_size(film_size: float) -> None:
+    """Raises :class:`RigError` unless ``film_size`` (a positive number) is a whole number of pixels
+    from MIN_FILM_SIZE to MAX_FILM_SIZE."""
+    if film_size != int(film_size) or not MIN_FILM_SIZE <= film_size <= MAX_FILM_SIZE:
+        raise RigError(f"rig.film_size: must be a whole number of pixels from {MIN_FILM_SIZE} to {MAX_FILM_SIZE}, "
+                       f"got {film_size!r}")
 
 
 @dataclass(frozen=True)
@@ -99,6 +127,7 @@ class CaptureRig:
     width_cm: float | None = None
 
     def __post_init__(self):
+        _check_kinds(self)
         for name in ("film_size", "plane_size", "camera_height", "front_intensity", "back_intensity",
                      "vignette_sigma_px", "glow_sigma_px", "gamma", "clamp"):
             self._check_positive(name)
@@ -107,6 +136,7 @@ class CaptureRig:
         self._check_ranges()
         for name, side in (("front_light", 1), ("back_light", -1)):
             object.__setattr__(self, name, self._checked_light(name, side))
+        _check_film_size(self.film_size)
         object.__setattr__(self, "film_size", int(self.film_size))
 
     def _check_positive(self, name: str) -> None:
@@ -188,7 +218,7 @@ class CaptureRig:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:
-            raise RigError(f"rig: unknown setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
+            raise RigError(f"rig: unknown setting(s) {listed(unknown)}; known: {', '.join(sorted(known))}")
         return cls(**data)
 
     @classmethod

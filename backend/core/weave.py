@@ -36,6 +36,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from .jsonfile import listed
+
 WARP, WEFT = 0, 1
 FRONT, BACK = 0, 1
 
@@ -250,7 +252,7 @@ class Weave:
                  "weft_pitch", "weft_offset", "umax_deg", "s_min"}
         unknown = set(data) - known
         if unknown:
-            raise WeaveError(f"weave: unknown key(s) {', '.join(sorted(unknown))}")
+            raise WeaveError(f"weave: unknown key(s) {listed(unknown)}")
         args = dict(data)
         args.setdefault("name", "custom")
         try:

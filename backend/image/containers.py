@@ -8,6 +8,10 @@ is walked first and a truncated file raises :class:`PhotoError`:
 - TIFF (classic): the first directory (IFD) and the strip or tile data it points to lie inside the
   file; BigTIFF is left to the decoder.
 
+The image size the header declares (PNG IHDR, JPEG SOF, TIFF ImageWidth / ImageLength, OpenEXR
+dataWindow) is checked on the way: above :data:`MAX_SOURCE_PIXELS` the file is refused before the
+decoder allocates it (a damaged or crafted header over a few kilobytes of data: a decompression bomb).
+
 EXIF orientation (1 = upright .. 8) is read from a JPEG's APP1 ``Exif`` segment and a PNG's eXIf
 chunk, because OpenCV's ``IMREAD_UNCHANGED`` ignores it there; OpenCV's TIFF decoder applies the
 TIFF Orientation tag itself, so TIFF reports 1 (the tests check all three).
@@ -24,18 +28,31 @@ from .errors import PhotoError
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _ORIENTATION_TAG = 0x0112
+# More pixels than any camera's photo (phones reach 200 million): a header declaring more is damaged or
+# crafted, and decoding it would take gigabytes (tens of bytes a pixel on the way to the working image).
+MAX_SOURCE_PIXELS = 250_000_000
+_JPEG_FRAMES = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # SOF0-SOF15 markers (C4, C8, CC are not frames)
 
 
 def check_structure(data: bytes, kind: str, path: Path) -> int:
-    """Raises on a truncated file of ``kind`` ("jpeg", "png", "tiff"); returns the EXIF orientation
-    to apply after decoding (1 = upright, also for any other kind)."""
+    """Raises on a truncated file of ``kind`` ("jpeg", "png", "tiff"), or one declaring more than
+    MAX_SOURCE_PIXELS ("exr" too); returns the EXIF orientation to apply after decoding (1 = upright,
+    also for any other kind)."""
     if kind == "jpeg":
         return _jpeg_structure(data, path)
     if kind == "png":
         return _png_structure(data, path)
     if kind == "tiff":
         return _tiff_structure(data, path)
+    if kind == "exr":
+        _exr_header(data, path)
     return 1
+
+
+def _check_declared_size(path: Path, width: int, height: int) -> None:
+    if width * height > MAX_SOURCE_PIXELS:
+        raise PhotoError(f"{path}: the file declares {width} x {height} pixels, more than any camera's photo (at most "
+                         f"{MAX_SOURCE_PIXELS // 1_000_000} million): a damaged file?")
 
 
 def _truncated(path: Path, what: str) -> PhotoError:
@@ -63,6 +80,9 @@ def _jpeg_structure(data: bytes, path: Path) -> int:
             raise _truncated(path, "it ends inside the JPEG header")
         if marker == 0xE1 and segment.startswith(b"Exif\x00\x00"):
             orientation = _tiff_orientation(segment[6:]) or orientation
+        if marker in _JPEG_FRAMES and len(segment) >= 5:
+            height, width = struct.unpack(">HH", segment[1:5])
+            _check_declared_size(path, width, height)
         if marker == 0xDA:  # start of scan
             break
         pos += 2 + length
@@ -80,6 +100,8 @@ def _png_structure(data: bytes, path: Path) -> int:
             break
         if kind == b"IEND":
             return orientation
+        if kind == b"IHDR" and length >= 8:
+            _check_declared_size(path, *struct.unpack(">II", data[pos + 8:pos + 16]))
         if kind == b"eXIf":
             orientation = _tiff_orientation(data[pos + 8:pos + 8 + length]) or orientation
         pos += 12 + length
@@ -94,11 +116,30 @@ def _tiff_structure(data: bytes, path: Path) -> int:
     entries = _tiff_ifd0(data)
     if entries is None:
         raise _truncated(path, "the TIFF directory lies beyond the end of the file")
+    _check_declared_size(path, entries.get(256, [0])[0], entries.get(257, [0])[0])
     for offsets_tag, counts_tag in ((273, 279), (324, 325)):  # strips, tiles
         offsets, counts = entries.get(offsets_tag), entries.get(counts_tag)
         if offsets and counts and max(o + c for o, c in zip(offsets, counts)) > len(data):
             raise _truncated(path, "the TIFF image data runs past the end of the file")
     return 1
+
+
+def _exr_header(data: bytes, path: Path) -> None:
+    """Walks the attributes of an OpenEXR header (name, type, size, value; an empty name ends it) and
+    checks the image size its dataWindow (box2i: x min, y min, x max, y max) declares."""
+    pos = 8  # after the magic number and the version field
+    while pos < len(data) and data[pos] != 0:
+        name_end = data.find(b"\x00", pos)
+        type_end = data.find(b"\x00", name_end + 1) if name_end >= 0 else -1
+        if type_end < 0 or type_end + 5 > len(data):
+            raise _truncated(path, "it ends inside the OpenEXR header")
+        size = struct.unpack("<i", data[type_end + 1:type_end + 5])[0]
+        if size < 0:
+            raise PhotoError(f"{path}: not a valid OpenEXR file (an attribute of negative size at byte {pos})")
+        if data[pos:name_end] == b"dataWindow" and size == 16 and type_end + 21 <= len(data):
+            x_min, y_min, x_max, y_max = struct.unpack("<iiii", data[type_end + 5:type_end + 21])
+            _check_declared_size(path, x_max - x_min + 1, y_max - y_min + 1)
+        pos = type_end + 5 + size
 
 
 def _tiff_ifd0(data: bytes) -> dict[int, list[int]] | None:

@@ -15,6 +15,11 @@
   16 bits, gamma (1, 1), sRGB primaries (:data:`RAW_POSTPROCESS`); LibRaw applies the camera's
   orientation.
 - Alpha channels are dropped; greyscale is expanded to RGB; float samples become float32.
+- Float photos with NaN or infinite samples are refused, with their count (:func:`check_finite`):
+  a camera gives none, so they mark a broken export (a failed HDR merge, a division by zero in an
+  earlier correction) whose other pixels are suspect too, and any repair (0, the neighbours' mean)
+  would invent fabric that the fit then matches. Negative samples (noise about the black level of
+  a linear export) are clipped at 0 (:func:`.tone.to_linear`).
 - Linear sources: float (EXR, float TIFF) and camera RAW. 8/16-bit PNG, JPEG and TIFF are encoded
   (:mod:`.tone`).
 """
@@ -85,6 +90,7 @@ def read_image(path: str | os.PathLike) -> SourceImage:
     kind = _sniff_format(data, path)
     orientation = check_structure(data, kind, path)
     pixels = _to_rgb(_decode(data, kind, path), path)
+    check_finite(pixels, path)
     pixels = apply_orientation(pixels, orientation)
     depth = {np.dtype(np.uint8): "8-bit", np.dtype(np.uint16): "16-bit"}.get(pixels.dtype, "float")
     return SourceImage(path, np.ascontiguousarray(pixels), f"{kind} {depth}", linear=pixels.dtype.kind == "f")
@@ -154,6 +160,16 @@ def _to_rgb(pixels: np.ndarray, path: Path) -> np.ndarray:
     if pixels.dtype.kind == "f":
         pixels = pixels.astype(np.float32, copy=False)
     return pixels
+
+
+def check_finite(pixels: np.ndarray, path: Path) -> None:
+    """Refuses float pixels (H, W, 3) of which any sample is NaN or infinite, with their count."""
+    if pixels.dtype.kind != "f":
+        return
+    broken = int((~np.isfinite(pixels)).any(axis=2).sum())
+    if broken:
+        raise PhotoError(f"{path}: {broken} of its {pixels.shape[0] * pixels.shape[1]} pixels hold NaN or infinite "
+                         "values, which no camera gives (a broken export?): export the photo again")
 
 
 def _read_raw(path: Path) -> SourceImage:

@@ -13,6 +13,8 @@ Content
     (a transmission photo of a dense fabric may show little). A photo whose sharpest spectral peak
     does not stand above what noise alone shows (:func:`check_weave_shown`) is a warning too: the
     yarn lattice and the sample's placement are then read from the other photo, or are guesses.
+    Two photos holding the same pixels once decoded (one photo given twice) are refused
+    (:func:`check_not_the_same`).
 
 Framing
     The two source images must have the same pixel size (:func:`check_source_sizes`, else
@@ -65,6 +67,17 @@ DISTINCT_DIRECTION_DEG = 10.0  # two peaks this far apart in direction span the 
 # Peaks that must agree on a framing ratio for a refusal: a phone moved between the shots moves a
 # harmonic ratio by as much as the harmonic tolerance, and two peaks can agree on such a ratio.
 REFUSE_MATCHES = 3
+
+
+def check_not_the_same(reflection: np.ndarray, transmission: np.ndarray, label: str) -> None:
+    """Refuses a pair whose two photos hold the same pixels once decoded (source pixels, before any
+    crop): the same file given twice, or one photo saved twice losslessly. A copy saved otherwise (a
+    JPEG of the other) differs in its pixels and is not refused here: it reads as two photos lit by
+    the same light, which the order check (:func:`check_order`) flags."""
+    if reflection.shape == transmission.shape and reflection.dtype == transmission.dtype \
+            and np.array_equal(reflection, transmission):
+        raise PhotoError(f"{label}: the two photos are the same image (the same pixels once decoded): give the "
+                         "reflection photo (front light) and the transmission photo (back light)")
 
 
 def check_source_sizes(reflection_size: tuple[int, int], transmission_size: tuple[int, int], label: str) -> None:

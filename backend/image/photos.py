@@ -45,6 +45,7 @@ from .flat_field import flat_corrected
 from .pair_checks import (
     check_content,
     check_framing_frequency,
+    check_not_the_same,
     check_order,
     check_source_sizes,
     check_weave_shown,
@@ -240,6 +241,7 @@ def load_pair(reflection_path: PathLike, transmission_path: PathLike, size: int 
     size, exposure = _check_size_arg(size), _check_exposure(exposure)
     reflection, transmission = read_image(reflection_path), read_image(transmission_path)
     label = f"{reflection.path} / {transmission.path}"
+    check_not_the_same(reflection.pixels, transmission.pixels, label)
     check_source_sizes(reflection.size, transmission.size, label)
     box = crop_box(reflection.size, crop, label)
     warnings = check_crop_size(box, size, label)

@@ -6,6 +6,7 @@
     photolike --out DIR --count N [--seed S] [--moved]   (devtools/cli/photolike.py)
     bench render|fit|placement|batch|fit-speed [...]     (devtools/cli/bench.py)
     signatures                                           (devtools/cli/signatures.py)
+    fuzz [--photos N] [--options N] [--seed S]           (devtools/cli/fuzz.py)
 
 Bad input ends as the backend's commands do: exit code 2 and one line naming the file and the problem.
 """
@@ -17,13 +18,13 @@ import sys
 from backend.app.cli.common import INPUT_ERRORS, input_error_message
 from backend.core.protocol import EXIT_CANCELLED, EXIT_INPUT
 
-from . import bench, dataset, evaluate_init, photolike, signatures, train
+from . import bench, dataset, evaluate_init, fuzz, photolike, signatures, train
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m devtools", description="Woven fabric capture: developer tools")
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in (dataset, train, evaluate_init, photolike, bench, signatures):
+    for module in (dataset, train, evaluate_init, photolike, bench, signatures, fuzz):
         module.add_parser(sub)
     return parser
 

@@ -16,16 +16,17 @@ A row (:data:`COLUMNS`, the CSV's header in this order):
   photos) and ``interchange`` (every fitted parameter in the paper's one-string form).
 
 The JSON holds the same rows under ``pairs``, plus the batch's photo folder and settings. Both
-files are rewritten whole after every finished pair (a temporary file, then a rename), so at any
-moment they describe what is on disk.
+files are rewritten whole after every finished pair (:func:`backend.core.jsonfile.write_whole`: a
+temporary file, then a rename), so at any moment they describe what is on disk.
 """
 from __future__ import annotations
 
 import csv
+import io
 import json
-import os
 from pathlib import Path
 
+from ...core.jsonfile import write_whole
 from ...core.pair_jobs import DONE, KEPT, PairJob
 from ...core.results import METRICS_FILE, PARAMS_FILE
 
@@ -92,24 +93,11 @@ def _read(path: Path) -> dict:
 
 
 def write(out_dir: Path, rows: list[dict], header: dict) -> tuple[Path, Path]:
-    """Writes both files (rows sorted by name) and returns their paths."""
+    """Writes both files whole (rows sorted by name) and returns their paths."""
     rows = sorted(rows, key=lambda r: r["name"])
-    json_path, csv_path = out_dir / JSON_NAME, out_dir / CSV_NAME
-    _replace(json_path, lambda fh: fh.write(json.dumps({**header, "columns": list(COLUMNS), "pairs": rows},
-                                                        indent=2) + "\n"))
-
-    def write_csv(fh):
-        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
-        writer.writeheader()
-        writer.writerows({k: "" if v is None else v for k, v in r.items()} for r in rows)
-
-    _replace(csv_path, write_csv)
-    return json_path, csv_path
-
-
-def _replace(path: Path, write_to) -> None:
-    """Writes through a temporary file and renames it over ``path``: a reader never sees half a file."""
-    temporary = path.with_name(f".{path.name}.tmp")
-    with open(temporary, "w", newline="", encoding="utf-8") as fh:
-        write_to(fh)
-    os.replace(temporary, path)
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=COLUMNS)
+    writer.writeheader()
+    writer.writerows({k: "" if v is None else v for k, v in r.items()} for r in rows)
+    document = json.dumps({**header, "columns": list(COLUMNS), "pairs": rows}, indent=2) + "\n"
+    return write_whole(out_dir / JSON_NAME, document), write_whole(out_dir / CSV_NAME, table.getvalue())

@@ -28,7 +28,7 @@ from ...core.rig import CaptureRig, RigError
 from ..batch import scheduler
 from ..batch.output import OutputError
 from ..batch.ray_executor import DEFAULT_MEMORY_GB, FitResources, connect
-from .common import positive_int
+from .common import folder_name, positive_int
 from .fit import add_fit_options
 
 
@@ -147,7 +147,8 @@ def _positive(text: str) -> float:
 def add_parser(sub) -> None:
     p = sub.add_parser("batch", help="fit every <name>_R.* / <name>_T.* pair of a folder on Ray (local or cluster)")
     p.add_argument("photos", help="folder of photo pairs")
-    p.add_argument("--out", required=True, help="results folder: DIR/<name>/ per pair, DIR/catalogue.json and .csv")
+    p.add_argument("--out", type=folder_name, required=True,
+                   help="results folder: DIR/<name>/ per pair, DIR/catalogue.json and .csv")
     p.add_argument("--workers", type=positive_int,
                    help="fits handed to Ray at once (default: as many as the machines' CPUs, GPUs and memory "
                         "allow; more only wait in Ray's queue)")

@@ -23,6 +23,13 @@ def input_error_message(exc: BaseException) -> str:
     return f"{exc.filename}: file not found" if isinstance(exc, FileNotFoundError) else str(exc)
 
 
+def folder_name(text: str) -> str:
+    """argparse type of ``--out``: a path, not an empty word (which would be the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a folder, got an empty name")
+    return text
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer of at least 1."""
     try:
@@ -35,7 +42,16 @@ def positive_int(text: str) -> int:
 
 
 def device(name: str) -> torch.device:
-    """The torch device ``name``; an :class:`InputError` when CUDA is asked for and missing."""
-    if name.startswith("cuda") and not torch.cuda.is_available():
+    """The torch device ``name`` (cpu, cuda or cuda:N); an :class:`InputError` naming ``--device``
+    when it is no such device, or CUDA is asked for and missing."""
+    try:
+        chosen = torch.device(name)
+    except (RuntimeError, TypeError, ValueError):  # torch's word for a name it cannot parse
+        chosen = None
+    if chosen is None or chosen.type not in ("cpu", "cuda"):
+        raise InputError(f"--device {name!r}: not a device the backend runs on (expected cpu, cuda or cuda:N)")
+    if chosen.type == "cuda" and not torch.cuda.is_available():
         raise InputError(f"--device {name}: CUDA is not available in this PyTorch build or on this machine")
-    return torch.device(name)
+    if chosen.type == "cuda" and chosen.index is not None and chosen.index >= torch.cuda.device_count():
+        raise InputError(f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return chosen

@@ -26,6 +26,7 @@ from pathlib import Path
 from ...core.fit_options import BOX, CHOICE, FIT_OPTIONS, FLAG, FitOption
 from ...core.protocol import STOP_REQUEST, Reporter
 from ..folder import FolderFitOptions, fit_reporting
+from .common import folder_name
 
 
 def watch_stop_requests(stream, stop: threading.Event) -> threading.Thread:
@@ -95,7 +96,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("fit", help="fit fabric parameters to a reflection/transmission photo pair")
     p.add_argument("reflection", nargs="?", help="photo lit from the front")
     p.add_argument("transmission", nargs="?", help="photo lit from behind")
-    p.add_argument("--out", required=True, help="output folder (a new one, or --overwrite)")
+    p.add_argument("--out", type=folder_name, required=True, help="output folder (a new one, or --overwrite)")
     p.add_argument("--example", action="store_true", help="render the bundled example fabric and fit it")
     add_fit_options(p, FIT_OPTIONS)
     p.add_argument("--json-progress", action="store_true", help="JSON lines on stdout (see backend/core/protocol.py)")

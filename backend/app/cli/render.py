@@ -13,14 +13,14 @@ import json
 import sys
 from pathlib import Path
 
-from ...core.jsonfile import read_json
+from ...core.jsonfile import make_folder, read_json, write_whole
 from ...core.options import OptionsError, RenderOptions
 from ...core.params import FabricParams, ParamError, load_params
 from ...core.rig import DEFAULT_RIG, CaptureRig
 from ...core.weave import WeaveError
 from ...image.png import write_png
 from ...model.render import render_pair
-from .common import InputError, device, positive_int
+from .common import InputError, device, folder_name, positive_int
 
 
 def render_and_save(params: FabricParams, out: Path, names: tuple[str, str], rig: CaptureRig,
@@ -55,11 +55,11 @@ def run_render(args) -> int:
     except json.JSONDecodeError as exc:
         raise InputError(f"--flags: not valid JSON ({exc})") from None
     options = RenderOptions.from_flags(flags)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    dev = device(args.device)
+    out = make_folder(Path(args.out), InputError)
     render_and_save(params, out, ("reflection.png", "transmission.png"), rig, options,
-                    args.size, args.spp, args.seed, device(args.device))
-    (out / "params.json").write_text(params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
+                    args.size, args.spp, args.seed, dev)
+    write_whole(out / "params.json", params.to_json(interchange=params.to_interchange(), rig=rig.to_dict(),
                                                     flags=flags, spp=args.spp, size=args.size) + "\n")
     print(f"wrote {out / 'reflection.png'}, {out / 'transmission.png'}, {out / 'params.json'}", file=sys.stderr)
     return 0
@@ -71,9 +71,8 @@ def run_render_cases(args) -> int:
     if not isinstance(cases, list):
         raise InputError(f"{path}: expected a list of cases (name, params, flags)")
     prepared = [parse_case(case, index, path) for index, case in enumerate(cases)]
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     dev = device(args.device)
+    out = make_folder(Path(args.out), InputError)
     for index, (name, params, options) in enumerate(prepared, 1):
         render_and_save(params, out, (f"{name}_R.png", f"{name}_T.png"), DEFAULT_RIG, options,
                         args.size, args.spp, args.seed, dev)
@@ -84,7 +83,7 @@ def run_render_cases(args) -> int:
 def add_parsers(sub) -> None:
     p = sub.add_parser("render", help="render the reflection/transmission pair of a parameter set")
     p.add_argument("params", help="a params.json file or an interchange string")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", type=folder_name, required=True, help="output folder")
     p.add_argument("--spp", type=positive_int, default=64, help="samples per pixel (default 64)")
     p.add_argument("--size", type=positive_int, default=512, help="image size in pixels (default 512)")
     p.add_argument("--seed", type=int, default=0, help="jitter seed")
@@ -95,7 +94,7 @@ def add_parsers(sub) -> None:
 
     p = sub.add_parser("render-cases", help="render every case of a cases.json file")
     p.add_argument("cases")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", type=folder_name, required=True)
     p.add_argument("--spp", type=positive_int, default=64)
     p.add_argument("--size", type=positive_int, default=512)
     p.add_argument("--seed", type=int, default=0)
