@@ -146,11 +146,13 @@ def test_a_fit_killed_while_writing_over_an_earlier_result_leaves_each_file_whol
 
 def test_the_batch_catalogue_is_renamed_into_place(tmp_path, monkeypatch):
     from backend.app.batch import catalogue
+    from backend.core.pair_jobs import FAILED, PairJob
 
     renamed, rename = [], os.replace
     monkeypatch.setattr(os, "replace", lambda source, target: renamed.append((source, target)) or rename(source,
                                                                                                        target))
-    rows = [catalogue.row("denim", "failed", reason="torn"), catalogue.row("linen", "pending")]
+    rows = [catalogue.row(PairJob("denim", None, None, FAILED, reason="torn")),
+            catalogue.row(PairJob("linen", None, None))]
     json_path, csv_path = catalogue.write(tmp_path, rows, {"photos": "P"})
     assert [(os.path.basename(s), t) for s, t in renamed] == [(".catalogue.writing.json", json_path),
                                                               (".catalogue.writing.csv", csv_path)]
