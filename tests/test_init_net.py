@@ -173,7 +173,7 @@ def test_a_tiny_training_run_reduces_its_loss(tiny_dataset):
 
 
 def test_photo_like_items_are_photographed_turned_samples(tmp_path, trivial_signatures):
-    from backend.texture.lattice import yarns_in_view
+    from backend.texture.frequencies import yarns_in_view
     from devtools.photo_like import MAX_ROTATION_DEG, PIXELS_PER_YARN
     photo = dataset.DatasetSettings(seed=3, photo_scale=1)
     quiet = open("/dev/null", "w")

@@ -210,7 +210,7 @@ def test_the_phones_jpeg_is_a_deterministic_lossy_copy_at_the_film_size():
 
 
 def test_framing_resolves_the_weave_and_leaves_a_coarse_one_alone():
-    from backend.texture.lattice import yarns_in_view
+    from backend.texture.frequencies import yarns_in_view
     rig = CaptureRig()
     dense = typical("twill0")                                   # about 1 px per yarn at 512 px
     assert rig.film_size / yarns_in_view("twill0", dense.tiles, rig) < 2
@@ -303,8 +303,8 @@ def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_
     case = photolike.make_item(tmp_path, seed=31, index=14)
     (tmp_path / "cases.json").write_text(json.dumps([case]))
     assert main(["bench", "placement", "--synthetic", str(tmp_path), "--json", "--no-record"]) == 0
-    printed, row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    assert printed["gates"]["rival_turn_gain"] == GATES.rival_turn_gain  # the gates it ran with come first
+    row, total = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert total["gates"]["rival_turn_gain"] == GATES.rival_turn_gain  # the summary names the gates it ran with
     assert row["name"] == case["name"] and row["true_rotation_deg"] == pytest.approx(0.15, abs=0.01)
     assert row["rotation_error_deg"] == pytest.approx(abs(row["rotation_deg"] - row["true_rotation_deg"]), abs=1e-3)
     assert row["rotation_error_deg"] < 0.25 and row["tiles_error_pct"] < 1.0

@@ -9,9 +9,9 @@ hint, not the fit's choice: the fit's trial fits choose, :mod:`backend.fit.searc
 
 The placement and the tiles stay fixed through the fit, so these errors are the fit's; a pair takes
 seconds where ``bench fit`` takes minutes, so this is the loop for work on the lattice and the
-placement. It prints the placement's gates (:mod:`backend.texture.gates`) first, one line per
-pair, and a summary against the fit issue's tiles target; the ledger keeps the gates with the
-summary. Measure a change on a photo-like seed no decision was tuned on.
+placement. It prints one line per pair and a summary against the fit issue's tiles target; the
+summary names the placement's gates (:mod:`backend.texture.gates`) it ran with, as the ledger keeps
+it (as text, the gates' table comes first). Measure a change on a photo-like seed no decision was tuned on.
 """
 from __future__ import annotations
 
@@ -70,9 +70,7 @@ def summary(rows: list[dict]) -> dict:
 def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool,
                     ledger: Ledger = NOT_RECORDED) -> int:
     table = gates.table()
-    if as_json:
-        print(json.dumps({"gates": {name: value for name, value, _ in table}}), flush=True)
-    else:
+    if not as_json:
         print("gates:", *(f"  {name} = {value}: {guards}" for name, value, guards in table), sep="\n", flush=True)
     rows = []
     for job in pair_jobs(synthetic, [], names):
@@ -87,6 +85,10 @@ def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool
                   f"tiles of the true pattern off {tiles}; {row['seconds']:.1f} s", flush=True)
         ledger.row(row)
     result = summary(rows)
-    print(json.dumps(result) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    if as_json:  # the summary carries the gates it was measured with, as the ledger keeps it
+        result["gates"] = {name: value for name, value, _ in table}
+        print(json.dumps(result), flush=True)
+    else:
+        print("  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
     ledger.summary({**result, "gates": {name: value for name, value, _ in table}})
     return 0
