@@ -43,3 +43,26 @@ def test_modules_are_grouped_by_a_named_package_or_by_depth():
     assert grouped("backend.fit.search", ("backend.fit",), None) == "backend.fit"
     assert grouped("backend.texture.lattice", ("backend.fit",), 2) == "backend.texture"
     assert grouped("backend.texture.lattice", (), None) == "backend.texture.lattice"
+
+
+def test_saved_crossings_report_as_the_run_did(tmp_path):
+    from devtools.callflow import load, report, save
+    flow = CallFlow("pkg")
+    with flow.tracing():
+        SEARCH.called_back(OBJECTIVE, range(3))
+    save(flow, tmp_path / "flow.jsonl")
+    again = load(tmp_path / "flow.jsonl", "pkg")
+    assert again.crossings == flow.crossings
+    assert report(again, ("pkg.search", "pkg.objective"), None, 5) == report(flow, ("pkg.search", "pkg.objective"),
+                                                                             None, 5)
+
+
+def test_every_pair_in_one_pass_counts_as_the_pair_alone():
+    from devtools.callflow import pair_alternations
+    flow = CallFlow("pkg")
+    with flow.tracing():
+        SEARCH.looped(OBJECTIVE, range(4))
+        SEARCH.called_back(OBJECTIVE, range(3))
+    crossings = flow.crossings[threading.get_ident()]
+    alone = alternations(crossings, "pkg.search", "pkg.objective", lambda m: m)
+    assert pair_alternations(crossings, lambda m: m) == {("pkg.objective", "pkg.search"): alone[2]}
