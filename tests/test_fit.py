@@ -318,9 +318,10 @@ def test_the_network_cannot_keep_only_lattices_that_miss_the_photos_peaks():
     coverage = {wrong: 0.384, true: 0.909, near: 0.384 + COVERAGE_MARGIN, satin: 1.0}
 
     def rated(probability):
+        shared = family_lattices(found, DEFAULT_RIG)
         kept, by_id, ruled_out = rated_candidates(
-            found, lambda cands: [probability.get((c.pattern, c.tiles), 0.0) for c in cands], 0.02,
-            lambda c: coverage[c.tiles], DEFAULT_RIG)
+            shared, [probability.get((c.pattern, c.tiles), 0.0) for c in shared], [coverage[c.tiles] for c in shared],
+            0.02)
         assert len(by_id) == len(kept) + len(ruled_out) == 10   # every twill on the 3 twill lattices, the satin
         return [(c.pattern, c.tiles) for c in kept], ruled_out
 
@@ -602,7 +603,8 @@ def test_a_start_on_a_lattice_chosen_would_rule_out_gets_no_trial_steps(twill_pa
     """The trials of the starts whose lattice coverage :func:`chosen` keeps are those of a search that
     tried every start (the coverage does not depend on the steps); the others get none, and neither
     does a lone eligible start where the winner restarts at the working size."""
-    from backend.fit.search import Start, trial_runs
+    from backend.fit.pipeline import trial_runs
+    from backend.fit.search import Start
     objective = Objective(Target.from_arrays(*twill_pair, size=64), Renderer(DEFAULT_RIG, 64, 4, compile=False),
                           DEFAULT_RIG)
     settings = FitSettings(iterations=4, trial_iterations=2, size=64, spp=4, search_every=0, compile=False)
@@ -632,7 +634,8 @@ def test_a_weave_and_its_face_twin_alone_get_no_trial_steps_where_the_winner_res
     the working size, the duel there chooses (pipeline._finalist): no trial steps, and the start with
     the lower loss is the one the twin must beat. Any other pair of weaves, or a fit at the base size,
     has its trials as before."""
-    from backend.fit.search import Start, trial_runs
+    from backend.fit.pipeline import trial_runs
+    from backend.fit.search import Start
     objective = Objective(Target.from_arrays(*twill_pair, size=64), Renderer(DEFAULT_RIG, 64, 4, compile=False),
                           DEFAULT_RIG)
     settings = FitSettings(iterations=4, trial_iterations=2, size=64, spp=4, search_every=0, compile=False)

@@ -18,6 +18,7 @@ The harmonics are read at the lattice of the candidate tiles for both images.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,7 @@ import torch
 from ..core.params import FabricParams
 from ..core.priors import prior_nll
 from ..core.rig import CaptureRig
+from ..image.metrics import spectrum_corr
 from ..model.imaging import downsample_linear
 from ..model.param_tensors import ParamTensors
 from ..model.photo_light import PhotoLight, linear_photo, solve
@@ -140,3 +142,31 @@ class Objective:
             params = ParamTensors.from_params(params, self.renderer.device)
         with torch.no_grad():
             return float(self(params, camera_blur_px))
+
+    def values(self, params: Sequence[FabricParams], camera_blurs_px: Sequence[float]) -> list[float]:
+        """The loss of each parameter set at its camera blur, as numbers (:meth:`value`)."""
+        return [self.value(p, blur) for p, blur in zip(params, camera_blurs_px, strict=True)]
+
+    def colour_ratios(self, params: FabricParams, camera_blur_px: float) -> tuple[list[float], list[float]]:
+        """Per photo (R, T) and channel, the photo's mean linear colour over a render's of ``params``
+        (blurred, without the light falloff), within [0.05, 20]: the albedo scales that match the
+        render's colour to the photos' (:func:`backend.fit.search.colour_matched`)."""
+        with torch.no_grad():
+            pair = self.renderer.render(params, camera_blur_px=camera_blur_px)
+        gamma = self.rig.gamma
+
+        def ratio(render, photo):
+            r = render.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+            p = photo.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+            return (p / r.clamp_min(1e-4)).clamp(0.05, 20.0).tolist()
+
+        return ratio(pair.reflection, self.target.reflection), ratio(pair.transmission, self.target.transmission)
+
+    def spectrum_similarity(self, params: FabricParams, camera_blur_px: float) -> float:
+        """Mean over R and T of the log-power-spectrum correlation between a render of ``params``
+        (blurred, without the light falloff) and the photo (:func:`backend.image.metrics.spectrum_corr`)."""
+        with torch.no_grad():
+            pair = self.renderer.render(params, camera_blur_px=camera_blur_px)
+        return 0.5 * sum(spectrum_corr(photo.cpu().numpy(), render.cpu().numpy())
+                         for photo, render in ((self.target.reflection, pair.reflection),
+                                               (self.target.transmission, pair.transmission)))

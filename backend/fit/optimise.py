@@ -57,10 +57,7 @@ class Run:
 
     Why by gradient: the blur and the fabric trade off along a valley (a softer camera and sharper
     highlights, or the reverse), which steps on the blur alone, each at the parameters fitted to the
-    blur before, cannot follow. Photo-like seed 53 twill1_002 (the phone's blur 1.77 px) ended at
-    the scan's 2.0 px with warp roughness .60 against .95 and loss 1.555; 60 steps from the true
-    parameters at 1.77 px reach 1.471 and keep them. With the blur in Adam the same fit ends at
-    1.69 px, warp roughness .88 (loss 1.504).
+    blur before, cannot follow: the run ends where the scan put the blur, with the fabric bent to it.
     """
 
     def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
@@ -155,9 +152,7 @@ class Run:
         with the tiles, Adam's moments, best).
 
         Judged after a few steps, not at once: the parameters fitted without the warp make up for
-        it (a smoother transmission, a wider blur), so at them the right warp first reads worse
-        (photo-like seed 7 plain_005, read within 0.19 px of a 1.35 px warp: loss 1.60 -> 1.93 at
-        the fit's parameters, 1.56 after two steps, 1.27 after 40 against 1.56 without it)."""
+        it (a smoother transmission, a wider blur), so at them the right warp first reads worse."""
         self.end_warp_trial()
         started = time.perf_counter()
         renderer = self.objective.renderer
@@ -186,11 +181,8 @@ class Run:
         Judged at once, unlike the warp: nothing else in the fabric makes up for a lattice that
         drifts out of phase with the photos. And judged apart from the warp's trial, which keeps
         what does no harm (five more steps lower the loss anyway): the stretch is read against a
-        render of parameters still being fitted, a few tenths of a percent off where they are off
-        (photo-like seed 61 twill1_002: read -0.43 %, -0.59 % and +0.38 % at steps 25, 50 and 75,
-        the placement's tiles 0.19 % off the truth; kept by the trial, they ended 0.80 % off; at
-        once, the loss was higher at each (1.141 against 1.113 at step 25), and they stay. Seed 61
-        twill0m_006: read +1.29 %, to 0.02 % off the truth, loss 1.385 against 1.773)."""
+        render of parameters still being fitted, a few tenths of a percent off where they are off,
+        and kept only where the loss is lower at once."""
         losses = [self.objective.value(self.best.replace(tiles=t), self.best_blur) for t in (tiles, self.best.tiles)]
         return tiles if losses[0] < losses[1] else self.best.tiles
 

@@ -1,4 +1,7 @@
-"""The search stage of a fit: which weave, at what density, from where, with how much camera blur.
+"""The search stage's decisions: which weave, at what density, from where, with how much camera blur.
+
+Values in, values out: the pipeline (:mod:`backend.fit.pipeline`) evaluates the objective and runs
+the trials, and hands the numbers to these functions, which never call back.
 
 1. Candidates: one (pattern, tiles) per preset from the photos' spectra
    (:func:`backend.texture.candidates.propose`); an initialisation network may rate them, each
@@ -6,38 +9,41 @@
    less than ``min_pattern_probability`` are dropped (:func:`rated_candidates`), unless they are of
    a family it keeps and their lattice makes far more of the photos' peaks than every kept
    candidate's.
-2. Starting points (:func:`starting_points`): the network's guess for a candidate, or the
-   pattern's typical parameters with the albedos scaled to the photos' mean colour
-   (:func:`colour_matched`) and the best of a few gap scales (:func:`best_gap`); ranked by loss.
-3. Camera blur (:func:`camera_blur`): fixed when given; none for photos whose noise is as white as a
-   render's (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`best_blur`),
-   never below the blur the photos' noise shows, which also becomes the optimiser's lower bound.
-4. Trials (:func:`trial_runs`): the best ``trials`` starts get a short fit each; the pattern is the
-   one whose trial ends lowest in loss + ``spectrum_weight`` x (1 - spectrum correlation of render
-   and photo): the loss reads harmonics at each candidate's own lattice, so a lattice twice too
-   coarse would not be charged for the photo's odd harmonics; the spectrum sees every peak.
-   Only trials whose lattice makes nearly as much of the photos' peak strength as the best trial's
-   are eligible (:func:`chosen`): a lattice too fine on one axis compares fewer, easier harmonics,
-   and its trial can end lowest while the photos' strongest peak is none of its harmonics.
+2. Starting points: the network's guess for a candidate, or the pattern's typical parameters with
+   the albedos scaled to the photos' mean colour (:func:`colour_matched`) and the best of a few gap
+   scales (:func:`gap_variants`, :func:`lowest`); ranked by loss (:func:`ranked`).
+3. Camera blur: fixed when given; none for photos whose noise is as white as a render's
+   (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`blur_scan`,
+   :func:`best_blur`), never below the blur the photos' noise shows (:func:`blur_floor`), which also
+   becomes the optimiser's lower bound.
+4. Trials: the best ``trials`` starts get a short fit each (:func:`trial_plan`); the pattern is the
+   one whose trial ends lowest in
+
+       selection = trial loss + spectrum_weight * (1 - spectrum correlation of render and photo)
+
+   (:func:`trial`): the loss reads harmonics at each candidate's own lattice, so a lattice twice too
+   coarse would not be charged for the photo's odd harmonics; the spectrum sees every peak. Only
+   trials whose lattice makes nearly as much of the photos' peak strength as the best trial's are
+   eligible (:func:`chosen`): a lattice too fine on one axis compares fewer, easier harmonics, and
+   its trial can end lowest while the photos' strongest peak is none of its harmonics.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..core import priors, weave
 from ..core.params import PARAMETERS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
 from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
-from ..image.metrics import spectrum_corr
 from ..texture.candidates import Candidate, tile_range
 from ..texture.frequencies import yarns_in_view
-from .objective import Objective
-from .optimise import Run
 from .settings import FitSettings
+
+if TYPE_CHECKING:
+    from .optimise import Run
 
 GAP_SCAN = (0.75, 0.85, 0.9, 0.95, 1.0)
 BASE_SIZE, BASE_SPP = 256, 16
@@ -45,6 +51,11 @@ BASE_ITERATIONS, FINE_ITERATIONS = 150, 100
 MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
+LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
+
+# Why a shortlisted start gets no trial steps (its summary's "skipped"; trial_plan)
+FEW_PEAKS = "its lattice makes far less of the photos' peaks than the best start's"
+FACE_TWINS = "a weave and its face twin: the duel at the working size chooses"
 
 
 @dataclass
@@ -84,19 +95,14 @@ def iterations_for(size: int) -> int:
     return BASE_ITERATIONS if size <= BASE_SIZE else FINE_ITERATIONS
 
 
-LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
-
-
 def family_lattices(found: list[Candidate], rig: CaptureRig) -> list[Candidate]:
     """``found`` with each pattern also on every lattice proposed for another pattern of its family
     (plain, twill, satin) that its tile range allows (:func:`backend.texture.candidates.tile_range`),
     once per lattice: each pattern's own candidate, then the others in the order of ``found``.
 
-    The lattice of a preset comes from the harmonics its typical render shows, and twins differ there:
-    photo-like satin0m_008 of seed 7 had satin0m proposed on tiles (46.1, 13.7), a lattice that makes
-    0.28 of the photos' peak strength, while satin1m was on the true one (22.2, 40.9), 0.92. The
-    network, shown every pattern on every lattice of its family, gives satin0m 0.99 on the true lattice
-    (on its own, 0.0)."""
+    The lattice of a preset comes from the harmonics its typical render shows, and face twins can be
+    proposed on different lattices; the network, shown every pattern on every lattice of its family,
+    rates each where the photos put it."""
     lattices = {}
     for cand in found:
         lattices.setdefault(priors.family(cand.pattern), []).append(cand)
@@ -120,56 +126,54 @@ def same_lattice(tiles, other) -> bool:
     return all(abs(t - o) <= LATTICE_MATCH * max(t, o) for t, o in zip(tiles, other))
 
 
-def rated_candidates(found: list[Candidate], pattern_probabilities, threshold: float,
-                     coverage_of: Callable[[Candidate], float], rig: CaptureRig
+def rated_candidates(shared: list[Candidate], probabilities: list[float], coverages: list[float], threshold: float
                      ) -> tuple[list[Candidate], dict[int, float], list[dict]]:
-    """(kept candidates, probability by id(candidate), summaries of those ruled out).
+    """(kept candidates, probability by id(candidate), summaries of those ruled out) of the
+    candidates on their family's lattices (:func:`family_lattices`), given the network's
+    probability and the lattice's peak coverage (:func:`backend.texture.lattice.peak_coverage`) of
+    each.
 
-    The network rates every pattern on every lattice of its family (:func:`family_lattices`) and
-    rules out the candidates it gives less than ``threshold``, but not one of a weave family it
-    keeps (plain, twill, satin) whose lattice makes more than COVERAGE_MARGIN more of the photos' peak
-    strength (``coverage_of``, :func:`backend.texture.lattice.peak_coverage`) than every kept
-    candidate: :func:`chosen` would rule all the kept ones out once trialled beside it. The network
-    reads the harmonics at each candidate's lattice, and can keep a family on a wrong lattice alone.
-    Its family stands: the coverage is one-sided (a lattice too coarse explains every peak), so it
-    cannot bring in another family (real twill1: a satin0 lattice too coarse, 0.94, beside the kept
-    twills' 0.60, would have won)."""
-    if pattern_probabilities is None or len(found) <= 1:
-        return found, {}, []
-    shared = family_lattices(found, rig)
-    probabilities = pattern_probabilities(shared)
-    if probabilities is None:
-        return found, {}, []
-    found = shared
-    rated = {id(c): p for c, p in zip(found, probabilities)}
-    coverage = {id(c): coverage_of(c) for c in found}
-    kept = [c for c, p in zip(found, probabilities) if p >= threshold] or [found[int(np.argmax(probabilities))]]
-    kept_ids = {id(c) for c in kept}
-    families = {priors.family(c.pattern) for c in kept}
-    bar = max(coverage[id(c)] for c in kept) + COVERAGE_MARGIN
-
-    def keeps(c: Candidate) -> bool:
-        return id(c) in kept_ids or priors.family(c.pattern) in families and coverage[id(c)] > bar
-
+    The network rules out the candidates it gives less than ``threshold``
+    (:func:`_kept_by_network`), but not one of a weave family it keeps whose lattice makes more than
+    COVERAGE_MARGIN more of the photos' peak strength than every kept candidate
+    (:func:`_kept_by_peaks`): :func:`chosen` would rule all the kept ones out once trialled beside
+    it. Its family stands: the coverage is one-sided (a lattice too coarse explains every peak), so
+    it cannot bring in another family."""
+    network = _kept_by_network(shared, probabilities, threshold)
+    kept = [k or p for k, p in zip(network, _kept_by_peaks(shared, coverages, network))]
     ruled_out = [{"pattern": c.pattern, "tiles": list(c.tiles), "lattice_score": c.score,
-                  "peak_coverage": coverage[id(c)], "probability": rated[id(c)]}
-                 for c in found if not keeps(c)]
-    return [c for c in found if keeps(c)], rated, ruled_out
+                  "peak_coverage": coverage, "probability": probability}
+                 for c, coverage, probability, keep in zip(shared, coverages, probabilities, kept) if not keep]
+    rated = {id(c): p for c, p in zip(shared, probabilities)}
+    return [c for c, keep in zip(shared, kept) if keep], rated, ruled_out
 
 
-def colour_matched(params: FabricParams, objective: Objective, camera_blur_px: float) -> FabricParams:
-    """Scales the albedos so the render's mean linear colour matches the photos' (per channel)."""
-    with torch.no_grad():
-        pair = objective.renderer.render(params, camera_blur_px=camera_blur_px)
-    gamma = objective.rig.gamma
+def _kept_by_network(candidates: list[Candidate], probabilities: list[float], threshold: float) -> list[bool]:
+    """Per candidate, whether the network gives it ``threshold`` or more (the most probable one
+    where it gives none that much)."""
+    kept = [p >= threshold for p in probabilities]
+    if not any(kept):
+        kept[int(np.argmax(probabilities))] = True
+    return kept
 
-    def ratio(render, photo):
-        r = render.clamp_min(0).pow(gamma).mean(dim=(0, 1))
-        p = photo.clamp_min(0).pow(gamma).mean(dim=(0, 1))
-        return (p / r.clamp_min(1e-4)).clamp(0.05, 20.0).tolist()
 
-    r_ratio = ratio(pair.reflection, objective.target.reflection)
-    t_ratio = ratio(pair.transmission, objective.target.transmission)
+def _kept_by_peaks(candidates: list[Candidate], coverages: list[float], kept: list[bool]) -> list[bool]:
+    """Per candidate, whether it is of a family among the ``kept`` ones and its lattice's peak
+    coverage is more than COVERAGE_MARGIN above every kept candidate's."""
+    families = {priors.family(c.pattern) for c, keep in zip(candidates, kept) if keep}
+    bar = max(coverage for coverage, keep in zip(coverages, kept) if keep) + COVERAGE_MARGIN
+    return [priors.family(c.pattern) in families and coverage > bar for c, coverage in zip(candidates, coverages)]
+
+
+def typical_start(candidate: Candidate) -> FabricParams:
+    """The candidate's pattern's typical parameters on its tiles: the start where the network gives none."""
+    return priors.typical(candidate.pattern).replace(tiles=candidate.tiles)
+
+
+def colour_matched(params: FabricParams, ratios: tuple[list[float], list[float]]) -> FabricParams:
+    """``params`` with the albedos scaled per channel by the photos' mean linear colour over the
+    render's (``ratios``, R and T: :meth:`backend.fit.objective.Objective.colour_ratios`), within [0, 1]."""
+    r_ratio, t_ratio = ratios
 
     def scaled(rgb, factors):
         return tuple(min(1.0, max(0.0, c * f)) for c, f in zip(rgb, factors))
@@ -182,145 +186,100 @@ def colour_matched(params: FabricParams, objective: Objective, camera_blur_px: f
            "diffuse_transmission": scaled(params.diffuse_transmission, t_ratio)})
 
 
-def best_gap(params: FabricParams, objective: Objective, camera_blur_px: float) -> tuple[float, FabricParams]:
-    """The starting gap scale (same for warp and weft) with the lowest loss among GAP_SCAN and the
-    current one, as (loss, params): gaps change the transmission image more than anything."""
-    best = None
-    for gap in (params.gap_scale,) + tuple((g, g) for g in GAP_SCAN):
-        trial = params.replace(gap_scale=gap)
-        loss = objective.value(trial, camera_blur_px)
-        if best is None or loss < best[0]:
-            best = (loss, trial)
-    return best
+def gap_variants(params: FabricParams) -> list[FabricParams]:
+    """``params`` at its own gap scale, then at each of GAP_SCAN (the same for warp and weft): the
+    starting gap is scanned, as gaps change the transmission image more than anything."""
+    return [params.replace(gap_scale=gap) for gap in (params.gap_scale,) + tuple((g, g) for g in GAP_SCAN)]
 
 
-def starting_points(candidates: list[Candidate], objective: Objective, camera_blur_px: float,
-                    initial_for: Callable[[Candidate], FabricParams | None] | None,
-                    on_start: Callable[[int, float], None]) -> list[Start]:
-    """One start per candidate, lowest loss first; ``on_start(count, loss)`` after each."""
-    starts = []
-    for k, cand in enumerate(candidates):
-        guess = initial_for(cand) if initial_for is not None else None
-        if guess is not None:
-            params = guess.replace(tiles=cand.tiles)
-            loss = objective.value(params, camera_blur_px)
-        else:
-            params = colour_matched(priors.typical(cand.pattern).replace(tiles=cand.tiles), objective, camera_blur_px)
-            loss, params = best_gap(params, objective, camera_blur_px)
-        starts.append(Start(loss, k, cand, params))
-        on_start(k + 1, loss)
+def lowest(losses: list[float], params: list[FabricParams]) -> tuple[float, FabricParams]:
+    """(loss, parameters) of the lowest loss; the first of equal ones."""
+    best = min(range(len(losses)), key=losses.__getitem__)
+    return losses[best], params[best]
+
+
+def ranked(starts: list[Start]) -> list[Start]:
+    """The starts, lowest loss first (ties in the proposal's order)."""
     return sorted(starts, key=lambda s: (s.loss, s.order))
 
 
-def best_blur(params: FabricParams, objective: Objective, floor: float, also: float | None = None) -> float:
-    """The camera blur among ``floor``, the BLUR_SCAN values above it (and ``also``) with the lowest loss."""
+def reranked(starts: list[Start], losses: list[float]) -> list[Start]:
+    """The starts ranked again by their ``losses`` at another camera blur."""
+    return ranked([Start(loss, s.order, s.candidate, s.params) for s, loss in zip(starts, losses, strict=True)])
+
+
+def blur_floor(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int
+               ) -> float | None:
+    """The lower bound of the camera blur the fit estimates: the blur the photos' noise shows (at
+    most MAX_CAMERA_BLUR_PX); None where the blur stays fixed (:func:`fixed_blur`).
+
+    The fit starts from the loss's choice at the best starting parameters (:func:`best_blur`), and
+    the runs move it from there, by gradient and by the discrete searches' parabolic steps
+    (:class:`backend.fit.optimise.Run`); where the start is far from the photos that choice can be
+    a valley the fit stays in, hence a duel from the floor at the working size
+    (:func:`backend.fit.pipeline._finalist`)."""
+    if settings.camera_blur is not None:
+        return None
+    photo_blur = photo_blur_px(reflection, transmission, film_size)
+    if photo_blur < SOFT_PHOTO_PX:
+        return None  # as sharp as a render: a blur would only hide model error
+    return min(photo_blur, MAX_CAMERA_BLUR_PX)
+
+
+def fixed_blur(settings: FitSettings) -> float:
+    """The camera blur of a fit that does not estimate it: the one given, else none (sharp photos)."""
+    return 0.0 if settings.camera_blur is None else settings.camera_blur
+
+
+def blur_scan(floor: float, also: float | None = None) -> tuple[float, ...]:
+    """The camera blurs to compare: ``floor``, the BLUR_SCAN values above it (and ``also``)."""
     scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
-    scan += (also,) if also is not None and also not in scan else ()
-    losses = [objective.value(params, blur) for blur in scan]
+    return scan + ((also,) if also is not None and also not in scan else ())
+
+
+def best_blur(scan: tuple[float, ...], losses: list[float]) -> float:
+    """The blur of :func:`blur_scan` with the lowest loss (the first of equal ones)."""
     return scan[int(np.argmin(losses))]
 
 
-def camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int,
-                best_start: FabricParams, objective: Objective) -> tuple[float, float | None]:
-    """(camera blur to fit with, its lower bound while fitting, or None when it stays fixed).
-
-    The blur is the loss's choice at the best starting parameters; the runs move it from there, by
-    gradient with the continuous parameters and by the discrete searches' parabolic steps
-    (:class:`backend.fit.optimise.Run`). Where the start is far
-    from the photos, that choice can be a valley the fit stays in: photo-like seed 53's twill0_001
-    (the phone's blur 1.04 px, the photos' reading 0.82) starts at 1.5 px and ends at 1.31 with loss
-    1.19 and roughness MAE .175; the same fit started at 1.04 ends at 0.99 with loss 0.83 and MAE
-    .052, and started at the reading, 0.82, with loss 0.77 and MAE .071. Yet starting every fit at the
-    reading is worse on the dev real pairs: satin1 FLIP R / T .150 / .139 -> .193 / .234, colour L1 T
-    .015 -> .051 (final loss 3.37 -> 3.66), twill1 spectrum T .678 -> .635 (2.91 -> 2.98). A re-scan at
-    the run's parameters after 25 steps keeps twill0_001's 1.31 px: by then they have followed it.
-    Hence a short duel of both starts at the working size (:func:`backend.fit.pipeline._finalist`)."""
-    if settings.camera_blur is not None:
-        return settings.camera_blur, None
-    photo_blur = photo_blur_px(reflection, transmission, film_size)
-    if photo_blur < SOFT_PHOTO_PX:
-        return 0.0, None  # as sharp as a render: a blur would only hide model error
-    floor = min(photo_blur, MAX_CAMERA_BLUR_PX)
-    return best_blur(best_start, objective, floor), floor
+def shortlisted(starts: list[Start], trials: int) -> list[Start]:
+    """The best ``trials`` starts (at least one): those given a trial."""
+    return starts[: max(1, trials)]
 
 
-def reranked(starts: list[Start], objective: Objective, camera_blur_px: float) -> list[Start]:
-    """The starts ranked again by their loss at another camera blur."""
-    rescored = [Start(objective.value(s.params, camera_blur_px), s.order, s.candidate, s.params) for s in starts]
-    return sorted(rescored, key=lambda s: (s.loss, s.order))
+def trial_plan(candidates: list[Candidate], coverages: list[float], restarted: bool
+               ) -> list[tuple[bool, str | None]]:
+    """Per shortlisted candidate (with its lattice's peak coverage): (whether its trial takes
+    steps, why not where the summary says so: FEW_PEAKS, FACE_TWINS or None).
 
-
-def spectrum_similarity(params: FabricParams, objective: Objective, camera_blur_px: float) -> float:
-    """Mean over R and T of the log-power-spectrum correlation between a render and the photo."""
-    with torch.no_grad():
-        pair = objective.renderer.render(params, camera_blur_px=camera_blur_px)
-    target = objective.target
-    return 0.5 * sum(spectrum_corr(photo.cpu().numpy(), render.cpu().numpy())
-                     for photo, render in ((target.reflection, pair.reflection),
-                                           (target.transmission, pair.transmission)))
-
-
-def trial_runs(starts: list[Start], objective: Objective, settings: FitSettings, camera_blur_px: float,
-               blur_floor: float | None, rated: dict[int, float], check_stop: Callable[[Run], None],
-               on_trial: Callable[[int, int, float], None],
-               coverage_of: Callable[[Candidate], float], restarted: bool = False) -> list[Trial]:
-    """A short fit for each of the best ``settings.trials`` starts (none when only one is left);
-    ``coverage_of(candidate)`` is its lattice's peak coverage (:func:`chosen`).
-
-    The runs' learning-rate schedules span the trial and the final iterations: at a working size of
-    BASE_SIZE or below the winner goes on (above it, ``restarted``, the fit starts the winner again
-    at the working size from ``Trial.start``).
-
-    A start whose lattice's coverage :func:`chosen` would rule out (below the best start's by more
-    than COVERAGE_MARGIN) gets no steps: the coverage does not depend on them, so the winner and the
-    eligible trials are those of a search that ran it (its summary keeps the start's loss, with
-    ``"skipped"`` saying why). Where that leaves one eligible start and the winner restarts, it gets
-    none either (a trial only chooses); at BASE_SIZE the lone trial still runs, as its steps go on
-    in the fit. Measured on the dev real twill2: twill1 and twill1m on a lattice three times too
-    fine (coverage 0.13) beside twill0 (0.93): 60 trial steps at 256 px spared, the same parameters,
-    the fit 159 -> 142 s (one session, 2 cores).
-
-    Where the winner restarts and the eligible starts are a weave and its face twin on one lattice
-    (:func:`_face_twins`), none gets steps either: the trials at BASE_SIZE cannot tell the two apart
-    (:func:`rival`), and the fit's duel at the working size chooses between them from their starts,
-    whatever the trials did (``backend.fit.pipeline._finalist``); the trials only chose which of the
-    two the twin must beat by ``duel_margin``, now the one with the lower starting loss. Measured
-    (``bench fit``, the same session): on the dev real twill1, the five dev golden twills and seven
-    of the eight twills of photo-like seed 53 (twill1_012 has one eligible start) the search at 256
-    px spared 40 steps, and every fit came out bit-identical (the duels' losses,
-    ``fine_trial_loss``, make the same finalist go on either way). The search stage less its
-    lattice part, one fit alone on 2 cores: real twill1 37.6 -> 18.0 s and 26.1 -> 17.8 s (two
-    runs), photo-like twill0m_006 32.6 -> 20.4 s (whole fits 100 -> 79 s, 91.5 -> 91.6 s with an
-    optimisation 6 s slower, 117 -> 111 s: the machine is noisy); two benches side by side, 59-66 s
-    -> 30-51 s on six of the seven.
-    """
-    shortlisted = starts[: max(1, settings.trials)]
-    coverages = [coverage_of(start.candidate) for start in shortlisted]
+    A trial chooses; its steps also go on in the fit at BASE_SIZE, while above it (``restarted``)
+    the winner starts again at the working size. A candidate that :func:`chosen` would rule out
+    gets no steps: the coverage does not depend on them, so the winner is that of a search that ran
+    it. Where that leaves one eligible candidate and the winner restarts, it gets none either. Where
+    the winner restarts and the eligible ones are a weave and its face twin on one lattice
+    (:func:`_face_twins`), neither gets steps: the trials at BASE_SIZE cannot tell them apart
+    (:func:`rival`), the duel at the working size chooses, and the one with the lower starting loss
+    is the one the twin must beat."""
     eligible = _within_coverage_margin(coverages)
-    twins = restarted and _face_twins([start.candidate for start, keep in zip(shortlisted, eligible) if keep])
-    compare = not twins and (sum(eligible) > 1 or (len(shortlisted) > 1 and not restarted))
-    total = settings.iterations + settings.trial_iterations
-    trials = []
-    for index, (start, coverage, kept) in enumerate(zip(shortlisted, coverages, eligible)):
-        run = Run(start.params, objective, settings, total, camera_blur_px, blur_floor)
-        tried = compare and kept
-        for _ in range(settings.trial_iterations if tried else 0):
-            run.step()
-            check_stop(run)
-        trial_loss = run.best_loss if run.history else start.loss
-        similarity = spectrum_similarity(run.best, objective, camera_blur_px) if tried else None
-        selection = trial_loss + (0.0 if similarity is None else settings.spectrum_weight * (1.0 - similarity))
-        on_trial(index + 1, len(shortlisted), selection)
-        cand = start.candidate
-        summary = {"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
-                   "start_loss": start.loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
-                   "peak_coverage": coverage, "selection": selection, "probability": rated.get(id(cand))}
-        if not kept:
-            summary["skipped"] = "its lattice makes far less of the photos' peaks than the best start's"
-        elif twins:
-            summary["skipped"] = "a weave and its face twin: the duel at the working size chooses"
-        trials.append(Trial(start, run, summary, selection, coverage))
-    return trials
+    twins = restarted and _face_twins([c for c, kept in zip(candidates, eligible) if kept])
+    compare = not twins and (sum(eligible) > 1 or (len(candidates) > 1 and not restarted))
+    return [(compare and kept, FEW_PEAKS if not kept else FACE_TWINS if twins else None) for kept in eligible]
+
+
+def trial(start: Start, run: Run, coverage: float, similarity: float | None, probability: float | None,
+          skipped: str | None, spectrum_weight: float) -> Trial:
+    """The trial of ``start`` after its ``run``'s steps (its start's loss where it took none), with
+    its selection (module docstring; the loss alone where no spectrum ``similarity`` was read) and
+    the summary params.json records."""
+    trial_loss = run.best_loss if run.history else start.loss
+    selection = trial_loss + (0.0 if similarity is None else spectrum_weight * (1.0 - similarity))
+    cand = start.candidate
+    summary = {"pattern": cand.pattern, "tiles": list(cand.tiles), "lattice_score": cand.score,
+               "start_loss": start.loss, "trial_loss": trial_loss, "spectrum_corr": similarity,
+               "peak_coverage": coverage, "selection": selection, "probability": probability}
+    if skipped is not None:
+        summary["skipped"] = skipped
+    return Trial(start, run, summary, selection, coverage)
 
 
 def _face_twins(candidates: list[Candidate]) -> bool:
@@ -333,10 +292,8 @@ def _face_twins(candidates: list[Candidate]) -> bool:
 
 def chosen(trials: list[Trial]) -> Trial:
     """The trial with the lowest selection among the eligible ones: those whose lattice's peak
-    coverage is within COVERAGE_MARGIN of the best trial's. (Replayed searches of the 20 photo-like
-    pairs of seed 7 and the 11 dev goldens, coverage at the true placement: each trial on a wrong
-    lattice was 0.58 or more below the best, and no winner changes; real twill2: twill1 on a lattice
-    three times too fine down the image, 0.13, now loses to twill0 on the photos' own, 0.93.)"""
+    coverage is within COVERAGE_MARGIN of the best trial's (a trial on a wrong lattice makes far
+    less of the photos' peaks)."""
     return min(_eligible(trials), key=lambda t: (t.selection, trials.index(t)))
 
 
@@ -356,18 +313,15 @@ def rival(trials: list[Trial], winner: Trial) -> Trial | None:
 
     A weave and its face twin differ in which yarn floats, a detail of a pixel or two at BASE_SIZE on
     a dense weave: there the trials cannot tell them apart, and the working size decides between the
-    two (the fit's coarse to fine). Measured (photo-like seed 53, twill0m_016, 42.8 x 27.7 tiles):
-    the trials at 256 px ranked its face twin twill1 first (selection 2.18 against 2.24); whole fits
-    at 512 px end at 1.91 for twill1 and 1.66 for twill0m."""
+    two (the fit's coarse to fine)."""
     return next((t for t in _eligible(trials) if _face_twins([winner.start.candidate, t.start.candidate])), None)
 
 
 def untried_rival(ruled_out: list[dict], winner: Candidate) -> Candidate | None:
     """Where no trial is :func:`rival`'s: the winner's face twin on its lattice among the candidates
     the network ruled out (``ruled_out``: :func:`rated_candidates`' summaries), or None. The network
-    reads a dense weave at the same 256 px as the trials: on photo-like seed 53 twill1_012 (44.9 x
-    72.1 tiles) it kept the face twin twill0m alone (0.987) and gave the true twill1 0.013; whole fits
-    at 512 px end at 1.80 for twill0m and 1.42 for twill1."""
+    reads a dense weave at the same BASE_SIZE as the trials, and can rule out the true weave beside
+    its twin."""
     twin = face_twin(winner)
     found = next((c for c in ruled_out if c["pattern"] == twin and same_lattice(c["tiles"], winner.tiles)), None)
     return None if found is None else Candidate(found["pattern"], tuple(found["tiles"]), found["lattice_score"])

@@ -4,36 +4,22 @@ The warp a photo shows is read against a render of the fabric as the fit has it:
 phase also drifts across the photo with the light (a highlight's place on a yarn follows the half
 vector), and the render drifts alike, so only what the photo shows beyond the render is the
 yarns' (:func:`backend.texture.uneven_spacing.read_warp`). The drift depends on the fabric
-(roughness, twist, height; photo-like seed 7 read against renders of the true parameters: median
-error 12 % of the true warp; against the pattern's typical parameters: 43 %), so it is read again
-as the fit goes on (:meth:`backend.fit.optimise.Run.update_warp`), each time against a render that
-already shows the warp read so far:
+(roughness, twist, height), so the warp is read again as the fit goes on
+(:meth:`backend.fit.optimise.Run.update_warp`), each time against a render that already shows the
+warp read so far:
 
     warp_{k + 1} = warp_k + read(photos, render(best parameters, warp_k))
 
 A warp is one of the sample's, so both photos show it alike: the first is read only where each
 photo's own reading agrees with the other's (:data:`backend.texture.uneven_spacing.AGREEMENT`;
-photo-like seed 7, read at the fits' parameters: correlations of 0.77-1.00; the dev real pairs
-0.27 and 0.37, or the reflection showing none: there the two photos' phases differ in more than a
-shared warp, a phone that moved between the shots or a texture the model does not make, and a
-warp read from both at once lowered the transmission's spectrum correlation, .665 -> .639), and
-the later readings refine it from both at once. The same readings stretch the tiles where the photos
+where the two photos' phases differ in more than a shared warp, a phone that moved between the
+shots or a texture the model does not make, a warp read from both at once fits neither), and the
+later readings refine it from both at once. The same readings stretch the tiles where the photos
 show the lattice denser or sparser than the render, evenly over the photo
 (:mod:`backend.texture.uneven_spacing`: the placement's mean spacing, read from the photos alone,
 leans to where the harmonics show most and carries the light's phase drift). Each reading is tried
 before it is kept (:meth:`backend.fit.optimise.Run.update_warp`): the stretched tiles at once, by
 the loss at the best parameters, the warp over a few steps.
-
-Measured, without against with (``bench fit --synthetic DIR --json``, both in one session, two fits
-at a time): photo-like seed 53 (``photolike --count 20 --seed 53``; not used to set the warp's
-constants), warps read on 16 of 20 pairs (off by 0.22 px rms from the phone's 0.87 px on average,
-the four read as none included): roughness MAE .0722 -> .0683, thickness MAE .546 -> .489,
-novel-light colour L1 .0099 -> .0096, FLIP R .1145 -> .1104, T .0878 -> .0830, spectrum
-correlation R .733 -> .754, T .769 -> .780, pattern 20/20 both; wall 188.6 -> 196.5 s (reading
-1.5-5 s of it). Photo-like seed 7 (in sample), its first 8 pairs: roughness MAE .062 -> .075
-(plain_005 .126 -> .196: the fit trades roughness against multiple-scattering roughness, which the
-photos barely tell apart), novel-light colour L1 .0081 -> .0076. Dev real pairs and goldens: no
-warp kept, figures unchanged.
 """
 from __future__ import annotations
 
