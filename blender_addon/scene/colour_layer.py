@@ -2,8 +2,8 @@
 
 The rules (modes, size, the neutral start) are core/colour_layer.py's. In the material's node
 tree, beside the group node: a UV Map node (the UV map the weave uses unless one is named) feeds an
-Image Texture node whose colour goes to both colour maps and, to replace, whose alpha goes to
-``diffuse map replace``. A second layer stacks on the first: multiplied by it, or mixed over it by
+Image Texture node whose colour goes to the group's ``colour map`` and, to replace, whose alpha goes to
+``colour map replace`` (the dye of core/dye.py: the yarns, diffuse and specular together). A second layer stacks on the first: multiplied by it, or mixed over it by
 its alpha. The image is new (``Fabric Colour``, ``.001`` ...), so nothing the user has is touched;
 it becomes the material's active paint slot and, for texture painting, the canvas.
 """
@@ -41,10 +41,9 @@ def add_colour_layer(material, mode: str = "MULTIPLY", size: int | None = None, 
     tree.links.new(uv.outputs["UV"], texture.inputs["Vector"])
 
     colour, alpha = texture.outputs["Color"], texture.outputs["Alpha"]
-    for name in shader_params.COLOUR_MAPS:
-        target = inputs[name]
-        previous = target.links[0].from_socket if target.is_linked else None
-        tree.links.new(_stacked(tree, previous, colour, alpha, mode, (x + 300, y)), target)
+    target = inputs[shader_params.COLOUR_MAP]
+    previous = target.links[0].from_socket if target.is_linked else None
+    tree.links.new(_stacked(tree, previous, colour, alpha, mode, (x + 300, y)), target)
     if mode == "REPLACE":
         target = inputs[shader_params.MAP_REPLACE]
         previous = target.links[0].from_socket if target.is_linked else None
