@@ -32,6 +32,7 @@ from backend.model.layers import GAP, WeaveLookup  # noqa: E402
 from backend.model.yarn import local_frame, scale_height  # noqa: E402
 from blender_addon.core import (  # noqa: E402
     declarations,
+    dye,
     paths,
     sett,
     shader_eevee,
@@ -293,6 +294,34 @@ def test_osl_transmission_constants_are_the_fallbacks():
     defines = {m[1]: float(m[2]) for m in re.finditer(r"#define (TT_\w+) ([-+.\deE]+)", source)}
     assert defines == {"TT_CONE": shader_fallback.TT_CONE, "TT_GLOW_FROM": shader_fallback.TT_GLOW[0],
                        "TT_GLOW_TO": shader_fallback.TT_GLOW[1]}
+
+
+def test_osl_dye_constants_are_core_dyes():
+    """The OSL shader's dye (base colour weights, floor, stripes) is core/dye.py's and core/sett.py's."""
+    source = (ROOT / "shaders" / "woven_fabric.osl").read_text()
+    defines = {m[1]: float(m[2]) for m in re.finditer(r"#define (WF_DYE_\w+|WF_STRIPES) ([-+.\deE]+)", source)}
+    assert defines == {"WF_DYE_SPECULAR": dye.SPECULAR_WEIGHT, "WF_DYE_DIFFUSE": dye.DIFFUSE_WEIGHT,
+                       "WF_DYE_FLOOR": dye.BASE_FLOOR, "WF_STRIPES": sett.STRIPES}
+
+
+def test_eevee_normals_are_bent_towards_the_view_across_the_fiber():
+    """EEVEE's Glossy normal leans from the yarn's normal towards the view's component across the front
+    fiber (more for sharper yarns, not at all for roughness 1); its Translucent normal leans towards the
+    view."""
+    rng = np.random.default_rng(6)
+    x, y, wi = rig_points(rng, 2000)
+    sharp = shader_fallback.run(NumpyBuilder(), fallback_env(FabricParams(pattern="twill1", **FALLBACK_PARAMS),
+                                                             x, y, wi))
+    covered = sharp["coverage"] > 0.5
+    flat, bent, across = (sharp[k][:, covered] for k in ("gloss_flat_normal", "eevee_gloss_normal", "eevee_across"))
+    assert ((bent * across).sum(0) >= (flat * across).sum(0) - 1e-9).all()
+    assert np.abs(bent - flat).max() > 0.05
+    rough = dict(FALLBACK_PARAMS, roughness=(1.0, 1.0), roughness_multiple=(1.0, 1.0))
+    out = shader_fallback.run(NumpyBuilder(), fallback_env(FabricParams(pattern="twill1", **rough), x, y, wi))
+    yarn = out["coverage"] > 0.5
+    np.testing.assert_allclose(out["eevee_gloss_normal"][:, yarn], out["gloss_flat_normal"][:, yarn], atol=1e-12)
+    translucent = sharp["eevee_translucent_normal"]
+    assert ((translucent * wi).sum(0) > wi[2]).all() and (translucent[2] > 0).all()
 
 
 def cycles_hair_transmission(wi, wo, fiber, r):

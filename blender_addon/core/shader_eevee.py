@@ -26,6 +26,17 @@ import math
 # here, above what the rig's views (near the fabric's normal) reach.
 EEVEE_TRANSLUCENT_CAP = 2.0
 
+# The bent normals (McAuley 2015; glTF KHR_materials_anisotropy in three.js and Babylon.js): EEVEE's
+# isotropic Glossy gets the yarn's normal bent towards the view's component across the front fiber,
+# by EEVEE_GLOSS_BEND times (1 - its roughness), so the highlight follows the fibres; its roughness is
+# the lobes' mean raised to EEVEE_ROUGHNESS_POWER (wider: the fiber lobe spreads across). The
+# Translucent BSDF's normal leans towards the view by EEVEE_TRANSLUCENT_BEND (its lobe towards the
+# straight-through direction, where the yarns' transmission peaks). Chosen on the tuning draws of
+# tools/validate_shader.py (a numpy model of the three closures in the rig, then EEVEE renders).
+EEVEE_GLOSS_BEND = 0.5
+EEVEE_ROUGHNESS_POWER = 0.75
+EEVEE_TRANSLUCENT_BEND = 0.3
+
 # Per layer k (j the other): the translucent weights of the single and the multiple lobe.
 _LAYER = """
 eevee_s{k} = min(hair_s_weight{k}, {pi!r} * ts{k} * att{j} / wiz)
@@ -48,8 +59,15 @@ gw_m0 = dot(gloss_m_color0, vec(1, 1, 1))
 gw_s1 = dot(gloss_s_color1, vec(1, 1, 1))
 gw_m1 = dot(gloss_m_color1, vec(1, 1, 1))
 gw_rough = gw_s0 * gloss_s_rough0 + gw_m0 * gloss_m_rough0 + gw_s1 * gloss_s_rough1 + gw_m1 * gloss_m_rough1
-eevee_gloss_rough = gw_rough / (gw_s0 + gw_m0 + gw_s1 + gw_m1)
-eevee_gloss_normal = normalize(vadd(scale(gloss_normal0, y0), scale(gloss_normal1, 1 - y0)))
+eevee_gloss_rough = pow(gw_rough / (gw_s0 + gw_m0 + gw_s1 + gw_m1), {rough_power!r})
+gloss_flat_normal = normalize(vadd(scale(gloss_normal0, y0), scale(gloss_normal1, 1 - y0)))
+eevee_fiber = normalize(vadd(vadd(scale(fiber0, y0), scale(fiber1, 1 - y0)), scale(Normal, 0.0001)))
+view_across = vsub(Incoming, scale(eevee_fiber, dot(Incoming, eevee_fiber)))
+eevee_across = normalize(vadd(view_across, scale(Normal, 0.0001)))
+gloss_bend = {bend!r} * (1 - eevee_gloss_rough)
+eevee_gloss_normal = normalize(vadd(gloss_flat_normal, scale(vsub(eevee_across, gloss_flat_normal), gloss_bend)))
+translucent_bend = {translucent_bend!r}
+eevee_translucent_normal = normalize(vadd(Normal, scale(vsub(Incoming, Normal), translucent_bend)))
 """
 
 
@@ -59,6 +77,8 @@ def layer_text(k: int, tt_cone: float) -> str:
     return _LAYER.format(k=k, j=1 - k, pi=math.pi, pi_cone=math.pi * tt_cone)
 
 
-def closures_text() -> str:
+def closures_text(bend: float = EEVEE_GLOSS_BEND, translucent_bend: float = EEVEE_TRANSLUCENT_BEND,
+                  rough_power: float = EEVEE_ROUGHNESS_POWER) -> str:
     """The EEVEE closures' inputs (after the diffuse terms)."""
-    return _CLOSURES.format(cap=EEVEE_TRANSLUCENT_CAP)
+    return _CLOSURES.format(cap=EEVEE_TRANSLUCENT_CAP, bend=bend, translucent_bend=translucent_bend,
+                            rough_power=rough_power)

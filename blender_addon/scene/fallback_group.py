@@ -186,7 +186,7 @@ def build_fallback_group():
                        Normal="eevee_gloss_normal")
     eevee_gloss.distribution = "GGX"
     eevee = [bsdf("ShaderNodeBsdfDiffuse", Color="eevee_diffuse", Normal="eevee_diffuse_normal"), eevee_gloss,
-             bsdf("ShaderNodeBsdfTranslucent", Color="eevee_translucent")]
+             bsdf("ShaderNodeBsdfTranslucent", Color="eevee_translucent", Normal="eevee_translucent_normal")]
     transparent = nodes.new("ShaderNodeBsdfTransparent")
     transparent.location = (x0 + 800, 200)
     for y, (name, closures) in enumerate(zip(FALLBACK_OUTPUTS, (cycles, eevee))):
