@@ -31,8 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import validate_shader as vs  # noqa: E402  (the rig renders and the backend's, cached)
 
 from backend.core.params import FabricParams  # noqa: E402
-from blender_addon.core import asset_catalogs, dye, rig_settings, sett  # noqa: E402
-from blender_addon.scene import colour_layer  # noqa: E402
+from blender_addon.core import asset_catalogs, dye, rig_display, rig_settings, sett  # noqa: E402
+from blender_addon.scene import colour_layer, node_group, rig_scene  # noqa: E402
 
 STRIPE_U = (0.3, 0.45)  # the painted stripe's span of U (the rig's camera sees U in [0, 0.8])
 PATTERNS = ("GINGHAM", "TARTAN")
@@ -61,21 +61,27 @@ def paint_stripe(layer, span, rgb) -> None:
     layer.pixels.foreach_set(pixels.ravel())
 
 
-def engine_figures(blender, layer, params: dict, engine: str, ref_R: np.ndarray, out: Path) -> dict:
+def reflection(blender, engine: str) -> np.ndarray:
+    """The rig's displayed reflection of the rig's material as it is now (front light only)."""
+    rig_scene.set_engine(blender.scene, engine, blender.samples)
+    return rig_display.display(rig_scene.render_linear(blender.scene, "front"), blender.rig)
+
+
+def engine_figures(blender, layer, engine: str, ref_R: np.ndarray, out: Path) -> dict:
     """The figures and the PNG of one engine (``layer``: a Replace colour layer of the rig's material,
     clear; it is cleared and the setts removed afterwards)."""
     size = ref_R.shape[0]
     stripe = _columns(size, STRIPE_U, blender.rig)
     beside = _columns(size, (STRIPE_U[1] + 0.05, STRIPE_U[1] + 0.2), blender.rig)
-    plain, _ = blender.render(params, engine)
+    plain = reflection(blender, engine)
     paint_stripe(layer, STRIPE_U, (1.0, 0.0, 0.0))
-    red, _ = blender.render(params, engine)
+    red = reflection(blender, engine)
     layer.pixels.foreach_set(np.zeros(len(layer.pixels), np.float32))
     images = [ref_R, plain, red]
     for preset in PATTERNS:
         _, warp, weft = sett.PRESETS[preset]
         colour_layer.apply_sett(blender.material, warp, weft)
-        images.append(blender.render(params, engine)[0])
+        images.append(reflection(blender, engine))
     colour_layer.apply_sett(blender.material, "")
     grid = np.concatenate([np.concatenate(images[:3], 1), np.concatenate([plain, *images[3:]], 1)], 0)
     vs.write_png(out / f"dye_{engine}.png", grid)
@@ -106,13 +112,14 @@ def main(argv=None) -> int:
     rig = params.get("rig")
     ref_R, _ = vs.backend_render(fitted, args.size, args.backend_spp, Path(vs.DEFAULT_CACHE), rig=rig)
     blender = vs.BlenderRig(args.size, args.samples, args.threads, rig)
+    node_group.apply_params(blender.material, params)
     layer = colour_layer.add_colour_layer(blender.material, "REPLACE")
     base = dye.base_colour(params)
     figures = {"params": str(args.params), "base_colour": list(base), "tag": asset_catalogs.colour_name(base),
                "engines": {}}
     print(f"base colour (linear) {', '.join(f'{c:.3f}' for c in base)}: {figures['tag']}")
     for engine in vs.parse_engines(args.engines):
-        row = engine_figures(blender, layer, params, engine, ref_R, out)
+        row = engine_figures(blender, layer, engine, ref_R, out)
         figures["engines"][engine] = row
         print(f"{engine:9s} cloth {', '.join(f'{c:.3f}' for c in row['cloth'])} (backend "
               f"{', '.join(f'{c:.3f}' for c in row['backend_cloth'])}, L1 {row['cloth_l1']:.4f}); red stripe hue "
