@@ -16,7 +16,7 @@ from importlib import import_module
 # The order matters: properties before the panels and operators that use them, the main panel before
 # the sub-panels of the later modules.
 _MODULE_NAMES = ("ui.modal_job", "ui.preferences", "ui.properties", "ui.operators", "ui.panels", "ui.batch",
-                 "ui.material_operators", "ui.batch_operators")
+                 "ui.material_operators", "ui.material_panel", "ui.batch_operators")
 
 
 def _modules():

@@ -77,12 +77,12 @@ def test_a_painted_colour_layer_changes_the_render(tmp_path, extension_zip):
         # The camera sees u in [0, 0.8] (x in [0, V] of the 10-unit plane): u < 0.5 is the left 15 columns.
         left, right = slice(0, 13), slice(17, 24)
         print("LEFT", neutral[:, left].mean((0, 1)), painted[:, left].mean((0, 1)))
-        # The map multiplies the diffuse albedo (the yarns' specular colour stays): green drops, red stays.
+        # The map dyes every albedo by the paint (core/dye.py): green drops, red stays.
         assert painted[:, left, 1].mean() < 0.85 * neutral[:, left, 1].mean()
         assert painted[:, left, 0].mean() == pytest.approx(neutral[:, left, 0].mean(), rel=1e-3)
         assert np.abs(painted[:, right] - neutral[:, right]).max() < 1e-3 * neutral.max()
 
-        # Replace: transparent until painted; where painted (alpha 1) the colour replaces the fit's.
+        # Replace: transparent until painted; where painted (alpha 1) the yarns are dyed to the colour.
         assert bpy.ops.fabric.add_colour_layer(mode="REPLACE", paint=False) == {"FINISHED"}
         cover = next(im for im in bpy.data.images if im.get("woven_fabric_colour_layer") == "REPLACE")
         assert material.texture_paint_images[material.paint_active_slot] == cover
@@ -180,7 +180,7 @@ def test_set_real_world_scale_gives_the_photographed_weave_period(tmp_path, exte
 
 
 def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip):
-    """An interactive fit is a material asset (rendered preview, tags, catalog Fabrics/<weave>);
+    """An interactive fit is a material asset (rendered preview, tags, a catalog named after its weave);
     saving writes the catalog file beside the .blend, and the reopened file has both. A painted-over
     weave lookup image is restored before the save. Register Asset Library adds a library's folder
     to the preferences."""
@@ -199,9 +199,10 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         assert bpy.ops.fabric.fit() == {{"FINISHED"}}
         material = bpy.data.materials[settings.last_material]
         data = material.asset_data
-        assert data is not None and data.catalog_id == catalogs.catalog_id("Fabrics/twill1")
+        catalog = catalogs.catalog_path("twill1")
+        assert catalog == "Fabrics/Twill (weft-faced)" and data.catalog_id == catalogs.catalog_id(catalog)
         tags = [t.name for t in data.tags]
-        colour = catalogs.colour_name(node_group.read_params(material)["diffuse_reflection"])
+        colour = catalogs.colour_name(ext.core.dye.base_colour(node_group.read_params(material)))
         assert tags == ["fabric", "woven", "twill1", colour], tags
         pixels = np.empty(96 * 96 * 4, np.float32)
         material.preview.image_pixels_float.foreach_get(pixels)
@@ -216,11 +217,11 @@ def test_fits_are_assets_with_catalogs_in_the_saved_file(tmp_path, extension_zip
         assert np.array_equal(restored, good)
 
         written = catalogs.parse((Path({str(blend)!r}).parent / catalogs.CATALOG_FILE).read_text())
-        assert written["Fabrics/twill1"] == data.catalog_id and "Fabrics" in written
+        assert written[catalog] == data.catalog_id and "Fabrics" in written
         name = material.name
         bpy.ops.wm.open_mainfile(filepath={str(blend)!r})
         material = bpy.data.materials[name]
-        assert material.asset_data.catalog_id == written["Fabrics/twill1"]
+        assert material.asset_data.catalog_id == written[catalog]
         assert [t.name for t in material.asset_data.tags] == tags
         atlas = bpy.data.images[ext.scene.fallback_atlases.ATLAS_PREFIX + "warp"]
         again = np.empty(len(atlas.pixels), np.float32); atlas.pixels.foreach_get(again)

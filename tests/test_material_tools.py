@@ -24,6 +24,7 @@ from blender_addon.core import (  # noqa: E402
     backend_bridge,
     batch_queue,
     colour_layer,
+    declarations,
     mesh_scale,
     shader_params,
     shader_status,
@@ -38,10 +39,20 @@ POLLS = 3000  # a liveness bound on the polls of a batch (about a minute of 20 m
 
 # -- catalogs and tags -----------------------------------------------------------------------------
 
+def test_catalogs_have_the_weaves_names_for_people():
+    """Catalogs are named from the weave declaration (one name per preset, no internal codes)."""
+    paths = [asset_catalogs.catalog_path(name) for name in declarations.preset_names()]
+    assert len(set(paths)) == len(paths)
+    assert paths[:2] == ["Fabrics/Plain", "Fabrics/Twill (warp-faced)"]
+    assert asset_catalogs.catalog_path("satin0m") == "Fabrics/Satin (weft-faced, mirrored)"
+    assert not any(any(ch.isdigit() for ch in path) for path in paths)
+    assert asset_catalogs.catalog_path("custom") == "Fabrics/custom"
+
+
 def test_catalog_ids_are_stable_and_the_file_is_merged(tmp_path):
     path = asset_catalogs.catalog_path("twill1")
-    assert path == "Fabrics/twill1"
-    assert asset_catalogs.catalog_id(path) == asset_catalogs.catalog_id("Fabrics/twill1")
+    assert path == "Fabrics/Twill (weft-faced)"
+    assert asset_catalogs.catalog_id(path) == asset_catalogs.catalog_id("Fabrics/Twill (weft-faced)")
     assert uuid.UUID(asset_catalogs.catalog_id(path)).version == 5
     ids = asset_catalogs.ensure_catalogs(tmp_path, ["Fabrics/twill1", "Fabrics/plain"])
     text = (tmp_path / asset_catalogs.CATALOG_FILE).read_text()
@@ -68,8 +79,12 @@ def test_colour_names(rgb, name):
 
 
 def test_tags_name_the_weave_and_the_colour():
-    assert asset_catalogs.tags({"pattern": "satin0", "diffuse_reflection": [0.05, 0.1, 0.7]}) == \
-        ["fabric", "woven", "satin0", "blue"]
+    """The colour tag is the rendered colour's (specular and diffuse albedos), not the diffuse albedo's."""
+    params = {"pattern": "satin0", "specular_albedo": [[0.05, 0.1, 0.7], [0.05, 0.12, 0.6]], "multiple_weight": 1.0,
+              "diffuse_reflection": [0.05, 0.1, 0.7]}
+    assert asset_catalogs.tags(params) == ["fabric", "woven", "satin0", "blue"]
+    assert asset_catalogs.tags(dict(params, diffuse_reflection=[0.6, 0.05, 0.05]))[-1] == "pink"  # red + blue
+    assert asset_catalogs.tags({"pattern": "plain"}) == ["fabric", "woven", "plain"]
 
 
 # -- which shader renders ------------------------------------------------------------------------

@@ -16,10 +16,13 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(ROOT / "tools"))
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from addon_support import run_blender  # noqa: E402
+from fallback_numpy import NumpyBuilder, rig_points  # noqa: E402
+from fallback_numpy import fallback_env as params_env  # noqa: E402
 
 from backend.core.params import FabricParams  # noqa: E402
 from backend.core.rig import DEFAULT_RIG  # noqa: E402
@@ -27,7 +30,16 @@ from backend.core.weave import PRESETS, WARP, WEFT  # noqa: E402
 from backend.model.geometry import tile_coordinates  # noqa: E402
 from backend.model.layers import GAP, WeaveLookup  # noqa: E402
 from backend.model.yarn import local_frame, scale_height  # noqa: E402
-from blender_addon.core import declarations, paths, shader_fallback, shader_params, shader_weave  # noqa: E402
+from blender_addon.core import (  # noqa: E402
+    declarations,
+    dye,
+    paths,
+    sett,
+    shader_eevee,
+    shader_fallback,
+    shader_params,
+    shader_weave,
+)
 
 # The OSL shader's parameters that are not group sockets (wired inside the group or diagnostic only).
 OSL_INTERNAL_INPUTS = ("UV", "Tangent", "lobes")
@@ -79,63 +91,6 @@ def osl_default(text: str):
     return float(text)
 
 
-# -- the fallback program on numpy arrays ---------------------------------------------------------
-class NumpyBuilder:
-    """Evaluates the program on numpy arrays (scalars: (S,), vectors: (3, S)), like the nodes do."""
-
-    def __init__(self):
-        self.atlases = {name: (w, h, np.asarray(px, dtype=np.float64).reshape(h, w, 3))
-                        for name, (w, h, px) in shader_weave.fallback_atlases().items()}
-
-    def const(self, x):
-        return np.float64(x)
-
-    def math(self, op, *a):
-        f = {
-            "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q, "MULTIPLY": lambda p, q: p * q,
-            "DIVIDE": lambda p, q: np.where(q != 0, p / np.where(q != 0, q, 1), 0.0),
-            "POWER": lambda p, q: np.power(p, q), "FLOOR": np.floor, "FRACT": lambda p: p - np.floor(p),
-            "ABSOLUTE": np.abs, "SQRT": lambda p: np.sqrt(np.maximum(p, 0)), "SINE": np.sin, "COSINE": np.cos,
-            "ARCSINE": lambda p: np.arcsin(np.clip(p, -1, 1)), "ARCTANGENT": np.arctan,
-            "EXPONENT": np.exp, "MINIMUM": np.minimum, "MAXIMUM": np.maximum,
-            "FLOORED_MODULO": lambda p, q: np.where(q != 0, p - q * np.floor(p / np.where(q != 0, q, 1)), 0.0),
-            "LESS_THAN": lambda p, q: (p < q).astype(np.float64),
-            "GREATER_THAN": lambda p, q: (p > q).astype(np.float64),
-        }[op]
-        return f(*a)
-
-    def vec(self, op, *a):
-        def normalize(v):
-            n = np.sqrt((v * v).sum(0))
-            return np.where(n > 0, v / np.where(n > 0, n, 1), 0.0)
-
-        f = {
-            "DOT_PRODUCT": lambda p, q: (p * q).sum(0),
-            "CROSS_PRODUCT": lambda p, q: np.stack([p[1] * q[2] - p[2] * q[1], p[2] * q[0] - p[0] * q[2],
-                                                    p[0] * q[1] - p[1] * q[0]]),
-            "NORMALIZE": normalize, "ADD": lambda p, q: p + q, "SUBTRACT": lambda p, q: p - q,
-            "MULTIPLY": lambda p, q: p * q, "SCALE": lambda p, s: p * s, "POWER": lambda p, q: np.power(p, q),
-        }[op]
-        return f(*a)
-
-    def combine(self, x, y, z):
-        v = np.stack(np.broadcast_arrays(x, y, z)).astype(np.float64)
-        return v.reshape(3, 1) if v.ndim == 1 else v  # a constant vector broadcasts over the samples
-
-    def separate(self, v, i):
-        return v[i]
-
-    def pick(self, index, values):
-        return np.asarray(values)[np.clip(np.round(index), 0, len(values) - 1).astype(int)]
-
-    def lookup(self, name, u, v):
-        w, h, img = self.atlases[name]
-        u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64))
-        px = np.clip(np.floor(u * w), 0, w - 1).astype(int)
-        py = np.clip(np.floor(v * h), 0, h - 1).astype(int)
-        return np.moveaxis(img[py, px], -1, 0)
-
-
 # -- declaration agreement (no bpy) ---------------------------------------------------------
 def test_sockets_follow_the_declaration():
     specs = {s.name: s for s in shader_params.socket_specs()}
@@ -149,11 +104,15 @@ def test_sockets_follow_the_declaration():
             assert s.param == spec.name and (s.lo, s.hi) == (spec.lo, spec.hi)
             assert s.kind == ("COLOR" if spec.rgb else "FLOAT")
             expected.add(name)
-    for name in ("diffuse_reflection map", "diffuse_transmission map"):
-        assert specs[name].kind == "COLOR" and specs[name].default == (1.0, 1.0, 1.0)
-        expected.add(name)
-    expected |= {"uv scale", "diffuse map replace"}
+    assert specs["colour map"].kind == "COLOR" and specs["colour map"].default == (1.0, 1.0, 1.0)
+    assert (specs["colour map replace"].default, specs["recolour hue"].default, specs["recolour saturation"].default,
+            specs["recolour value"].default) == (0.0, 0.0, 1.0, 1.0)  # white map, no replace, no recolour
+    stripes = {sett.socket_name(d, k, what) for d in ("warp", "weft") for k in range(sett.STRIPES)
+               for what in ("colour", "threads")}
+    assert all(specs[name].kind == "INT" and specs[name].default == 0 for name in stripes if name.endswith("threads"))
+    expected |= {"uv scale", "colour map", "colour map replace", *shader_params.RECOLOUR} | stripes
     assert set(specs) == expected
+    assert specs["noise"].osl == "noise_amount"  # not OSL's noise()
 
 
 def test_sockets_have_readable_labels_in_panels():
@@ -174,8 +133,10 @@ def test_sockets_have_readable_labels_in_panels():
                 assert s.panel == ("Warp", "Weft")[yarn]
     assert by_name["roughness warp"].label == by_name["roughness weft"].label == "Roughness"
     assert {by_name[n].panel for n in ("pattern", "tiles warp", "tiles weft", "uv scale")} == {"Weave"}
-    assert {by_name[n].panel for n in ("diffuse_reflection", "diffuse_reflection map",
-                                       "diffuse_transmission map", "diffuse map replace")} == {"Colour"}
+    assert {by_name[n].panel for n in ("diffuse_reflection", "colour map", "colour map replace",
+                                       *shader_params.RECOLOUR)} == {"Colour"}
+    assert by_name["warp stripe 1 colour"].panel == "Warp stripes" and by_name["weft stripe 12 threads"].panel \
+        == "Weft stripes"
     assert by_name["noise"].panel == "Advanced"
 
 
@@ -260,24 +221,7 @@ def test_tiles_to_real_world_scale():
 
 
 def fallback_env(p: FabricParams, x, y, wi):
-    """The fallback program's inputs for `p` at rig points (x, y) seen from directions wi (3, S)."""
-    S = len(x)
-    values = shader_params.socket_values(p.to_dict())
-    env = {}
-    for s in shader_params.socket_specs():
-        v = values.get(s.name, s.default)
-        env[s.osl] = np.asarray(v, dtype=np.float64).reshape(3, 1) if isinstance(v, (tuple, list)) else np.float64(v)
-    env.update(UV=np.stack([x / 10, y / 10 + 1, np.zeros(S)]), Tangent=np.tile([[1.0], [0.0], [0.0]], S),
-               Normal=np.tile([[0.0], [0.0], [1.0]], S), Incoming=wi, Backfacing=np.zeros(S))
-    return env
-
-
-def rig_points(rng, S):
-    """S random points of the rig's visible square and the unit directions to the camera there."""
-    V = DEFAULT_RIG.view_size
-    x, y = rng.uniform(0, V, S), rng.uniform(-V, 0, S)
-    wi = np.asarray(DEFAULT_RIG.camera_position(), dtype=np.float64)[:, None] - np.stack([x, y, np.zeros(S)])
-    return x, y, wi / np.linalg.norm(wi, axis=0)
+    return params_env(p.to_dict(), x, y, wi)
 
 
 FALLBACK_PARAMS = dict(tiles=(37.0, 53.0), gap_scale=(0.8, 0.9), twist_deg=(-20.0, 15.0), height_scale=(1.5, 0.7),
@@ -352,6 +296,34 @@ def test_osl_transmission_constants_are_the_fallbacks():
                        "TT_GLOW_TO": shader_fallback.TT_GLOW[1]}
 
 
+def test_osl_dye_constants_are_core_dyes():
+    """The OSL shader's dye (base colour weights, floor, stripes) is core/dye.py's and core/sett.py's."""
+    source = (ROOT / "shaders" / "woven_fabric.osl").read_text()
+    defines = {m[1]: float(m[2]) for m in re.finditer(r"#define (WF_DYE_\w+|WF_STRIPES) ([-+.\deE]+)", source)}
+    assert defines == {"WF_DYE_SPECULAR": dye.SPECULAR_WEIGHT, "WF_DYE_DIFFUSE": dye.DIFFUSE_WEIGHT,
+                       "WF_DYE_FLOOR": dye.BASE_FLOOR, "WF_STRIPES": sett.STRIPES}
+
+
+def test_eevee_normals_are_bent_towards_the_view_across_the_fiber():
+    """EEVEE's Glossy normal leans from the yarn's normal towards the view's component across the front
+    fiber (more for sharper yarns, not at all for roughness 1); its Translucent normal leans towards the
+    view."""
+    rng = np.random.default_rng(6)
+    x, y, wi = rig_points(rng, 2000)
+    sharp = shader_fallback.run(NumpyBuilder(), fallback_env(FabricParams(pattern="twill1", **FALLBACK_PARAMS),
+                                                             x, y, wi))
+    covered = sharp["coverage"] > 0.5
+    flat, bent, across = (sharp[k][:, covered] for k in ("gloss_flat_normal", "eevee_gloss_normal", "eevee_across"))
+    assert ((bent * across).sum(0) >= (flat * across).sum(0) - 1e-9).all()
+    assert np.abs(bent - flat).max() > 0.05
+    rough = dict(FALLBACK_PARAMS, roughness=(1.0, 1.0), roughness_multiple=(1.0, 1.0))
+    out = shader_fallback.run(NumpyBuilder(), fallback_env(FabricParams(pattern="twill1", **rough), x, y, wi))
+    yarn = out["coverage"] > 0.5
+    np.testing.assert_allclose(out["eevee_gloss_normal"][:, yarn], out["gloss_flat_normal"][:, yarn], atol=1e-12)
+    translucent = sharp["eevee_translucent_normal"]
+    assert ((translucent * wi).sum(0) > wi[2]).all() and (translucent[2] > 0).all()
+
+
 def cycles_hair_transmission(wi, wo, fiber, r):
     """Cycles' hair transmission closure, cosine-weighted, azimuthal roughness 1, no offset (Blender's
     intern/cycles/kernel/closure/bsdf_hair.h): a Cauchy of width r in theta_h = (theta_i + theta_o) / 2
@@ -416,7 +388,7 @@ def test_multiple_transmission_closures_follow_the_exact_lobe_in_the_rig():
 
 
 def test_eevee_translucency_is_capped_at_grazing_views():
-    """EEVEE's yarn transmission factor n . wi / wi_z is capped (shader_fallback.EEVEE_TRANSLUCENT_CAP): the
+    """EEVEE's yarn transmission factor n . wi / wi_z is capped (shader_eevee.EEVEE_TRANSLUCENT_CAP): the
     same as the Cycles fallback's in the rig, bounded at grazing views where that one grows as 1 / wi_z."""
     rng = np.random.default_rng(4)
     p = FabricParams(pattern="plain", **FALLBACK_PARAMS)
@@ -425,7 +397,7 @@ def test_eevee_translucency_is_capped_at_grazing_views():
     np.testing.assert_allclose(out["translucent_eevee"], out["translucent_diffuse"], rtol=1e-12)
     grazing = np.stack([np.full(2000, math.sqrt(1 - 0.02 ** 2)), np.zeros(2000), np.full(2000, 0.02)])
     out = shader_fallback.run(NumpyBuilder(), fallback_env(p, x, y, grazing))
-    bound = np.asarray(out["kd_t"]) * (1 + (shader_fallback.EEVEE_TRANSLUCENT_CAP - 1) * p.diffuse_normal_weight)
+    bound = np.asarray(out["kd_t"]) * (1 + (shader_eevee.EEVEE_TRANSLUCENT_CAP - 1) * p.diffuse_normal_weight)
     assert (out["translucent_eevee"] <= bound + 1e-12).all()
     assert out["translucent_diffuse"].max() > 2 * bound.max()
 

@@ -1,7 +1,8 @@
 """Where fitted fabrics go in the Asset Browser: their catalog, tags and the catalog file (no bpy).
 
-Every fit becomes a material asset in the catalog ``Fabrics/<weave>`` (``Fabrics/twill1``) with the
-tags ``fabric``, ``woven``, the weave and a colour name of its diffuse reflection (:func:`tags`).
+Every fit becomes a material asset in the catalog ``Fabrics/<weave's name>`` (``Fabrics/Twill
+(weft-faced)``, the names of core/declarations.pattern_label) with the tags ``fabric``, ``woven``, the
+weave and a colour name of its rendered colour (the dye's base colour, core/dye.py; :func:`tags`).
 
 Blender keeps an asset library's catalogs in a text file, :data:`CATALOG_FILE`, in the library's
 root folder, which for a .blend outside any library is the folder of the .blend::
@@ -10,7 +11,7 @@ root folder, which for a .blend outside any library is the folder of the .blend:
     <uuid>:<catalog path>:<simple name>
 
 A catalog's UUID is ``uuid5(NAMESPACE, path)`` (:func:`catalog_id`), so every file and library
-gives ``Fabrics/twill1`` the same id and merging libraries makes no duplicates; a catalog that
+gives ``Fabrics/Plain`` the same id and merging libraries makes no duplicates; a catalog that
 already exists in the file under another UUID (made by hand in Blender) keeps its UUID
 (:func:`ensure_catalogs` returns the ids to use). Other lines of the file are kept as they are.
 """
@@ -20,6 +21,8 @@ import colorsys
 import os
 import uuid
 from pathlib import Path
+
+from . import declarations, dye
 
 CATALOG_FILE = "blender_assets.cats.txt"
 ROOT_CATALOG = "Fabrics"
@@ -34,8 +37,9 @@ _HEADER = ("# This is an Asset Catalog Definition file for Blender.\n"
 
 
 def catalog_path(pattern: str) -> str:
-    """``Fabrics/<weave>``."""
-    return f"{ROOT_CATALOG}/{pattern or 'unknown'}"
+    """``Fabrics/<the weave's name>`` (a pattern that is no preset keeps its code)."""
+    name = declarations.pattern_label(pattern) if pattern in declarations.preset_names() else pattern
+    return f"{ROOT_CATALOG}/{name or 'unknown'}"
 
 
 def catalog_id(path: str) -> str:
@@ -117,11 +121,12 @@ def colour_name(rgb) -> str:
 
 
 def tags(params: dict) -> list[str]:
-    """The asset tags of a fit: fabric, woven, the weave, the colour of its diffuse reflection."""
+    """The asset tags of a fit: fabric, woven, the weave, the colour it renders (dye.base_colour)."""
     out = ["fabric", "woven"]
     if params.get("pattern"):
         out.append(str(params["pattern"]))
-    colour = params.get("diffuse_reflection")
-    if isinstance(colour, (list, tuple)) and len(colour) >= 3:
-        out.append(colour_name(colour))
+    try:
+        out.append(colour_name(dye.base_colour(params)))
+    except (KeyError, TypeError, ValueError, IndexError):  # no albedos to name a colour by
+        pass
     return out

@@ -1,14 +1,15 @@
 """A paintable colour layer on a Woven Fabric material: its size and how it is wired (no bpy).
 
 Add Colour Layer (scene/colour_layer.py) makes a new image that starts neutral and plugs it into
-the group's colour maps (``diffuse_reflection map`` and ``diffuse_transmission map``, through the
-material's UV map), in one of two modes:
+the group's ``colour map`` (through the material's UV map). The map dyes the yarns (core/dye.py):
+every albedo, diffuse and specular, by the ratio of the target colour T to the fabric's base
+colour C0, so the cloth renders the painted colour with its sheen and weave. Two modes:
 
-- ``MULTIPLY``: the image is white and opaque; painted colour multiplies the fitted diffuse
-  colours, ``k_d' = k_d * paint`` (stains, dyes, prints that darken);
-- ``REPLACE``: the image is white and transparent, its alpha linked to ``diffuse map replace``;
-  where paint covers it (alpha 1) the painted colour replaces both diffuse colours,
-  ``k_d' = (1 - a) k_d + a * paint``; elsewhere the fit is untouched.
+- ``MULTIPLY``: the image is white and opaque; painted colour multiplies the fabric's colour,
+  ``T = C0 * paint`` (stains, overdyes, prints that darken): pure red paints red cloth;
+- ``REPLACE``: the image is white and transparent, its alpha linked to ``colour map replace``;
+  where paint covers it (alpha 1) the yarns are dyed to the painted colour, ``T = paint`` (so
+  painting C0 itself changes nothing); elsewhere the fit is untouched.
 
 Size: at least one texel per weave repeat across the UV square (``tiles * uv scale`` repeats), so a
 stripe one repeat wide can be painted, as a power of two between :data:`MIN_SIZE` and

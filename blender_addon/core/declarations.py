@@ -44,6 +44,19 @@ def preset_names() -> tuple[str, ...]:
     return tuple(weave_presets())
 
 
+def pattern_label(name: str) -> str:
+    """A preset weave's name for people, from its declaration: the family, which yarn floats on the
+    face (the share of the matrix where the warp lies over) and whether it is a mirror image:
+    ``plain`` -> "Plain", ``twill0`` -> "Twill (warp-faced)", ``satin0m`` -> "Satin (weft-faced, mirrored)"."""
+    weave = weave_presets()[name]
+    family = mirrored_of().get(name, name).rstrip("0123456789")
+    cells = [c for row in weave.matrix for c in row]
+    over = sum(cells) / len(cells)
+    notes = ["warp-faced" if over > 0.5 else "weft-faced"] if over != 0.5 else []
+    notes += ["mirrored"] if name in mirrored_of() else []
+    return family.capitalize() + (f" ({', '.join(notes)})" if notes else "")
+
+
 def mirrored_of() -> dict[str, str]:
     """Mirrored preset -> the paper's preset it mirrors (``twill0m`` -> ``twill0``)."""
     return backend_module("core.weave").MIRRORED_OF

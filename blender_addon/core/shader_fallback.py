@@ -1,7 +1,7 @@
 """The standard-node fallback of the Woven Fabric node group, as a small expression program.
 
 EEVEE and GPU Cycles (without OptiX OSL) cannot run ``shaders/woven_fabric.osl``; the node group
-then uses a fallback built from Math / Vector Math / Image Texture nodes. Its program has two parts.
+then uses a fallback built from Math / Vector Math / Image Texture nodes. Its program has these parts.
 
 Geometry (spec section 3, like ``backend/model/layers.py`` and ``yarn.py``), from UV: band tests,
 the interlacing matrix and the backend's interval tables (read from the float atlases of
@@ -24,11 +24,7 @@ the dependence on the light direction wo is left to the closures:
   r = asin(0.5 alpha / sqrt(1 - alpha^2)), azimuthal roughness 1, tangent = the fiber) weighted so
   that its peak is the exact lobe at the straight-through direction wo = -wi, times the OSL shader's
   factors (0.3 + 0.7 alpha^2 single, TT_CONE multiple); the multiple lobe turns into a Translucent BSDF
-  of weight pi f_m(-wi) / |wi_z| (its straight-through value) as alpha_m grows (TT_GLOW). EEVEE lights
-  no hair closure on a surface, so there the Translucent BSDF takes, for each hair closure's share, the
-  lesser of its energy (its weight: the closure is a normalised density) and the weight whose value at
-  wo = -wi is its peak (pi f / |wi_z|), plus the multiple lobe's glow: a sharp lobe keeps its energy, a
-  wide one its straight-through value;
+  of weight pi f_m(-wi) / |wi_z| (its straight-through value) as alpha_m grows (TT_GLOW);
 - two layers (4.5): the back layer's reflection lobes carry att0(wi) att0(wo*), the transmission
   lobes att1(wi) (front layer) and att0(wi) (back layer), att = exp(-T sigma(w) / |w_z|);
 - diffuse: (1 - w) k_d^r diffuse(N) + w k_d^r diffuse(n), n the front yarn's normal (the back one's
@@ -39,47 +35,19 @@ the dependence on the light direction wo is left to the closures:
   which made it too bright);
 - gaps (both layers open): the node group mixes in a Transparent BSDF by ``coverage``.
 
-The program is plain text, one assignment per line, in a tiny expression language (Python
-syntax): ``+ - * / **``, unary ``-``, numbers, names, and the functions listed in
-:data:`FUNCTIONS`. :func:`run` evaluates it with any *builder*: ``scene/node_group.py`` passes one
-that creates shader nodes; ``tests/test_shader.py`` passes one that evaluates it on numpy arrays,
-to check the fallback against the backend without Blender.
+Colour (core/shader_dye.py): the yarns' albedos dyed (core/dye.py), per yarn direction, by the
+yarn-dyed stripes, the recolour and the colour map. EEVEE's three closures: core/shader_eevee.py.
+
+The program is written in core/shader_program.py's expression language; :func:`run` evaluates it
+with a builder (scene/fallback_group.py builds nodes, the tests evaluate it on numpy arrays).
 """
 from __future__ import annotations
 
-import ast
 import math
 
-from . import shader_weave
+from . import shader_dye, shader_eevee, shader_program, shader_weave
 
-# name -> (number of arguments, kind): "math" ops map to the Math node, "vec" ops to Vector Math.
-FUNCTIONS = {
-    "floor": (1, "math", "FLOOR"), "fract": (1, "math", "FRACT"), "abs": (1, "math", "ABSOLUTE"),
-    "sqrt": (1, "math", "SQRT"), "sin": (1, "math", "SINE"), "cos": (1, "math", "COSINE"),
-    "asin": (1, "math", "ARCSINE"), "atan": (1, "math", "ARCTANGENT"),
-    "exp": (1, "math", "EXPONENT"), "min": (2, "math", "MINIMUM"), "max": (2, "math", "MAXIMUM"),
-    "mod": (2, "math", "FLOORED_MODULO"), "lt": (2, "math", "LESS_THAN"), "gt": (2, "math", "GREATER_THAN"),
-    "pow": (2, "math", "POWER"),
-    "vec": (3, "combine", None), "x": (1, "separate", 0), "y": (1, "separate", 1), "z": (1, "separate", 2),
-    "dot": (2, "vec", "DOT_PRODUCT"), "cross": (2, "vec", "CROSS_PRODUCT"), "normalize": (1, "vec", "NORMALIZE"),
-    "vadd": (2, "vec", "ADD"), "vsub": (2, "vec", "SUBTRACT"), "vmul": (2, "vec", "MULTIPLY"),
-    "scale": (2, "vec", "SCALE"), "vpow": (2, "vec", "POWER"),
-    "lookup": (3, "lookup", None),
-    "pick": (None, "pick", None),
-}
-BINARY = {ast.Add: "ADD", ast.Sub: "SUBTRACT", ast.Mult: "MULTIPLY", ast.Div: "DIVIDE", ast.Pow: "POWER"}
-
-# Group inputs besides the sockets (shader_params.socket_specs, by their OSL names): the UV map and
-# its tangent, and the Geometry node's Normal, Incoming (to the viewer) and Backfacing.
-GEOMETRY_INPUTS = ("UV", "Tangent", "Normal", "Incoming", "Backfacing")
 LAYERS = (0, 1)
-# What the node group wires into closures (per layer k: the names with k appended).
-OUTPUTS = ("coverage", "diffuse_flat", "diffuse_yarn", "translucent", "n_main",
-           "eevee_diffuse", "eevee_diffuse_normal", "eevee_translucent", "eevee_gloss", "eevee_gloss_rough",
-           "eevee_gloss_normal")
-LAYER_OUTPUTS = ("gloss_s_color", "gloss_m_color", "gloss_s_rough", "gloss_m_rough", "gloss_s_aniso",
-                 "gloss_m_aniso", "gloss_normal", "gloss_tangent", "hair_s_color", "hair_m_color", "hair_s_rough",
-                 "hair_m_rough", "fiber")
 
 # Blender's Glossy BSDF (GGX, Blender 5.0, node_glossy_bsdf.osl and its SVM twin) has alpha = r^2 (1 - an)
 # along its tangent and r^2 / (1 - an) across, anisotropy an > 0 (clamped to 0.99; measured: highlights
@@ -96,16 +64,6 @@ LAYER_OUTPUTS = ("gloss_s_color", "gloss_m_color", "gloss_s_rough", "gloss_m_rou
 TT_SINGLE = (0.3, 0.7)
 TT_CONE = 1.25
 TT_GLOW = (0.25, 0.95)
-# EEVEE (measured with Blender 5.0, material thickness mode "Slab", thickness 0): a Translucent BSDF of
-# colour k lit from behind renders k^2 |cos| / pi (the light crosses the sheet's two faces), and the
-# translucent closures of a material are summed before that square; with more than three closures EEVEE
-# merges them and the transmission grows further. So the EEVEE output has three closures: one Diffuse, one
-# Glossy and one Translucent of colour sqrt(sum of the transmission weights).
-
-# EEVEE's diffuse transmission: the yarn term's n . wi / wi_z (spec 4.5's 1 / |w_z| at wo = -wi) grows
-# without bound at grazing views, bright specks on the silhouettes of a backlit drape; it is capped
-# here, above what the rig's views (near the fabric's normal) reach.
-EEVEE_TRANSLUCENT_CAP = 2.0
 
 _GEOMETRY = """
 {header}
@@ -268,8 +226,6 @@ hair_m_weight{k} = (1 - glow{k}) * cone_m{k}
 glow_m{k} = glow{k} * {math.pi!r} * tm{k} * att{j} / wiz
 hair_s_color{k} = scale(ks{k}, hair_s_weight{k})
 hair_m_color{k} = scale(km{k}, hair_m_weight{k})
-eevee_s{k} = min(hair_s_weight{k}, {math.pi!r} * ts{k} * att{j} / wiz)
-eevee_m{k} = (1 - glow{k}) * min(cone_m{k}, {math.pi * TT_CONE!r} * tm{k} * att{j} / wiz) + glow_m{k}
 fiber{k} = normalize({_world(f"o{k}")})
 """
 
@@ -290,11 +246,6 @@ def _hair_peak(r: str, th: str, cth: str) -> str:
 
 # Per-layer parameters (gaps: alpha 1, T 0) and the view-side quantities both lobes share.
 _PARAMS = """
-ks_warp = specular_albedo_warp
-ks_weft = specular_albedo_weft
-inv_wm = 1 / max(multiple_weight, 0.01)
-km_warp = vpow(specular_albedo_warp, vec(inv_wm, inv_wm, inv_wm))
-km_weft = vpow(specular_albedo_weft, vec(inv_wm, inv_wm, inv_wm))
 wi = vec(dot(Incoming, tangent), dot(Incoming, bitangent), dot(Incoming, Normal))
 wiz = max(z(wi), 0.0001)
 piz = {pi} * wiz
@@ -315,11 +266,6 @@ att{k} = exp(0 - T{k} * Ai{k})
 """
 
 _DIFFUSE = """
-keep = 1 - diffuse_map_replace
-kd_r_mul = scale(vmul(diffuse_reflection, diffuse_reflection_map), keep)
-kd_r = vadd(kd_r_mul, scale(diffuse_reflection_map, diffuse_map_replace))
-kd_t_mul = scale(vmul(diffuse_transmission, diffuse_transmission_map), keep)
-kd_t = vadd(kd_t_mul, scale(diffuse_transmission_map, diffuse_map_replace))
 nm = vadd(scale(n0, y0), scale(n1, 1 - y0))
 n_main = normalize({n_main})
 other = y0 * y1 * max(dot(wi, n1), 0) + 1 - y0 * y1
@@ -329,23 +275,6 @@ yarn_cos = max(dot(wi, nm), 0) / wiz
 yarn_t = diffuse_normal_weight * other * yarn_cos
 translucent_diffuse = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t))
 translucent = vadd(translucent_diffuse, vadd(scale(km0, glow_m0), scale(km1, glow_m1)))
-eevee_m = vadd(scale(Normal, 1 - diffuse_normal_weight), scale(n_main, diffuse_normal_weight))
-eevee_diffuse_normal = normalize(eevee_m)
-eevee_diffuse = scale(kd_r, sqrt(dot(eevee_m, eevee_m)))
-eevee_0 = vadd(scale(ks0, eevee_s0), scale(km0, eevee_m0))
-eevee_1 = vadd(scale(ks1, eevee_s1), scale(km1, eevee_m1))
-yarn_t_eevee = diffuse_normal_weight * other * min(yarn_cos, {cap!r})
-translucent_eevee = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t_eevee))
-eevee_t = vadd(translucent_eevee, vadd(eevee_0, eevee_1))
-eevee_translucent = vpow(eevee_t, vec(0.5, 0.5, 0.5))
-eevee_gloss = vadd(vadd(gloss_s_color0, gloss_m_color0), vadd(gloss_s_color1, gloss_m_color1))
-gw_s0 = dot(gloss_s_color0, vec(1, 1, 1))
-gw_m0 = dot(gloss_m_color0, vec(1, 1, 1))
-gw_s1 = dot(gloss_s_color1, vec(1, 1, 1))
-gw_m1 = dot(gloss_m_color1, vec(1, 1, 1))
-gw_rough = gw_s0 * gloss_s_rough0 + gw_m0 * gloss_m_rough0 + gw_s1 * gloss_s_rough1 + gw_m1 * gloss_m_rough1
-eevee_gloss_rough = gw_rough / (gw_s0 + gw_m0 + gw_s1 + gw_m1)
-eevee_gloss_normal = normalize(vadd(scale(gloss_normal0, y0), scale(gloss_normal1, 1 - y0)))
 """
 
 
@@ -364,72 +293,14 @@ def program() -> list[tuple[str, str]]:
                         for name, values in shader_weave.fallback_header().items())
     yarns = {name: _YARN.format(name=name, pi=repr(math.pi), deg=repr(math.pi / 180.0), A_w=sizes[f"A_{name}_w"],
                                 A_h=sizes[f"A_{name}_h"], **fields) for name, fields in _YARNS.items()}
-    text = _GEOMETRY.format(header=header, **yarns, **sizes) + _PARAMS.format(pi=repr(math.pi))
+    text = _GEOMETRY.format(header=header, **yarns, **sizes) + shader_dye.program_text()
+    text += _PARAMS.format(pi=repr(math.pi))
     text += "".join(_LAYER_PARAMS.format(k=k, sigma=_sigma(f"ci{k}", f"a{k}")) for k in LAYERS)
-    text += "".join(_layer(k) for k in LAYERS)
-    n_main = _world("nm")
-    text += _DIFFUSE.format(n_main=n_main, cap=EEVEE_TRANSLUCENT_CAP)
-    return parse(text)
+    text += "".join(_layer(k) + shader_eevee.layer_text(k, TT_CONE) for k in LAYERS)
+    text += shader_dye.DIFFUSE + _DIFFUSE.format(n_main=_world("nm")) + shader_eevee.closures_text()
+    return shader_program.parse(text)
 
 
-def parse(text: str) -> list[tuple[str, str]]:
-    """(name, expression) of each ``name = expression`` line of a program (blank lines skipped)."""
-    out = []
-    for line in text.strip().splitlines():
-        if line.strip():
-            name, expr = line.split("=", 1)
-            out.append((name.strip(), expr.strip()))
-    return out
-
-
-def run(builder, env: dict, assignments=None) -> dict:
-    """Evaluates the program with `builder` starting from `env` (inputs); returns the final env.
-
-    A builder provides: ``const(x)``, ``math(op, *args)`` (Math node ops), ``vec(op, *args)``
-    (Vector Math ops; DOT_PRODUCT returns a scalar), ``combine(x, y, z)``, ``separate(v, i)``,
-    ``lookup(atlas_name, u, v)`` (an RGB value, as a vector) and ``pick(index, values)``
-    (``values[round(index)]``, the index clamped to the list).
-    """
-    env = dict(env)
-    for name, expr in assignments or program():
-        env[name] = _emit(ast.parse(expr, mode="eval").body, builder, env)
-    return env
-
-
-def _emit(node, b, env):
-    if isinstance(node, ast.Constant):
-        if isinstance(node.value, str):
-            return node.value
-        return b.const(float(node.value))
-    if isinstance(node, ast.Name):
-        if node.id not in env:
-            raise NameError(f"fallback program: unknown name {node.id!r}")
-        return env[node.id]
-    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
-        return b.math("SUBTRACT", b.const(0.0), _emit(node.operand, b, env))
-    if isinstance(node, ast.BinOp) and type(node.op) in BINARY:
-        return b.math(BINARY[type(node.op)], _emit(node.left, b, env), _emit(node.right, b, env))
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS:
-        return _emit_call(node, b, env)
-    raise SyntaxError(f"fallback program: unsupported expression {ast.dump(node)}")
-
-
-def _emit_call(node, b, env):
-    """A call of one of :data:`FUNCTIONS` (checked by the caller) as the builder's node."""
-    n, kind, op = FUNCTIONS[node.func.id]
-    if kind == "pick":
-        if len(node.args) < 2 or not all(isinstance(a, ast.Constant) for a in node.args[1:]):
-            raise TypeError("fallback program: pick takes an index and constant values")
-        return b.pick(_emit(node.args[0], b, env), [float(a.value) for a in node.args[1:]])
-    if len(node.args) != n:
-        raise TypeError(f"fallback program: {node.func.id} takes {n} arguments")
-    args = [_emit(a, b, env) for a in node.args]
-    if kind == "math":
-        return b.math(op, *args)
-    if kind == "vec":
-        return b.vec(op, *args)
-    if kind == "combine":
-        return b.combine(*args)
-    if kind == "separate":
-        return b.separate(args[0], op)
-    return b.lookup(*args)
+def run(builder, env: dict) -> dict:
+    """The fallback program evaluated with ``builder`` from the inputs ``env`` (shader_program.run)."""
+    return shader_program.run(builder, env, program())

@@ -14,14 +14,17 @@ of the node's :data:`PANELS`:
   overrides it for that object);
 - Warp / Weft: every other per-yarn value, as ``"<name> warp"`` and ``"<name> weft"``
   (``specular_albedo`` as colours);
-- Colour: the RGB values (``diffuse_reflection`` / ``diffuse_transmission``), each followed by a
-  colour-map input ``"<name> map"`` (default white) that multiplies it, and ``diffuse map replace``
-  (default 0): where it is 1 the maps replace the diffuse colours instead of multiplying them,
-  ``k_d' = (1 - f) k_d map + f map`` (Add Colour Layer links a painted image's alpha there);
+- Colour: the RGB values (``diffuse_reflection`` / ``diffuse_transmission``), then the dye
+  (core/dye.py): ``colour map`` (default white), the colour that multiplies the fabric's colour,
+  and ``colour map replace`` (default 0), where 1 makes the map replace it (Add Colour Layer links
+  a painted image's colour and alpha there); the whole-fabric recolour ``recolour hue`` (degrees),
+  ``recolour saturation`` and ``recolour value`` (factors);
+- Warp stripes / Weft stripes: the yarn-dyed sett (core/sett.py), ``warp stripe 1 colour``,
+  ``warp stripe 1 threads``, ... (no threads: no pattern);
 - Advanced: the remaining scalars.
 
 The OSL parameter of a socket is its name with spaces replaced by underscores
-(``roughness warp`` -> ``roughness_warp``).
+(``roughness warp`` -> ``roughness_warp``), but for names OSL has a function of (:data:`OSL_RENAMED`).
 
 Tiles and physical size. In the rig (the backend's ``CaptureRig``) the fabric plane is
 ``plane_size`` (10) units square with UV = (x / 10, y / 10 + 1), and ``tiles`` counts pattern
@@ -41,15 +44,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from . import declarations, rig_settings
+from . import declarations, dye, rig_settings, sett
 
 YARNS = ("warp", "weft")
-MAP_SUFFIX = " map"
 UV_SCALE = "uv scale"
 PATTERN = "pattern"
-MAP_REPLACE = "diffuse map replace"
-COLOUR_MAPS = ("diffuse_reflection" + MAP_SUFFIX, "diffuse_transmission" + MAP_SUFFIX)
-PANELS = ("Weave", "Warp", "Weft", "Colour", "Advanced")
+COLOUR_MAP = "colour map"
+MAP_REPLACE = "colour map replace"
+RECOLOUR = ("recolour hue", "recolour saturation", "recolour value")
+STRIPE_PANELS = {"warp": "Warp stripes", "weft": "Weft stripes"}
+PANELS = ("Weave", "Warp", "Weft", "Colour", *STRIPE_PANELS.values(), "Advanced")
+CLOSED_PANELS = ("Advanced", *STRIPE_PANELS.values())  # panels the node shows folded
+# OSL parameters renamed from their socket names: a parameter named after an OSL function hides it
+# (the compiler warns '"noise" already declared in this scope').
+OSL_RENAMED = {"noise": "noise_amount"}
 # Object property that overrides the material's uv scale for that object (Set Real-World Scale).
 OBJECT_UV_SCALE = "woven_fabric_uv_scale"
 _WEAVE_PARAMS = ("tiles",)
@@ -83,7 +91,7 @@ class SocketSpec:
 
 
 def osl_name(socket_name: str) -> str:
-    return socket_name.replace(" ", "_")
+    return OSL_RENAMED.get(socket_name, socket_name.replace(" ", "_"))
 
 
 def pattern_index(name: str) -> int:
@@ -127,16 +135,45 @@ def _yarn_sockets(spec, kind: str, value, doc: str) -> list[SocketSpec]:
 
 
 def _single_sockets(spec, kind: str, value, doc: str) -> list[SocketSpec]:
-    """A parameter's one input, and the colour map that multiplies it where it has one."""
-    panel = _panel(spec)
-    sockets = [SocketSpec(
+    """A parameter's one input."""
+    return [SocketSpec(
         spec.name, kind, tuple(value) if spec.rgb else value, spec.lo, spec.hi, spec.name, None,
-        f"{doc} ({_range_text(spec.lo, spec.hi, spec.unit)}). params.json: {spec.name}", spec.label, panel)]
-    if spec.name + MAP_SUFFIX in COLOUR_MAPS:
+        f"{doc} ({_range_text(spec.lo, spec.hi, spec.unit)}). params.json: {spec.name}", spec.label, _panel(spec))]
+
+
+def _dye_sockets() -> list[SocketSpec]:
+    """The Colour panel's dye inputs (core/dye.py): the colour map, its replace factor, the recolour."""
+    hue, saturation, value = dye.NEUTRAL_RECOLOUR
+    return [
+        SocketSpec(COLOUR_MAP, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
+                   "Dyes the yarns, diffuse and specular together: multiplies the fabric's colour (white: no "
+                   "change); plug a painted image (Add Colour Layer)", "Colour map", "Colour"),
+        SocketSpec(MAP_REPLACE, "FLOAT", 0.0, 0.0, 1.0, None, None,
+                   "0: the colour map multiplies the fabric's colour; 1: the yarns are dyed to the map's colour "
+                   "(link a painted image's alpha to replace only where painted)", "Map replaces colour", "Colour"),
+        SocketSpec(RECOLOUR[0], "FLOAT", hue, -180.0, 180.0, None, None,
+                   "Turns the hue of the whole fabric's colour (and of its stripes), in degrees", "Hue shift",
+                   "Colour"),
+        SocketSpec(RECOLOUR[1], "FLOAT", saturation, 0.0, 4.0, None, None,
+                   "Scales the saturation of the whole fabric's colour (1: as fitted)", "Saturation", "Colour"),
+        SocketSpec(RECOLOUR[2], "FLOAT", value, 0.0, 4.0, None, None,
+                   "Scales the brightness of the whole fabric's colour (1: as fitted; the albedos stay at most 1)",
+                   "Value", "Colour"),
+    ]
+
+
+def _stripe_sockets(direction: str) -> list[SocketSpec]:
+    """One yarn direction's sett (core/sett.py): a colour and a thread count per stripe."""
+    sockets = []
+    for index in range(sett.STRIPES):
         sockets.append(SocketSpec(
-            spec.name + MAP_SUFFIX, "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
-            f"Colour map multiplying {spec.label.lower()} (plug an image texture; white: no change)",
-            f"{spec.label} map", panel))
+            sett.socket_name(direction, index, "colour"), "COLOR", (1.0, 1.0, 1.0), 0.0, 1.0, None, None,
+            f"Dye colour of the {direction} yarns of stripe {index + 1}", f"Stripe {index + 1} colour",
+            STRIPE_PANELS[direction]))
+        sockets.append(SocketSpec(
+            sett.socket_name(direction, index, "threads"), "INT", 0, 0, sett.MAX_THREADS, None, None,
+            f"{direction.capitalize()} threads of stripe {index + 1} (the sett repeats after the stripes' "
+            f"threads; none at all: no pattern)", f"Stripe {index + 1} threads", STRIPE_PANELS[direction]))
     return sockets
 
 
@@ -162,10 +199,9 @@ def socket_specs() -> list[SocketSpec]:
                 UV_SCALE, "FLOAT", 1.0, 1e-4, 1e4, None, None,
                 "Multiplies the tiles for real-world scale: cloth_size_cm * V / (plane_size * width_cm); 1 for "
                 "the rig's UV layout. An object's Set Real-World Scale value overrides it", "UV scale", "Weave"))
-    by_panel["Colour"].append(SocketSpec(
-        MAP_REPLACE, "FLOAT", 0.0, 0.0, 1.0, None, None,
-        "0: the colour maps multiply the diffuse colours; 1: they replace them (link a painted image's alpha "
-        "to replace only where painted)", "Map replaces colour", "Colour"))
+    by_panel["Colour"] += _dye_sockets()
+    for direction, panel in STRIPE_PANELS.items():
+        by_panel[panel] += _stripe_sockets(direction)
     return [s for panel in PANELS for s in by_panel[panel]]
 
 

@@ -1,17 +1,22 @@
-"""Add Colour Layer: a paintable image wired into a Woven Fabric material's colour maps (bpy).
+"""A Woven Fabric material's colour (bpy): Add Colour Layer, a paintable image wired into its colour
+map; the yarn-dyed sett written into its stripe sockets (:func:`apply_sett`); its base colour.
 
 The rules (modes, size, the neutral start) are core/colour_layer.py's. In the material's node
 tree, beside the group node: a UV Map node (the UV map the weave uses unless one is named) feeds an
-Image Texture node whose colour goes to both colour maps and, to replace, whose alpha goes to
-``diffuse map replace``. A second layer stacks on the first: multiplied by it, or mixed over it by
-its alpha. The image is new (``Fabric Colour``, ``.001`` ...), so nothing the user has is touched;
-it becomes the material's active paint slot and, for texture painting, the canvas.
+Image Texture node whose colour goes to the group's ``colour map`` and, to replace, whose alpha
+goes to ``colour map replace`` (the dye of core/dye.py: the yarns, diffuse and specular together).
+A second layer stacks on the first: multiplied by it, or mixed over it by its alpha. The image is
+new (``Fabric Colour``, ``.001`` ...), so nothing the user has is touched; it becomes the material's
+active paint slot and, for texture painting, the canvas.
+
+The sett (core/sett.py) goes into the group node's stripe inputs; its ``F`` stripes get the base
+colour of the material's current albedos (core/dye.base_colour, :func:`base_colour`).
 """
 from __future__ import annotations
 
 import bpy
 
-from ..core import colour_layer, shader_params
+from ..core import colour_layer, dye, sett, shader_params
 from . import group_interface, node_group
 
 
@@ -41,10 +46,9 @@ def add_colour_layer(material, mode: str = "MULTIPLY", size: int | None = None, 
     tree.links.new(uv.outputs["UV"], texture.inputs["Vector"])
 
     colour, alpha = texture.outputs["Color"], texture.outputs["Alpha"]
-    for name in shader_params.COLOUR_MAPS:
-        target = inputs[name]
-        previous = target.links[0].from_socket if target.is_linked else None
-        tree.links.new(_stacked(tree, previous, colour, alpha, mode, (x + 300, y)), target)
+    target = inputs[shader_params.COLOUR_MAP]
+    previous = target.links[0].from_socket if target.is_linked else None
+    tree.links.new(_stacked(tree, previous, colour, alpha, mode, (x + 300, y)), target)
     if mode == "REPLACE":
         target = inputs[shader_params.MAP_REPLACE]
         previous = target.links[0].from_socket if target.is_linked else None
@@ -102,3 +106,18 @@ def make_active_slot(material, image) -> None:
     if settings is not None:
         settings.mode = "MATERIAL"
         settings.canvas = image
+
+
+def base_colour(material) -> tuple[float, float, float]:
+    """The material's base colour C0 (core/dye.py): what painting back changes nothing with."""
+    return dye.base_colour(node_group.read_params(material))
+
+
+def apply_sett(material, warp_text: str, weft_text: str = "") -> tuple:
+    """Writes the warp and weft setts (an empty weft: the warp's) into the material's stripe inputs;
+    returns (warp stripes, weft stripes). Raises sett.SettError (nothing written) on a bad text."""
+    warp, weft = sett.parse_pair(warp_text, weft_text)
+    inputs = group_interface.input_sockets(node_group.group_node(material))
+    for name, value in sett.socket_values(warp, weft, base_colour(material)).items():
+        inputs[name].default_value = group_interface.rgba(value) if isinstance(value, tuple) else value
+    return warp, weft

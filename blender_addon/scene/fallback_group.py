@@ -19,7 +19,7 @@ FALLBACK_OUTPUTS = ("BSDF", "EEVEE")
 
 
 class _NodeBuilder:
-    """Builds the fallback program's expressions as shader nodes (see shader_fallback.run)."""
+    """Builds the fallback program's expressions as shader nodes (see shader_program.run)."""
 
     def __init__(self, tree, images: dict):
         self.tree, self.images = tree, images
@@ -87,6 +87,14 @@ class _NodeBuilder:
             self._place(node, (v,))
             self.separated[key] = node
         return node.outputs[i]
+
+    def hsv(self, colour, hue, saturation, value):
+        node = self.tree.nodes.new("ShaderNodeHueSaturation")
+        for name, arg in (("Hue", hue), ("Saturation", saturation), ("Value", value), ("Fac", 1.0),
+                          ("Color", colour)):
+            self._feed(node.inputs[name], arg)
+        self._place(node, (colour, hue, saturation, value))
+        return node.outputs["Color"]
 
     def pick(self, index, values):
         """values[round(index)]: a sum of steps, index > k - 1/2 adding values[k] - values[k - 1]."""
@@ -178,7 +186,7 @@ def build_fallback_group():
                        Normal="eevee_gloss_normal")
     eevee_gloss.distribution = "GGX"
     eevee = [bsdf("ShaderNodeBsdfDiffuse", Color="eevee_diffuse", Normal="eevee_diffuse_normal"), eevee_gloss,
-             bsdf("ShaderNodeBsdfTranslucent", Color="eevee_translucent")]
+             bsdf("ShaderNodeBsdfTranslucent", Color="eevee_translucent", Normal="eevee_translucent_normal")]
     transparent = nodes.new("ShaderNodeBsdfTransparent")
     transparent.location = (x0 + 800, 200)
     for y, (name, closures) in enumerate(zip(FALLBACK_OUTPUTS, (cycles, eevee))):

@@ -39,7 +39,7 @@ def sync_interface(tree, outputs: tuple[str, ...], readable: bool) -> None:
         panels = {}
         for panel, name, in_out, socket_type in wanted:
             if panel and panel not in panels:
-                panels[panel] = tree.interface.new_panel(panel, default_closed=panel == "Advanced")
+                panels[panel] = tree.interface.new_panel(panel, default_closed=panel in shader_params.CLOSED_PANELS)
             tree.interface.new_socket(name=name, in_out=in_out, socket_type=socket_type,
                                       parent=panels.get(panel))
     items = input_items(tree, readable)
