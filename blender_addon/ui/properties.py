@@ -28,6 +28,8 @@ def _pattern_item(name: str) -> tuple[str, str, str]:
 
 
 PATTERN_ITEMS = tuple(_pattern_item(name) for name in declarations.fit_patterns())
+_MIN_SIZE = declarations.fit_options().MIN_WORKING_SIZE
+_FILM_SIZE = declarations.rig().DEFAULT_RIG.film_size
 
 
 def _rig_property(field: rig_settings.RigField):
@@ -57,6 +59,13 @@ def rig_values(rig) -> dict:
             for field in rig_settings.rig_fields()}
 
 
+def fit_options(settings, device: str | None, strict: bool | None = None) -> dict:
+    """The panel's fit settings as a fit's options (backend_bridge.FitRequest's fields; 0: the backend's
+    default), for a single fit and the sidebar batch alike; ``strict`` None: the panel's choice."""
+    return {"pattern": settings.pattern, "iterations": settings.iterations or None, "size": settings.size or None,
+            "device": device, "strict": settings.refuse_swapped if strict is None else strict}
+
+
 def _photos_changed(self, context):
     # The previews are keyed by path; nothing to do but redraw the sidebar.
     for area in getattr(context.screen, "areas", ()):
@@ -77,8 +86,13 @@ class WovenFabricSettings(bpy.types.PropertyGroup):
         name="Iterations", default=0, min=0, soft_max=2000,
         description="Optimiser iterations; 0 uses the backend's default")
     size: bpy.props.IntProperty(
-        name="Working Size", default=0, min=0, soft_max=1024,
-        description="Side in pixels of the working images; 0 uses the backend's default")
+        name="Working Size", default=0, min=0, soft_max=_FILM_SIZE,
+        description=f"Side in pixels of the working images, {_MIN_SIZE} to {_FILM_SIZE}; 0 uses the backend's "
+                    "default")
+    refuse_swapped: bpy.props.BoolProperty(
+        name="Refuse Swapped Photos", default=True,
+        description="Stop before fitting when the photos' lighting reads the other way round (the reflection "
+                    "photo lit from behind): the panel then shows both photos to swap them or fit them as given")
     material_name: bpy.props.StringProperty(
         name="Material", description="Name of the new material; empty: the photo's name")
     update_active_material: bpy.props.BoolProperty(

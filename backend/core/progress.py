@@ -1,0 +1,245 @@
+"""A fit's progress over its whole run, read from its protocol events (plain Python: the add-on reads
+it too, through blender_addon/core/declarations.py).
+
+The fit command reports each stage with its own counter (:mod:`backend.core.protocol`: stage,
+iteration, total), and the search stage's counter starts again for each of its steps. Read in
+order, the events still say where a fit is: :data:`PHASES` lists what a fit does, in the order it
+does it, each with its words and its share of a fit's wall time. :class:`FitProgress` follows one
+fit and gives, at any moment:
+
+- the phase in words and its count ("Comparing weaves, 2 of 3");
+- the time left: the current phase's remainder at the pace it has gone (its count done in its
+  time so far) or, for a phase without a count, its share at the pace of the fit so far, plus
+  every phase still to come at its share and that pace:
+
+      pace = (seconds of the phases done + of the current one) / (their shares, the current one's
+             times its fraction done);   left = remainder of the current phase + pace * sum(shares to come)
+
+- the fraction of the bar: the shares of the phases done, and the current one's share times its
+  time so far over its time so far and left: the bar moves as the clock does where the shares
+  hold, also through a phase that reports no count, and never runs ahead of the phase the fit is in.
+
+The shares were measured on the benchmark pairs (``tools/fit_timeline.py``, which records when
+each event arrives and replays the records through this module; the figures are in the results
+ledger, ``devtools/bench/results/fit-timeline.jsonl``). A share is a fraction of the wall time, so
+a busy or a fast machine changes the pace, not the shares.
+
+Times are given by the caller (``now``, seconds on any monotonic clock), so that a recorded fit
+replays exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One step of a fit as its events show it.
+
+    stage: the protocol stage whose events it has; words: what the bar says; share: its part of a
+    fit's wall time; counted: whether its events count its work (else only its start is known);
+    optional: whether a fit may pass it by (the duel runs only where the working size is above the
+    search's).
+    """
+
+    name: str
+    stage: str
+    words: str
+    share: float
+    counted: bool = True
+    optional: bool = False
+
+
+# In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
+# counted phase ends where its count is complete (the next one begins then: the work of its first
+# count comes before that count's event) or where its counter starts again (the iteration goes
+# back, or the total changes); an uncounted one where its stage's next phase counts.
+PHASES: tuple[Phase, ...] = (
+    Phase("load", "load", "Reading the photos", 0.03),
+    Phase("placement", "search", "Finding the weave in the photos", 0.12, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.01),
+    Phase("trials", "search", "Comparing weaves", 0.18),
+    Phase("duel", "search", "Checking the weave at full size", 0.1, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.4),
+    Phase("render", "render", "Rendering the result", 0.13),
+    Phase("report", "report", "Writing the report", 0.03, counted=False),
+)
+NAMES = tuple(phase.name for phase in PHASES)
+MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
+
+
+@dataclass
+class _Current:
+    """The phase a fit is in: when it began, and its first and last counts (time, iteration)."""
+
+    index: int = -1               # into PHASES; -1: before the first event
+    started: float = 0.0          # on the caller's clock
+    first: tuple[float, int] | None = None
+    last: tuple[float, int] | None = None
+    total: int = 0
+
+
+@dataclass
+class FitProgress:
+    """Follows one fit: call :meth:`update` with each protocol event (progress and result events
+    count; the others are passed by) and read :meth:`fraction`, :meth:`seconds_left` and
+    :meth:`describe`."""
+
+    started: float
+    current: _Current = field(default_factory=_Current)
+    durations: dict[str, float] = field(default_factory=dict)   # phases done -> seconds
+    skipped: set[str] = field(default_factory=set)
+    finished: bool = False
+
+    # -- reading events -----------------------------------------------------------------------
+    def update(self, event: dict, now: float) -> None:
+        if event.get("event") == "result":
+            self._enter(len(PHASES), now)
+            self.finished = True
+        if event.get("event") != "progress":
+            return
+        iteration, total = int(event.get("iteration") or 0), int(event.get("total") or 0)
+        index = self._phase_of(str(event.get("stage")), iteration, total)
+        if index != self.current.index:
+            self._enter(index, now)
+        if iteration <= 0 or not PHASES[index].counted:
+            return
+        current = self.current
+        current.first = current.first or (now, iteration)
+        current.last, current.total = (now, iteration), total
+        if 0 < total <= iteration:   # complete: the next phase's work begins now
+            self._enter(index + 1, now)
+
+    def _phase_of(self, stage: str, iteration: int, total: int) -> int:
+        """The phase an event belongs to: the current one while it goes on, else the next of its stage."""
+        index, current = self.current.index, self.current
+        later = [k for k, p in enumerate(PHASES) if p.stage == stage and k > index]
+        if not 0 <= index < len(PHASES) or PHASES[index].stage != stage:
+            return later[0] if later else max(index, 0)
+        phase = PHASES[index]
+        if not phase.counted:
+            goes_on = iteration <= 0
+        else:
+            goes_on = (iteration <= 0 or current.last is None
+                       or (iteration > current.last[1] and total == current.total))
+        return index if goes_on or not later else later[0]
+
+    def _enter(self, index: int, now: float) -> None:
+        """Ends the current phase at ``now`` and begins phase ``index``; those between are passed by.
+        An optional phase left without a count did not run: its time goes to the next one."""
+        started = now
+        if 0 <= self.current.index < len(PHASES):
+            phase = PHASES[self.current.index]
+            if phase.optional and phase.counted and self.current.last is None:
+                self.skipped.add(phase.name)
+                started = self.current.started
+            else:
+                self.durations[phase.name] = now - self.current.started
+        self.skipped.update(p.name for p in PHASES[self.current.index + 1:index])
+        self.current = _Current(index, started)
+
+    # -- what the bar shows -------------------------------------------------------------------
+    @property
+    def phase(self) -> Phase | None:
+        return PHASES[self.current.index] if 0 <= self.current.index < len(PHASES) else None
+
+    def _pace(self) -> float | None:
+        """Seconds per share, from the phases done (None before one has ended)."""
+        shares = sum(p.share for p in PHASES if p.name in self.durations)
+        return sum(self.durations.values()) / shares if shares > 0 else None
+
+    def _remainder(self, pace: float, now: float) -> float:
+        """The current phase's time left: at its own pace from its second count on, else its share
+        at the fit's pace less its time so far, but at least :data:`MIN_REMAINDER` of that share (a
+        phase that overruns keeps the bar moving, ever slower, short of its end)."""
+        current = self.current
+        if current.first is not None and current.last[1] > current.first[1]:
+            per_count = (current.last[0] - current.first[0]) / (current.last[1] - current.first[1])
+            return max(per_count * (current.total - current.last[1]) - (now - current.last[0]), 0.0)
+        expected = pace * self.phase.share
+        return max(expected - (now - current.started), MIN_REMAINDER * expected)
+
+    def seconds_left(self, now: float) -> float | None:
+        """The estimated time left (None before a phase has ended: no pace yet)."""
+        if self.finished:
+            return 0.0
+        pace = self._pace()
+        if self.phase is None or pace is None:
+            return None
+        to_come = sum(p.share for p in PHASES[self.current.index + 1:] if p.name not in self.skipped)
+        return self._remainder(pace, now) + pace * to_come
+
+    def fraction(self, now: float) -> float:
+        """The bar: the shares of the phases done, and of the current one the part its time so far is
+        of its time so far and left, in_phase / (in_phase + remainder). It moves as the clock does
+        where the shares hold, never stops while the fit runs, and never runs ahead of the phase the
+        fit is in (early on the pace rests on a short first phase). 0 until there is a pace, 1 once
+        the fit has ended."""
+        if self.finished:
+            return 1.0
+        pace = self._pace()
+        if self.phase is None or pace is None:
+            return 0.0
+        run = [p for p in PHASES if p.name not in self.skipped]
+        whole = sum(p.share for p in run)
+        before = sum(p.share for p in run if PHASES.index(p) < self.current.index)
+        in_phase = now - self.current.started
+        remainder = self._remainder(pace, now)
+        within = in_phase / (in_phase + remainder) if in_phase + remainder > 0 else 1.0
+        return (before + self.phase.share * within) / whole
+
+    def describe(self, now: float) -> str:
+        """One line: 'Comparing weaves, 2 of 3, about 4 min left'."""
+        phase = self.phase
+        if phase is None:
+            return "Fit finished" if self.finished else "Starting the fit"
+        text = phase.words
+        if phase.counted and self.current.last is not None and self.current.total > 1:
+            text += f", {self.current.last[1]} of {self.current.total}"
+        left = self.seconds_left(now)
+        return text + (f", about {duration_words(left)} left" if left is not None else "")
+
+
+def duration_words(seconds: float) -> str:
+    """'40 s', '3 min', '1 h 05 min': a time left, as precise as an estimate deserves."""
+    seconds = max(0, round(seconds))
+    if seconds < 90:
+        return f"{max(5, round(seconds / 5) * 5)} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+@dataclass(frozen=True)
+class Replay:
+    """How the bar did on one recorded fit (:func:`replay`)."""
+
+    shares: dict[str, float]          # phase -> its part of the fit's time
+    worst_eta_error: float            # (estimate - truth) / truth of the time left, largest in size
+    worst_bar_error: float            # bar - elapsed / whole time, largest in size
+
+
+def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
+    """Runs a recorded fit (``events``: (seconds, stage, iteration, total) in arrival order,
+    ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
+    estimate every second and at every event from ``from_fraction`` of the bar on (the bar as an
+    artist sees it: it never goes back) until the last ``tail`` of the fit's time, where a few
+    seconds are a large part of the truth."""
+    follow = FitProgress(started=0.0)
+    checks = sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))})
+    pending = list(events)
+    worst_eta = worst_bar = shown = 0.0
+    for now in checks:
+        while pending and pending[0][0] <= now:
+            t, stage, iteration, total = pending.pop(0)
+            follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total}, t)
+        left, truth = follow.seconds_left(now), total_s - now
+        shown = max(shown, follow.fraction(now))
+        if left is None or shown < from_fraction or truth < max(tail * total_s, 1.0):
+            continue
+        if abs(left - truth) / truth > abs(worst_eta):
+            worst_eta = (left - truth) / truth
+        if abs(shown - now / total_s) > abs(worst_bar):
+            worst_bar = shown - now / total_s
+    follow.update({"event": "result"}, total_s)
+    shares = {name: follow.durations.get(name, 0.0) / total_s for name in NAMES}
+    return Replay(shares, worst_eta, worst_bar)
