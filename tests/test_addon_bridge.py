@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from addon_support import python_without_torch  # noqa: E402
 import fake_backend  # noqa: E402
+from addon_support import python_without_torch  # noqa: E402
 from fake_backend import fake_params  # noqa: E402
 
 import backend.core.dependencies  # noqa: E402
