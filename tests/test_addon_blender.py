@@ -102,6 +102,19 @@ class StandIn:
         value = getattr(self._class, name)
         return value.__get__(self) if callable(value) and hasattr(value, "__get__") else value
 
+def drawn_by(panel):
+    # What a panel's draw() puts into its layout, in order: (call, its text or first argument).
+    drawn = []
+    class Recorder:
+        def __getattr__(self, name):
+            def call(*args, **kw):
+                drawn.append((name, kw.get("text", args[0] if args else None)))
+                return Recorder()
+            return call
+    from types import SimpleNamespace
+    panel.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+    return drawn
+
 def refused(operator, message, **properties):
     # Runs an operator that must fail (an ERROR report raises in background mode); its message.
     try:
@@ -296,16 +309,8 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
         refused(bpy.ops.fabric.fit, "Internal backend error: the optimiser diverged")
         assert "linen.003" not in bpy.data.materials
         # The Fit panel shows the error wrapped in a box with a button that opens the fit's log as a text.
-        drawn = []
-        class Recorder:
-            def __getattr__(self, name):
-                def call(*args, **kw):
-                    drawn.append((name, kw.get("text", args[0] if args else None)))
-                    return Recorder()
-                return call
         failed = ext.ui.operators.fit_job.job
-        from types import SimpleNamespace
-        ext.ui.panels.VIEW3D_PT_woven_fabric_fit.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        drawn = drawn_by(ext.ui.panels.VIEW3D_PT_woven_fabric_fit)
         assert ("operator", "fabric.open_fit_log") in drawn and ("box", None) in drawn, drawn
         assert [d for d in drawn if d[0] == "label" and "Internal backend error" in (d[1] or "")], drawn
         assert bpy.ops.fabric.open_fit_log(filepath=str(failed.log_path)) == {{"FINISHED"}}
@@ -428,7 +433,6 @@ def test_swapped_photos_are_refused_shown_side_by_side_and_can_be_swapped_or_fit
     shows both photos with Swap Photos and Fit As Given. Fitted as given, the backend's warning is in
     the status bar, on the console (background mode), in the fit's backend.log and in the panel."""
     output = run_bpy(tmp_path, extension_zip, f"""
-        from types import SimpleNamespace
         photos = Path({str(photos)!r})
         results = Path({str(tmp_path / 'results')!r})
         bpy.context.preferences.addons[ext.__name__].preferences.results_folder = str(results)
@@ -441,15 +445,8 @@ def test_swapped_photos_are_refused_shown_side_by_side_and_can_be_swapped_or_fit
         assert "Swap Photos or Fit As Given in the Fit panel" in message, message
         assert ext.ui.operators.fit_job.job.refused_swapped and not bpy.data.materials.get("linen")
 
-        drawn = []
-        class Recorder:
-            def __getattr__(self, name):
-                def call(*args, **kw):
-                    drawn.append((name, kw.get("text", args[0] if args else None)))
-                    return Recorder()
-                return call
         panel = ext.ui.panels.VIEW3D_PT_woven_fabric_fit
-        panel.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        drawn = drawn_by(panel)
         labels = [text for kind, text in drawn if kind == "label"]
         assert "linen_T.png" in labels and "linen_R.png" in labels, labels
         assert ("operator", "fabric.swap_photos") in drawn and ("operator", "Fit As Given") in drawn, drawn
@@ -461,8 +458,7 @@ def test_swapped_photos_are_refused_shown_side_by_side_and_can_be_swapped_or_fit
         fit = ext.ui.operators.fit_job.job
         assert fit.warnings and "may be swapped" in fit.warnings[0] and not fit.request.strict
         assert "warning:" in fit.log_path.read_text() and "may be swapped" in fit.log_path.read_text()
-        drawn.clear()
-        panel.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        drawn = drawn_by(panel)
         assert any("may be swapped" in (text or "") for kind, text in drawn if kind == "label"), drawn
         print("SWAPPED OK")
     """)
@@ -611,7 +607,6 @@ def test_only_colour_layers_are_paint_slots_and_the_buttons_wait_for_something_t
     Real-World Scale are greyed out with nothing to act on; the rig's labels read as words; the
     Material panel's long lines wrap; an unsaved file's fits go to a folder the artist can find."""
     output = run_bpy(tmp_path, extension_zip, f"""
-        from types import SimpleNamespace
         import importlib.util
         spec = importlib.util.spec_from_file_location("fake", {str(FAKE_BACKEND)!r})
         fake = importlib.util.module_from_spec(spec); spec.loader.exec_module(fake)
@@ -636,15 +631,8 @@ def test_only_colour_layers_are_paint_slots_and_the_buttons_wait_for_something_t
         labels = {{field.name: field.label for field in ext.core.rig_settings.rig_fields()}}
         assert (labels["sample_rotation_deg"], labels["sample_skew_deg"]) == ("Sample rotation", "Sample skew")
 
-        drawn = []
-        class Recorder:
-            def __getattr__(self, name):
-                def call(*args, **kw):
-                    drawn.append((name, kw.get("text", args[0] if args else None)))
-                    return Recorder()
-                return call
         bpy.context.scene.render.engine = "BLENDER_EEVEE"
-        ext.ui.material_operators.VIEW3D_PT_woven_fabric_material.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        drawn = drawn_by(ext.ui.material_operators.VIEW3D_PT_woven_fabric_material)
         labels = [text for kind, text in drawn if kind == "label"]
         width = ext.ui.layout.line_width(bpy.context)
         assert "EEVEE" in labels[0] and max(map(len, labels)) <= width < len(" ".join(labels[:2])), labels
@@ -652,8 +640,7 @@ def test_only_colour_layers_are_paint_slots_and_the_buttons_wait_for_something_t
         assert not bpy.data.filepath
         parent = ext.ui.preferences.results_parent(bpy.context)
         assert parent.name == "Woven Fabric Fits" and parent.parent in (Path.home(), Path.home() / "Documents")
-        drawn.clear()
-        ext.ui.panels.VIEW3D_PT_woven_fabric_fit.draw(SimpleNamespace(layout=Recorder()), bpy.context)
+        drawn = drawn_by(ext.ui.panels.VIEW3D_PT_woven_fabric_fit)
         shown = " ".join(text or "" for kind, text in drawn if kind == "label")
         assert "Woven Fabric Fits" in shown, shown
         print("SMALL POINTS OK")

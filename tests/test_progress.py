@@ -149,3 +149,32 @@ def test_the_addon_reads_this_module_without_torch():
     from blender_addon.core import declarations
 
     assert Path(declarations.fit_progress().__file__).resolve() == Path(progress.__file__).resolve()
+
+
+def test_trials_with_nothing_to_compare_leave_the_shares():
+    """PASSED_BY_BELOW: trials whose counts come at once (a lone start, a weave and its face twin)
+    did no work of their own: their share leaves the bar and the time left, their moments go to the duel."""
+    events = [(0.0, "load", 0, 1), (1.0, "load", 1, 1), (1.0, "search", 0, 1), (10.0, "search", 1, 2),
+              (11.0, "search", 2, 2), (11.2, "search", 1, 2), (11.2, "search", 2, 2)]
+    fit = follow(events)
+    assert fit.skipped == {"trials"} and fit.phase.name == "duel" and fit.current.started == 11.0
+    shares = {p.name: p.share for p in PHASES}
+    run = sum(shares.values()) - shares["trials"]
+    done = shares["load"] + shares["placement"] + shares["starts"]
+    assert fit.fraction(11.2) == pytest.approx(done / run, rel=0.05)
+
+
+def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
+    """Two paces: a search twice as slow as its shares say (a denser weave, a larger working size)
+    makes the optimiser's time left twice as long, not the re-renders'."""
+    shares = {p.name: p.share for p in PHASES}
+    pace = 100.0  # seconds per share for the photos' phases; twice that for the search's
+    t_load, t_place = shares["load"] * pace, (shares["load"] + shares["placement"]) * pace
+    t_starts = t_place + 2 * pace * shares["starts"]
+    t_trials = t_starts + 2 * pace * shares["trials"]
+    events = [(0.0, "load", 0, 1), (t_load, "load", 1, 1), (t_load, "search", 0, 1), (t_place, "search", 1, 2),
+              (t_starts, "search", 2, 2), ((t_starts + t_trials) / 2, "search", 1, 2), (t_trials, "search", 2, 2)]
+    fit = follow(events)
+    assert fit.phase.name == "duel"
+    expected = 2 * pace * (shares["duel"] + shares["optimise"]) + pace * (shares["render"] + shares["report"])
+    assert fit.seconds_left(t_trials) == pytest.approx(expected)

@@ -90,8 +90,9 @@ def replay(args) -> None:
             events = [(event[column], *event[1:4]) for event in row["events"]]
             report = progress.replay(events, total)
             shares = ", ".join(f"{name} {share:.3f}" for name, share in report.shares.items())
-            print(f"{row['name']:>10} {clock:>4} {total:6.0f} s  worst time-left error from 20 %: "
-                  f"{report.worst_eta_error:+.0%} (bar {report.worst_bar_error:+.2f})  shares: {shares}")
+            print(f"{row['name']:>10} {clock:>4} {total:6.0f} s  time left from 20 % of the bar: within "
+                  f"{progress.ETA_CHECK:.0%} at {report.within:.0%} of the moments, worst "
+                  f"{report.worst_eta_error:+.0%}; bar - time {report.worst_bar_error:+.2f} at worst; shares: {shares}")
 
 
 def main(argv: list[str] | None = None) -> None:

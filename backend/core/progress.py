@@ -4,28 +4,28 @@ it too, through blender_addon/core/declarations.py).
 The fit command reports each stage with its own counter (:mod:`backend.core.protocol`: stage,
 iteration, total), and the search stage's counter starts again for each of its steps. Read in
 order, the events still say where a fit is: :data:`PHASES` lists what a fit does, in the order it
-does it, each with its words and its share of a fit's wall time. :class:`FitProgress` follows one
-fit and gives, at any moment:
+does it, each with its words and its share of a fit's time. :class:`FitProgress` follows one fit
+and gives, at any moment, the phase in words with its count ("Comparing weaves, 2 of 3"), the
+time left over all the phases, and one bar:
 
-- the phase in words and its count ("Comparing weaves, 2 of 3");
-- the time left: the current phase's remainder at the pace it has gone (its count done in its
-  time so far) or, for a phase without a count, its share at the pace of the fit so far, plus
-  every phase still to come at its share and that pace:
+    pace(kind) = seconds / shares of the phases done of that kind (those the photos alone set, or
+                 those the search and the working size set), with the current one's counts
+    left       = remainder of the current phase + sum over the phases to come of share * pace(kind)
+    remainder  = seen * (its own pace per count * counts to come)
+                 + (1 - seen) * max(share * pace - its time so far, MIN_REMAINDER * share * pace)
+    bar        = (shares of the phases done + share of the current one * its time so far
+                  / (its time so far + remainder)) / shares of the phases the fit runs
 
-      pace = (seconds of the phases done + of the current one) / (their shares, the current one's
-             times its fraction done);   left = remainder of the current phase + pace * sum(shares to come)
+where ``seen`` is the part of the current phase's counts seen so far. A phase a fit passes by (the
+duel where the working size is the search's, trials with nothing to compare) leaves the shares.
+The bar moves as the clock does where the shares hold, also through a phase that reports no count,
+and never runs ahead of the phase the fit is in.
 
-- the fraction of the bar: the shares of the phases done, and the current one's share times its
-  time so far over its time so far and left: the bar moves as the clock does where the shares
-  hold, also through a phase that reports no count, and never runs ahead of the phase the fit is in.
-
-The shares were measured on the benchmark pairs (``tools/fit_timeline.py``, which records when
-each event arrives and replays the records through this module; the figures are in the results
-ledger, ``devtools/bench/results/fit-timeline.jsonl``). A share is a fraction of the wall time, so
-a busy or a fast machine changes the pace, not the shares.
-
-Times are given by the caller (``now``, seconds on any monotonic clock), so that a recorded fit
-replays exactly.
+The shares were measured on the benchmark's real pairs by ``tools/fit_timeline.py``, which records
+when each event arrives and replays the records through this module (the figures are in the
+results ledger, ``devtools/bench/results/fit-timeline.jsonl``), on the fit's CPU clock: a busy
+machine stretches the seconds, not the shares. Times are given by the caller (``now``, seconds on
+any monotonic clock), so that a recorded fit replays exactly.
 """
 from __future__ import annotations
 
@@ -37,15 +37,18 @@ class Phase:
     """One step of a fit as its events show it.
 
     stage: the protocol stage whose events it has; words: what the bar says; share: its part of a
-    fit's wall time; counted: whether its events count its work (else only its start is known);
-    optional: whether a fit may pass it by (the duel runs only where the working size is above the
-    search's).
+    fit's wall time, where it runs; fixed: whether the photos alone set its work (reading them,
+    placing the weave, the re-renders at the film size, the report), else the search and the
+    working size do; counted: whether its events count its work (else only its start is known);
+    optional: whether a fit may pass it by without an event (the duel runs only where the working
+    size is above the search's).
     """
 
     name: str
     stage: str
     words: str
     share: float
+    fixed: bool = False
     counted: bool = True
     optional: bool = False
 
@@ -55,17 +58,20 @@ class Phase:
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.03),
-    Phase("placement", "search", "Finding the weave in the photos", 0.12, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.01),
-    Phase("trials", "search", "Comparing weaves", 0.18),
-    Phase("duel", "search", "Checking the weave at full size", 0.1, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.4),
-    Phase("render", "render", "Rendering the result", 0.13),
-    Phase("report", "report", "Writing the report", 0.03, counted=False),
+    Phase("load", "load", "Reading the photos", 0.013, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.109, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.006),
+    Phase("trials", "search", "Comparing weaves", 0.165),
+    Phase("duel", "search", "Checking the weave at full size", 0.136, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.448),
+    Phase("render", "render", "Rendering the result", 0.110, fixed=True),
+    Phase("report", "report", "Writing the report", 0.013, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
+# A counted phase done in less than this part of its expected length did no work of its own (the
+# trials a search passes by: a lone start, or a weave and its face twin, which the duel tells apart).
+PASSED_BY_BELOW = 0.1
 
 
 @dataclass
@@ -126,11 +132,12 @@ class FitProgress:
 
     def _enter(self, index: int, now: float) -> None:
         """Ends the current phase at ``now`` and begins phase ``index``; those between are passed by.
-        An optional phase left without a count did not run: its time goes to the next one."""
+        A phase that did no work of its own (:meth:`_passed_by`) counts as passed by: its time goes
+        to the next one."""
         started = now
         if 0 <= self.current.index < len(PHASES):
             phase = PHASES[self.current.index]
-            if phase.optional and phase.counted and self.current.last is None:
+            if self._passed_by(phase, now):
                 self.skipped.add(phase.name)
                 started = self.current.started
             else:
@@ -138,36 +145,66 @@ class FitProgress:
         self.skipped.update(p.name for p in PHASES[self.current.index + 1:index])
         self.current = _Current(index, started)
 
+    def _passed_by(self, phase: Phase, now: float) -> bool:
+        """An optional phase left without a count, or a counted one done in less than
+        :data:`PASSED_BY_BELOW` of its expected length."""
+        if not phase.counted:
+            return False
+        if self.current.last is None:
+            return phase.optional
+        pace = self._pace(phase.fixed, with_current=False)
+        return pace is not None and now - self.current.started < PASSED_BY_BELOW * pace * phase.share
+
     # -- what the bar shows -------------------------------------------------------------------
     @property
     def phase(self) -> Phase | None:
         return PHASES[self.current.index] if 0 <= self.current.index < len(PHASES) else None
 
-    def _pace(self) -> float | None:
-        """Seconds per share, from the phases done (None before one has ended)."""
-        shares = sum(p.share for p in PHASES if p.name in self.durations)
-        return sum(self.durations.values()) / shares if shares > 0 else None
+    def _pace(self, fixed: bool, with_current: bool = True) -> float | None:
+        """Seconds per share of the phases whose work the photos set (``fixed``), or of those the
+        search and working size set: from the phases of that kind done and (``with_current``) the
+        current one's counts from its second on, else from the other kind's; None before a phase
+        has ended."""
+        seconds, shares = 0.0, 0.0
+        for kind in (fixed, not fixed):
+            for phase in PHASES:
+                if phase.fixed == kind and phase.name in self.durations:
+                    seconds, shares = seconds + self.durations[phase.name], shares + phase.share
+            current = self.current
+            if with_current and self.phase is not None and self.phase.fixed == kind and current.first is not None \
+                    and current.total > current.last[1] > current.first[1]:
+                # the phase's work is its counts after the first (whose event begins it)
+                seconds += current.last[0] - current.first[0]
+                shares += self.phase.share * (current.last[1] - current.first[1]) / (current.total - current.first[1])
+            if shares > 0:
+                return seconds / shares
+        return None
 
     def _remainder(self, pace: float, now: float) -> float:
-        """The current phase's time left: at its own pace from its second count on, else its share
-        at the fit's pace less its time so far, but at least :data:`MIN_REMAINDER` of that share (a
-        phase that overruns keeps the bar moving, ever slower, short of its end)."""
+        """The current phase's time left: its share at the fit's pace less its time so far (but at
+        least :data:`MIN_REMAINDER` of that share: a phase that overruns keeps the bar moving, ever
+        slower, short of its end), and from its second count on, more and more its own pace: weighed
+        by the part of its counts seen, which holds the pauses its counts do not show (the
+        optimiser's discrete steps) until it has seen them."""
         current = self.current
-        if current.first is not None and current.last[1] > current.first[1]:
-            per_count = (current.last[0] - current.first[0]) / (current.last[1] - current.first[1])
-            return max(per_count * (current.total - current.last[1]) - (now - current.last[0]), 0.0)
         expected = pace * self.phase.share
-        return max(expected - (now - current.started), MIN_REMAINDER * expected)
+        by_share = max(expected - (now - current.started), MIN_REMAINDER * expected)
+        if current.first is None or current.last[1] <= current.first[1]:
+            return by_share
+        counted = current.last[1] - current.first[1]
+        per_count = (current.last[0] - current.first[0]) / counted
+        own = max(per_count * (current.total - current.last[1]) - (now - current.last[0]), 0.0)
+        seen = counted / max(current.total - current.first[1], 1)
+        return seen * own + (1.0 - seen) * by_share
 
     def seconds_left(self, now: float) -> float | None:
         """The estimated time left (None before a phase has ended: no pace yet)."""
         if self.finished:
             return 0.0
-        pace = self._pace()
-        if self.phase is None or pace is None:
+        if self.phase is None or self._pace(True) is None:
             return None
-        to_come = sum(p.share for p in PHASES[self.current.index + 1:] if p.name not in self.skipped)
-        return self._remainder(pace, now) + pace * to_come
+        to_come = [p for p in PHASES[self.current.index + 1:] if p.name not in self.skipped]
+        return self._remainder(self._pace(self.phase.fixed), now) + sum(p.share * self._pace(p.fixed) for p in to_come)
 
     def fraction(self, now: float) -> float:
         """The bar: the shares of the phases done, and of the current one the part its time so far is
@@ -177,8 +214,8 @@ class FitProgress:
         the fit has ended."""
         if self.finished:
             return 1.0
-        pace = self._pace()
-        if self.phase is None or pace is None:
+        pace = None if self.phase is None else self._pace(self.phase.fixed)
+        if pace is None:
             return 0.0
         run = [p for p in PHASES if p.name not in self.skipped]
         whole = sum(p.share for p in run)
@@ -216,6 +253,10 @@ class Replay:
     shares: dict[str, float]          # phase -> its part of the fit's time
     worst_eta_error: float            # (estimate - truth) / truth of the time left, largest in size
     worst_bar_error: float            # bar - elapsed / whole time, largest in size
+    within: float                     # the part of the checks whose estimate is within ETA_CHECK of the truth
+
+
+ETA_CHECK = 0.25  # the promise of the bar's time left, checked by replay: within this part of the truth
 
 
 def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
@@ -228,6 +269,7 @@ def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float
     checks = sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))})
     pending = list(events)
     worst_eta = worst_bar = shown = 0.0
+    errors = []
     for now in checks:
         while pending and pending[0][0] <= now:
             t, stage, iteration, total = pending.pop(0)
@@ -236,10 +278,12 @@ def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float
         shown = max(shown, follow.fraction(now))
         if left is None or shown < from_fraction or truth < max(tail * total_s, 1.0):
             continue
-        if abs(left - truth) / truth > abs(worst_eta):
-            worst_eta = (left - truth) / truth
+        errors.append((left - truth) / truth)
+        if abs(errors[-1]) > abs(worst_eta):
+            worst_eta = errors[-1]
         if abs(shown - now / total_s) > abs(worst_bar):
             worst_bar = shown - now / total_s
     follow.update({"event": "result"}, total_s)
     shares = {name: follow.durations.get(name, 0.0) / total_s for name in NAMES}
-    return Replay(shares, worst_eta, worst_bar)
+    within = sum(abs(error) <= ETA_CHECK for error in errors) / len(errors) if errors else 1.0
+    return Replay(shares, worst_eta, worst_bar, within)
