@@ -630,6 +630,10 @@ def test_only_colour_layers_are_paint_slots_and_the_buttons_wait_for_something_t
 
         labels = {{field.name: field.label for field in ext.core.rig_settings.rig_fields()}}
         assert (labels["sample_rotation_deg"], labels["sample_skew_deg"]) == ("Sample rotation", "Sample skew")
+        # An unchanged panel gives the fit the backend's own rig, to the last digit (gamma 2.2, not the
+        # 2.2000000476837 a single-precision property holds): the same fit as the command line's.
+        rig = ext.core.rig_settings.rig_dict(ext.ui.properties.rig_values(bpy.context.scene.woven_fabric.rig))
+        assert rig == json.loads(os.environ["FABRIC_TEST_RIG"]), rig
 
         bpy.context.scene.render.engine = "BLENDER_EEVEE"
         drawn = drawn_by(ext.ui.material_operators.VIEW3D_PT_woven_fabric_material)
@@ -644,7 +648,7 @@ def test_only_colour_layers_are_paint_slots_and_the_buttons_wait_for_something_t
         shown = " ".join(text or "" for kind, text in drawn if kind == "label")
         assert "Woven Fabric Fits" in shown, shown
         print("SMALL POINTS OK")
-    """)
+    """, FABRIC_TEST_RIG=json.dumps(DEFAULT_RIG.to_dict()))
     assert "SMALL POINTS OK" in output
 
 

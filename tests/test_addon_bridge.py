@@ -758,3 +758,16 @@ def test_the_gpu_install_refuses_offline_or_without_the_bundled_packages(fake_pi
         gpu_env.TorchInstall(bridge.Backend(sys.executable), tmp_path / "gpu", "torch==2.13.0").start(online=True)
     assert not (tmp_path / "gpu").exists() and not (tmp_path / "gpu.partial").exists()
     assert gpu_env.torch_requirement() == backend.core.dependencies.TORCH.requirement
+
+
+def test_a_warning_reaches_the_runs_log_as_well_as_its_event():
+    """With --json-progress a warning is an event for the caller and a line on stderr, which the
+    add-on keeps as the fit's backend.log (and the batch as its logs/<name>.log)."""
+    import io
+
+    protocol = backend.core.protocol
+    stream, log = io.StringIO(), io.StringIO()
+    protocol.Reporter(json_lines=True, stream=stream, log=log).warning("the photos may be swapped", "a.png")
+    assert protocol.decode(stream.getvalue()) == {"event": "warning", "message": "the photos may be swapped",
+                                                  "file": "a.png"}
+    assert log.getvalue() == "warning: the photos may be swapped\n"

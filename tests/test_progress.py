@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from backend.core import progress, protocol  # noqa: E402
-from backend.core.progress import MIN_REMAINDER, PHASES, FitProgress, duration_words, replay  # noqa: E402
+from backend.core.progress import MIN_REMAINDER, PHASES, PLATEAU, FitProgress, duration_words, replay  # noqa: E402
 
 
 def progress_event(stage: str, iteration: int, total: int) -> dict:
@@ -178,3 +178,34 @@ def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
     assert fit.phase.name == "duel"
     expected = 2 * pace * (shares["duel"] + shares["optimise"]) + pace * (shares["render"] + shares["report"])
     assert fit.seconds_left(t_trials) == pytest.approx(expected)
+
+
+def test_an_optimiser_whose_loss_has_settled_is_expected_to_stop_when_its_patience_runs_out():
+    """PLATEAU: the optimiser ends once its best loss has not moved for its patience (FitSettings'),
+    not before its first discrete search. Its loss unchanged for half its patience, the time left
+    counts the steps to that end, not to its total; a loss still falling counts them all."""
+    optimiser = next(p for p in PHASES if p.name == "optimise")
+    start = [(0.0, "load", 0, 1), (1.0, "load", 1, 1), (1.0, "search", 0, 1), (10.0, "search", 1, 1),
+             (20.0, "search", 1, 1)]
+
+    def after(losses):
+        fit = follow(start)
+        for step, loss in enumerate(losses, start=1):
+            fit.update({**progress_event("optimise", step, 100), "loss": loss}, 20.0 + step)
+        return fit
+
+    settled = 30 + round(PLATEAU * optimiser.patience)
+    falling = after([1.0 / k for k in range(1, settled + 1)])
+    flat = after([1.0 / min(k, 30) for k in range(1, settled + 1)])
+    now = 20.0 + settled
+    assert flat._last_count() == 30 + optimiser.patience and falling._last_count() == 100
+    assert flat.seconds_left(now) < falling.seconds_left(now)
+    assert after([1.0] * 12)._last_count() == optimiser.ends_from  # settled at once: not before the first search
+    assert after([1.0] * 9)._last_count() == 100   # not yet half its patience
+
+
+def test_the_optimisers_patience_is_the_fits():
+    from backend.fit.settings import FitSettings
+
+    optimiser = next(p for p in PHASES if p.name == "optimise")
+    assert (optimiser.patience, optimiser.ends_from) == (FitSettings().patience, FitSettings().first_search + 1)

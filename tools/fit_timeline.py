@@ -1,8 +1,9 @@
 """When a fit's progress events arrive: the timelines the whole-fit progress bar is weighted on.
 
 ``record`` fits photo pairs with ``python -m backend fit R T --out DIR --json-progress`` (one after
-another, each in a fresh folder) and appends, per fit, every progress event with the seconds since
-the process started, the wall time and metrics.json's stage timings to the results ledger
+another, each in a fresh folder) and appends, per fit, every progress event (seconds since the
+process started, stage, iteration, total, the process's CPU seconds, loss), the wall and CPU time
+and metrics.json's stage timings to the results ledger
 (``devtools/bench/results/fit-timeline.jsonl``, a row per fit). ``replay`` reads those rows back
 and runs them through the whole-fit progress (``backend/core/progress.py``): each phase's share of
 the wall time, and how far the bar's time-left estimate is from the time that was really left, from
@@ -45,7 +46,7 @@ def timeline(reflection: Path, transmission: Path, out: Path, fit_args: list[str
         event = json.loads(line)
         if event["event"] == "progress":
             events.append([round(time.monotonic() - started, 3), event["stage"], event["iteration"], event["total"],
-                           cpu_seconds(process.pid)])
+                           cpu_seconds(process.pid), event.get("loss")])
     cpu = cpu_seconds(process.pid)
     code = process.wait()
     wall = time.monotonic() - started
@@ -80,19 +81,27 @@ def record(args) -> None:
 
 
 def replay(args) -> None:
+    """Each recorded fit through the whole-fit progress, on both clocks; then the shares to declare:
+    each phase's mean share of the fits' CPU time where it ran, scaled to sum to 1."""
     from backend.core import progress
 
     rows = [json.loads(line)["data"] for line in Path(args.ledger).read_text().splitlines() if line.strip()]
+    rows = [row for row in rows if row.get("exit") == 0 and row.get("cpu_s")]
+    measured: dict[str, list[float]] = {name: [] for name in progress.NAMES}
     for row in rows:
-        if row.get("exit") != 0:
-            continue
         for clock, column, total in (("cpu", 4, row["cpu_s"]), ("wall", 0, row["wall_s"])):
-            events = [(event[column], *event[1:4]) for event in row["events"]]
+            events = [(event[column], *event[1:4], (event[5:] or [None])[0]) for event in row["events"]]
             report = progress.replay(events, total)
             shares = ", ".join(f"{name} {share:.3f}" for name, share in report.shares.items())
+            for name, share in report.shares.items():
+                if clock == "cpu" and share > 0:
+                    measured[name].append(share)
             print(f"{row['name']:>10} {clock:>4} {total:6.0f} s  time left from 20 % of the bar: within "
                   f"{progress.ETA_CHECK:.0%} at {report.within:.0%} of the moments, worst "
                   f"{report.worst_eta_error:+.0%}; bar - time {report.worst_bar_error:+.2f} at worst; shares: {shares}")
+    means = {name: sum(values) / len(values) for name, values in measured.items() if values}
+    whole = sum(means.values())
+    print("shares to declare: " + ", ".join(f"{name} {mean / whole:.3f}" for name, mean in means.items()))
 
 
 def main(argv: list[str] | None = None) -> None:

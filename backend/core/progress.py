@@ -41,7 +41,9 @@ class Phase:
     placing the weave, the re-renders at the film size, the report), else the search and the
     working size do; counted: whether its events count its work (else only its start is known);
     optional: whether a fit may pass it by without an event (the duel runs only where the working
-    size is above the search's).
+    size is above the search's); patience: the counts without a better loss after which it ends
+    early, though not before count ``ends_from`` (the optimiser: FitSettings.patience, and its
+    first discrete search, FitSettings.first_search).
     """
 
     name: str
@@ -51,6 +53,8 @@ class Phase:
     fixed: bool = False
     counted: bool = True
     optional: bool = False
+    patience: int = 0
+    ends_from: int = 0
 
 
 # In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
@@ -58,20 +62,23 @@ class Phase:
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.013, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.109, fixed=True, counted=False),
+    Phase("load", "load", "Reading the photos", 0.014, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.115, fixed=True, counted=False),
     Phase("starts", "search", "Trying starting points", 0.006),
-    Phase("trials", "search", "Comparing weaves", 0.165),
-    Phase("duel", "search", "Checking the weave at full size", 0.136, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.448),
-    Phase("render", "render", "Rendering the result", 0.110, fixed=True),
-    Phase("report", "report", "Writing the report", 0.013, fixed=True, counted=False),
+    Phase("trials", "search", "Comparing weaves", 0.194),
+    Phase("duel", "search", "Checking the weave at full size", 0.155, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.380, patience=20, ends_from=26),
+    Phase("render", "render", "Rendering the result", 0.121, fixed=True),
+    Phase("report", "report", "Writing the report", 0.015, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
 # A counted phase done in less than this part of its expected length did no work of its own (the
 # trials a search passes by: a lone start, or a weave and its face twin, which the duel tells apart).
 PASSED_BY_BELOW = 0.1
+# A phase with a patience whose loss has not improved for this part of it is taken to end when its
+# patience runs out (an optimiser that has converged stops early; one still improving runs on).
+PLATEAU = 0.5
 
 
 @dataclass
@@ -83,6 +90,7 @@ class _Current:
     first: tuple[float, int] | None = None
     last: tuple[float, int] | None = None
     total: int = 0
+    best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
 
 
 @dataclass
@@ -113,6 +121,9 @@ class FitProgress:
         current = self.current
         current.first = current.first or (now, iteration)
         current.last, current.total = (now, iteration), total
+        loss = event.get("loss")
+        if isinstance(loss, (int, float)) and (current.best is None or loss < current.best[0]):
+            current.best = (float(loss), iteration)
         if 0 < total <= iteration:   # complete: the next phase's work begins now
             self._enter(index + 1, now)
 
@@ -193,9 +204,17 @@ class FitProgress:
             return by_share
         counted = current.last[1] - current.first[1]
         per_count = (current.last[0] - current.first[0]) / counted
-        own = max(per_count * (current.total - current.last[1]) - (now - current.last[0]), 0.0)
+        own = max(per_count * (self._last_count() - current.last[1]) - (now - current.last[0]), 0.0)
         seen = counted / max(current.total - current.first[1], 1)
         return seen * own + (1.0 - seen) * by_share
+
+    def _last_count(self) -> int:
+        """The count the current phase is expected to end at: its total, or, for a phase with a
+        patience whose loss has not improved for :data:`PLATEAU` of it, where that patience runs out."""
+        current, phase = self.current, self.phase
+        if not phase.patience or current.best is None or current.last[1] - current.best[1] < PLATEAU * phase.patience:
+            return current.total
+        return min(current.total, max(current.best[1] + phase.patience, phase.ends_from, current.last[1]))
 
     def seconds_left(self, now: float) -> float | None:
         """The estimated time left (None before a phase has ended: no pace yet)."""
@@ -260,30 +279,25 @@ ETA_CHECK = 0.25  # the promise of the bar's time left, checked by replay: withi
 
 
 def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
-    """Runs a recorded fit (``events``: (seconds, stage, iteration, total) in arrival order,
+    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss]) in arrival order,
     ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
     estimate every second and at every event from ``from_fraction`` of the bar on (the bar as an
     artist sees it: it never goes back) until the last ``tail`` of the fit's time, where a few
     seconds are a large part of the truth."""
     follow = FitProgress(started=0.0)
-    checks = sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))})
     pending = list(events)
-    worst_eta = worst_bar = shown = 0.0
-    errors = []
-    for now in checks:
+    errors, bar_errors, shown = [], [], 0.0
+    for now in sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))}):
         while pending and pending[0][0] <= now:
-            t, stage, iteration, total = pending.pop(0)
-            follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total}, t)
+            t, stage, iteration, total, *loss = pending.pop(0)
+            follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total,
+                           "loss": loss[0] if loss else None}, t)
         left, truth = follow.seconds_left(now), total_s - now
         shown = max(shown, follow.fraction(now))
-        if left is None or shown < from_fraction or truth < max(tail * total_s, 1.0):
-            continue
-        errors.append((left - truth) / truth)
-        if abs(errors[-1]) > abs(worst_eta):
-            worst_eta = errors[-1]
-        if abs(shown - now / total_s) > abs(worst_bar):
-            worst_bar = shown - now / total_s
+        if left is not None and shown >= from_fraction and truth >= max(tail * total_s, 1.0):
+            errors.append((left - truth) / truth)
+            bar_errors.append(shown - now / total_s)
     follow.update({"event": "result"}, total_s)
     shares = {name: follow.durations.get(name, 0.0) / total_s for name in NAMES}
     within = sum(abs(error) <= ETA_CHECK for error in errors) / len(errors) if errors else 1.0
-    return Replay(shares, worst_eta, worst_bar, within)
+    return Replay(shares, max(errors, key=abs, default=0.0), max(bar_errors, key=abs, default=0.0), within)

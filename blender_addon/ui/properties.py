@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 
 import bpy
+import numpy
 
 from ..core import declarations, rig_settings
 
@@ -54,8 +55,14 @@ WovenFabricRigSettings = _rig_settings_class()
 
 
 def rig_values(rig) -> dict:
-    """The rig settings as plain values (tuples for vectors)."""
-    return {field.name: (tuple(getattr(rig, field.name)) if field.kind == "vector" else getattr(rig, field.name))
+    """The rig settings as plain values (tuples for vectors), each float the shortest decimal that its
+    single-precision property holds: the 2.2 a property stores as 2.2000000476837 is 2.2 again, so
+    that the rig.json of an unchanged panel is the backend's own rig and the fit the command line's."""
+    def plain(value):
+        return float(str(numpy.float32(value))) if isinstance(value, float) else value
+
+    return {field.name: (tuple(map(plain, getattr(rig, field.name))) if field.kind == "vector"
+                         else plain(getattr(rig, field.name)))
             for field in rig_settings.rig_fields()}
 
 
