@@ -27,7 +27,8 @@ def counts(stage: str, start: float, end: float, total: int, first: int = 1) -> 
 def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
     """A fit whose every phase lasts its share of ``wall``, its counts evenly spaced, in the fit's order of
     events: each stage's first event of iteration 0, the search's counter starting again for the
-    starting points (3), the trials (2) and the duel (20), then 100 optimiser steps (the duel's 10 first)."""
+    starting points, the trials and the duel (each with the count its share is for), then 100
+    optimiser steps (the duel's 10 first)."""
     shares = {phase.name: phase.share for phase in PHASES}
     if not duel:
         shares["optimise"] += shares.pop("duel")
@@ -36,11 +37,13 @@ def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
         at += shares[name] * wall
         ends[name] = at
     events = [(0.0, "load", 0, 1), (ends["load"], "load", 1, 1), (ends["load"], "search", 0, 1)]
-    events += counts("search", ends["placement"], ends["starts"], 3)
-    events += counts("search", ends["starts"] + (ends["trials"] - ends["starts"]) / 2, ends["trials"], 2)
+    n = {phase.name: phase.counts for phase in PHASES}
+    events += counts("search", ends["placement"], ends["starts"], n["starts"])
+    events += counts("search", ends["starts"] + (ends["trials"] - ends["starts"]) / n["trials"], ends["trials"],
+                     n["trials"])
     previous = ends["trials"]
     if duel:
-        events += counts("search", ends["trials"] + (ends["duel"] - ends["trials"]) / 20, ends["duel"], 20)
+        events += counts("search", ends["trials"] + (ends["duel"] - ends["trials"]) / n["duel"], ends["duel"], n["duel"])
         previous = ends["duel"]
     first = 11 if duel else 1
     events += counts("optimise", previous + (ends["optimise"] - previous) / (101 - first), ends["optimise"], 100, first)
@@ -95,7 +98,7 @@ def test_a_fit_at_the_search_size_passes_the_duel_by_and_gives_its_time_to_the_o
     events = fit_timeline(duel=False)
     fit = follow(events)
     assert fit.skipped == {"duel"} and "duel" not in fit.durations
-    trials_done = next(t for t, stage, iteration, total in events if (stage, iteration, total) == ("search", 2, 2))
+    trials_done = [t for t, stage, iteration, total in events if stage == "search"][-1]
     optimised = next(t for t, stage, iteration, total in events if (stage, iteration) == ("optimise", 100))
     assert fit.durations["optimise"] == pytest.approx(optimised - trials_done)
 

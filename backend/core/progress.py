@@ -41,7 +41,8 @@ class Phase:
     placing the weave, the re-renders at the film size, the report), else the search and the
     working size do; counted: whether its events count its work (else only its start is known);
     optional: whether a fit may pass it by without an event (the duel runs only where the working
-    size is above the search's); patience: the counts without a better loss after which it ends
+    size is above the search's); counts: the count its share is for, where its work grows with its
+    count (a fit with five trials has five halves of the two trials' share); patience: the counts without a better loss after which it ends
     early, though not before count ``ends_from`` (the optimiser: FitSettings.patience, and its
     first discrete search, FitSettings.first_search).
     """
@@ -53,6 +54,7 @@ class Phase:
     fixed: bool = False
     counted: bool = True
     optional: bool = False
+    counts: int = 0
     patience: int = 0
     ends_from: int = 0
 
@@ -62,13 +64,13 @@ class Phase:
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.014, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.115, fixed=True, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.006),
-    Phase("trials", "search", "Comparing weaves", 0.194),
-    Phase("duel", "search", "Checking the weave at full size", 0.155, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.380, patience=20, ends_from=26),
-    Phase("render", "render", "Rendering the result", 0.121, fixed=True),
+    Phase("load", "load", "Reading the photos", 0.015, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.116, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.007, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.191, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.158, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.375, patience=20, ends_from=26),
+    Phase("render", "render", "Rendering the result", 0.123, fixed=True),
     Phase("report", "report", "Writing the report", 0.015, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
@@ -102,6 +104,7 @@ class FitProgress:
     started: float
     current: _Current = field(default_factory=_Current)
     durations: dict[str, float] = field(default_factory=dict)   # phases done -> seconds
+    totals: dict[str, int] = field(default_factory=dict)        # phases done -> their count's total
     skipped: set[str] = field(default_factory=set)
     finished: bool = False
 
@@ -153,6 +156,7 @@ class FitProgress:
                 started = self.current.started
             else:
                 self.durations[phase.name] = now - self.current.started
+                self.totals[phase.name] = self.current.total
         self.skipped.update(p.name for p in PHASES[self.current.index + 1:index])
         self.current = _Current(index, started)
 
@@ -164,12 +168,18 @@ class FitProgress:
         if self.current.last is None:
             return phase.optional
         pace = self._pace(phase.fixed, with_current=False)
-        return pace is not None and now - self.current.started < PASSED_BY_BELOW * pace * phase.share
+        return pace is not None and now - self.current.started < PASSED_BY_BELOW * pace * self.share(phase)
 
     # -- what the bar shows -------------------------------------------------------------------
     @property
     def phase(self) -> Phase | None:
         return PHASES[self.current.index] if 0 <= self.current.index < len(PHASES) else None
+
+    def share(self, phase: Phase) -> float:
+        """A phase's share in this fit: for one whose work grows with its count, scaled by its count's
+        total (once known) over the count its share is for."""
+        total = self.totals.get(phase.name) or (self.current.total if phase is self.phase else 0)
+        return phase.share * total / phase.counts if phase.counts and total else phase.share
 
     def _pace(self, fixed: bool, with_current: bool = True) -> float | None:
         """Seconds per share of the phases whose work the photos set (``fixed``), or of those the
@@ -180,13 +190,13 @@ class FitProgress:
         for kind in (fixed, not fixed):
             for phase in PHASES:
                 if phase.fixed == kind and phase.name in self.durations:
-                    seconds, shares = seconds + self.durations[phase.name], shares + phase.share
+                    seconds, shares = seconds + self.durations[phase.name], shares + self.share(phase)
             current = self.current
             if with_current and self.phase is not None and self.phase.fixed == kind and current.first is not None \
                     and current.total > current.last[1] > current.first[1]:
                 # the phase's work is its counts after the first (whose event begins it)
                 seconds += current.last[0] - current.first[0]
-                shares += self.phase.share * (current.last[1] - current.first[1]) / (current.total - current.first[1])
+                shares += self.share(self.phase) * (current.last[1] - current.first[1]) / (current.total - current.first[1])
             if shares > 0:
                 return seconds / shares
         return None
@@ -198,7 +208,7 @@ class FitProgress:
         by the part of its counts seen, which holds the pauses its counts do not show (the
         optimiser's discrete steps) until it has seen them."""
         current = self.current
-        expected = pace * self.phase.share
+        expected = pace * self.share(self.phase)
         by_share = max(expected - (now - current.started), MIN_REMAINDER * expected)
         if current.first is None or current.last[1] <= current.first[1]:
             return by_share
@@ -237,12 +247,12 @@ class FitProgress:
         if pace is None:
             return 0.0
         run = [p for p in PHASES if p.name not in self.skipped]
-        whole = sum(p.share for p in run)
-        before = sum(p.share for p in run if PHASES.index(p) < self.current.index)
+        whole = sum(map(self.share, run))
+        before = sum(self.share(p) for p in run if PHASES.index(p) < self.current.index)
         in_phase = now - self.current.started
         remainder = self._remainder(pace, now)
         within = in_phase / (in_phase + remainder) if in_phase + remainder > 0 else 1.0
-        return (before + self.phase.share * within) / whole
+        return (before + self.share(self.phase) * within) / whole
 
     def describe(self, now: float) -> str:
         """One line: 'Comparing weaves, 2 of 3, about 4 min left'."""
@@ -269,7 +279,7 @@ def duration_words(seconds: float) -> str:
 class Replay:
     """How the bar did on one recorded fit (:func:`replay`)."""
 
-    shares: dict[str, float]          # phase -> its part of the fit's time
+    shares: dict[str, float]          # phase -> its part of the fit's time, for the count its share is for
     worst_eta_error: float            # (estimate - truth) / truth of the time left, largest in size
     worst_bar_error: float            # bar - elapsed / whole time, largest in size
     within: float                     # the part of the checks whose estimate is within ETA_CHECK of the truth
@@ -298,6 +308,7 @@ def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float
             errors.append((left - truth) / truth)
             bar_errors.append(shown - now / total_s)
     follow.update({"event": "result"}, total_s)
-    shares = {name: follow.durations.get(name, 0.0) / total_s for name in NAMES}
+    shares = {phase.name: follow.durations.get(phase.name, 0.0) / total_s * phase.share / follow.share(phase)
+              for phase in PHASES}
     within = sum(abs(error) <= ETA_CHECK for error in errors) / len(errors) if errors else 1.0
     return Replay(shares, max(errors, key=abs, default=0.0), max(bar_errors, key=abs, default=0.0), within)
