@@ -43,7 +43,8 @@ def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
                      n["trials"])
     previous = ends["trials"]
     if duel:
-        events += counts("search", ends["trials"] + (ends["duel"] - ends["trials"]) / n["duel"], ends["duel"], n["duel"])
+        step = (ends["duel"] - ends["trials"]) / n["duel"]
+        events += counts("search", ends["trials"] + step, ends["duel"], n["duel"])
         previous = ends["duel"]
     first = 11 if duel else 1
     events += counts("optimise", previous + (ends["optimise"] - previous) / (101 - first), ends["optimise"], 100, first)

@@ -42,9 +42,9 @@ class Phase:
     working size do; counted: whether its events count its work (else only its start is known);
     optional: whether a fit may pass it by without an event (the duel runs only where the working
     size is above the search's); counts: the count its share is for, where its work grows with its
-    count (a fit with five trials has five halves of the two trials' share); patience: the counts without a better loss after which it ends
-    early, though not before count ``ends_from`` (the optimiser: FitSettings.patience, and its
-    first discrete search, FitSettings.first_search).
+    count (a fit with five trials has five halves of the two trials' share); patience: the counts
+    without a better loss after which it ends early, though not before count ``ends_from`` (the
+    optimiser: FitSettings.patience, and its first discrete search, FitSettings.first_search).
     """
 
     name: str
@@ -196,7 +196,8 @@ class FitProgress:
                     and current.total > current.last[1] > current.first[1]:
                 # the phase's work is its counts after the first (whose event begins it)
                 seconds += current.last[0] - current.first[0]
-                shares += self.share(self.phase) * (current.last[1] - current.first[1]) / (current.total - current.first[1])
+                done = (current.last[1] - current.first[1]) / (current.total - current.first[1])
+                shares += self.share(self.phase) * done
             if shares > 0:
                 return seconds / shares
         return None
