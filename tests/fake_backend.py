@@ -13,7 +13,10 @@ error          an ``internal`` error event, exit 1
 crash          a traceback on stderr, exit 1, no error event
 garbage        a non-protocol line among the progress lines, then a normal result
 garbage_only   non-protocol lines only, exit 0
-slow           progress every 0.1 s for a minute (for cancel tests); a stop request -> cancelled, 130
+slow           progress every 0.1 s for a minute (for cancel tests); a stop request -> cancelled, 130,
+               with the best parameters so far in ``params.partial.json`` once a step has run
+swapped        the photos look swapped: with ``--strict`` an ``input`` error, exit 2; else a warning
+               and a normal result
 stubborn       like slow but ignores stop requests (the caller must kill it)
 no_result      progress and output files but no result line, exit 0
 =============  ===============================================================================
@@ -38,6 +41,7 @@ import time
 from pathlib import Path
 
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_CANCELLED = 0, 1, 2, 130
+SWAPPED = "the photos may be swapped"  # the protocol's SWAPPED_PHOTOS (a test keeps the two the same)
 MAGIC = {".png": b"\x89PNG", ".jpg": b"\xff\xd8", ".jpeg": b"\xff\xd8"}
 
 
@@ -104,11 +108,22 @@ def fit(args) -> int:
             print(f"error: {which} photo {path}: {problem}", file=sys.stderr)
             return EXIT_INPUT
 
+    if mode == "swapped":
+        message = f"{args.reflection} / {args.transmission}: {SWAPPED} (reflection = front light, ...)"
+        if args.strict:
+            emit("error", kind="input", message=message, file=None)
+            return EXIT_INPUT
+        emit("warning", message=message, file=None)
+        print(f"warning: {message}", file=sys.stderr, flush=True)
     if mode in ("slow", "stubborn"):
         for i in range(600):
             emit("progress", stage="optimise", iteration=i, total=600, loss=1.0 / (i + 1), eta_s=60 - i * 0.1,
                  elapsed_s=i * 0.1)
             if STOP.wait(0.1):
+                if i >= 1:
+                    Path(args.out).mkdir(parents=True, exist_ok=True)
+                    params = dict(fake_params(Path(args.reflection).stem.rsplit("_", 1)[0]), partial=True)
+                    (Path(args.out) / "params.partial.json").write_text(json.dumps(params) + "\n")
                 emit("error", kind="cancelled", message="cancelled by a stop request", file=None)
                 return EXIT_CANCELLED
         return EXIT_INTERNAL
@@ -117,20 +132,23 @@ def fit(args) -> int:
         print('{"no_event": 1}')
         return EXIT_OK
 
-    steps = [("load", 1), ("init", 1), ("search", 3), ("optimise", args.iterations or 10), ("render", 1),
-             ("report", 1)]
-    for stage, total in steps:
-        for i in range(1, total + 1):
+    # the real fit's sequence: each stage from 0 of 1, the search's counter starting again for its
+    # starting points and its trials
+    iterations = args.iterations or 10
+    steps = [("load", (0, 1), 1), ("search", (0,), 1), ("search", range(1, 4), 3), ("search", range(1, 3), 2),
+             ("optimise", range(1, iterations + 1), iterations), ("render", (0, 1), 1), ("report", (0, 1), 1)]
+    for stage, counts, total in steps:
+        for i in counts:
             emit("progress", stage=stage, iteration=i, total=total, loss=0.1 / i if stage == "optimise" else None,
                  eta_s=None, elapsed_s=0.0)
-            if mode == "garbage" and stage == "search" and i == 1:
+            if mode == "garbage" and stage == "search" and (i, total) == (1, 3):
                 print("Warning: some library printed this on stdout")
             time.sleep(delay)
-        if mode == "error" and stage == "search":
+        if mode == "error" and stage == "search" and total == 2:
             emit("error", kind="internal", message="the optimiser diverged (loss is NaN)", file=None)
             print("error: the optimiser diverged", file=sys.stderr)
             return EXIT_INTERNAL
-        if mode == "crash" and stage == "init":
+        if mode == "crash" and stage == "load":
             raise RuntimeError("simulated crash in the initialisation network")
 
     out = Path(args.out)
@@ -169,6 +187,7 @@ def main(argv=None) -> int:
     p.add_argument("--output-spp", type=int)
     p.add_argument("--json-progress", action="store_true")
     p.add_argument("--stop-on-stdin", action="store_true")
+    p.add_argument("--strict", action="store_true")
     args = parser.parse_args(argv)
     return fit(args)
 

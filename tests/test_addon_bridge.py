@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import fake_backend  # noqa: E402
 from addon_support import python_without_torch  # noqa: E402
 from fake_backend import fake_params  # noqa: E402
 
@@ -41,10 +42,10 @@ from blender_addon.core import backend_bridge as bridge  # noqa: E402
 from blender_addon.core import backend_setup as setup  # noqa: E402
 from blender_addon.core import (  # noqa: E402
     batch,
+    batch_queue,
     captures,
     checklist,
     declarations,
-    fit_progress,
     gpu_env,
     paths,
     rig_settings,
@@ -204,30 +205,22 @@ def test_interpreter_candidates_put_the_project_environment_first(tmp_path, monk
     assert setup.interpreter_candidates() == [str(venv_python), sys.executable]
 
 
-def test_progress_fraction_is_monotonic_over_the_stages():
-    assert tuple(fit_progress.STAGE_WEIGHTS) == declarations.protocol().STAGES == tuple(fit_progress.STAGE_NAMES)
-    assert sum(fit_progress.STAGE_WEIGHTS.values()) == pytest.approx(1.0)
-    fractions = [fit_progress.progress_fraction(stage, i, 4) for stage in fit_progress.STAGE_WEIGHTS for i in range(5)]
-    assert fractions == sorted(fractions)
-    assert fractions[0] == 0.0 and fractions[-1] == pytest.approx(1.0)
-    assert fit_progress.progress_fraction("optimise", 3, 0) == pytest.approx(0.22)
-    assert fit_progress.describe_progress({"stage": "optimise", "iteration": 12, "total": 300, "loss": 0.0312,
-                                     "eta_s": 41.5}) == "Optimising 12/300, loss 0.0312, about 42 s left"
-
-
 # -- runs against the fake backend ------------------------------------------------------------------
 
 def test_a_fit_reports_progress_and_its_result(tmp_path, photos, monkeypatch):
     fit = run_fit(tmp_path, photos, "ok", monkeypatch, rig_json=None)
-    seen, fractions = [], []
+    seen, fractions, words = [], [], []
     while not fit.done:
         for event in fit.poll():
             seen.append(event["event"])
-            fractions.append(fit.progress)
+        fractions.append(fit.progress)
+        words.append(fit.status.split(",")[0])
         time.sleep(0.01)
     assert fit.state == bridge.SUCCEEDED, fit.error
     assert seen[0] == "start" and seen[-1] == "result" and "progress" in seen
-    assert fractions == sorted(fractions) and fit.progress == 1.0
+    assert fractions == sorted(fractions) and fit.progress == 1.0  # one bar over every stage
+    phases = [phase.words for phase in declarations.fit_progress().PHASES if phase.name != "duel"]
+    assert [w for w in phases if w in words] == [w for w in dict.fromkeys(words) if w in phases], words
     assert fit.returncode == 0 and fit.error == "" and fit.outcome == backend.core.pair_jobs.DONE
     params = captures.read_fit_params(fit.result)
     assert params["pattern"] == "twill1"
@@ -551,7 +544,70 @@ def test_the_batch_refuses_bad_arguments_before_any_fit(tmp_path, capsys):
     assert "not a folder" in capsys.readouterr().err
     assert batch.main([str(tmp_path), "--pattern", "basket"], library=library) == 1
     assert batch.main(["--help"], library=library) == 0
+    # the fit options' flags, help and checks are the backend's declaration's
+    assert batch.main([str(tmp_path), "--size", "16"], library=library) == 1
+    assert "--size: must be at least 32 pixels, got 16" in capsys.readouterr().err
     assert library.added == [] and library.written == []
+
+
+def test_the_batch_passes_the_declared_fit_options_on_and_checks_them_before_the_first_fit(tmp_path):
+    (tmp_path / "linen_R.png").write_bytes(PNG_1x1)
+    (tmp_path / "linen_T.png").write_bytes(PNG_1x1)
+    args = batch.build_parser().parse_args([str(tmp_path), "--size", "64", "--output-spp", "4", "--strict"])
+    assert batch._fit_options(args) == {"size": 64, "output_spp": 4, "strict": True}  # the rest: the backend's
+    backend_ = bridge.Backend(sys.executable, BACKEND_SCRIPT)
+    refused = batch_queue.BatchQueue(tmp_path, backend_, tmp_path / "fits", {}, lambda *a: "",
+                                     batch_queue.BatchOptions({"iterations": 0}))
+    with pytest.raises(bridge.BackendError, match="^--iterations: must be at least 1, got 0$"):
+        refused.start()
+    assert not (tmp_path / "fits").exists() and refused.jobs[0].state == batch_queue.PENDING
+    with pytest.raises(bridge.BackendError, match="not an option of a fit"):
+        captures.check_fit_options({"colour": "red"})
+
+
+def test_an_unsaved_files_fits_go_where_the_artist_finds_them(tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    assert captures.default_results_parent("", home) == home / captures.UNSAVED_RESULTS
+    (home / "Documents").mkdir()
+    assert captures.default_results_parent("", home) == home / "Documents" / captures.UNSAVED_RESULTS
+    assert captures.default_results_parent(str(tmp_path / "scene.blend"), home) == tmp_path / "fabric_fits"
+
+
+def test_a_cancelled_fit_leaves_its_best_parameters_or_its_fit(tmp_path):
+    assert captures.cancelled_fit_params(tmp_path) is None
+    (tmp_path / backend.core.protocol.PARTIAL_PARAMS_FILE).write_text(json.dumps(fake_params("a")))
+    assert captures.cancelled_fit_params(tmp_path) == (fake_params("a"), True)
+    (tmp_path / "params.json").write_text(json.dumps(fake_params("b")))   # cancelled in its re-renders
+    assert captures.cancelled_fit_params(tmp_path) == (fake_params("b"), False)
+    # the backend writes the protocol's partial file (backend/app/folder.py)
+    assert f'"{backend.core.protocol.PARTIAL_PARAMS_FILE}"' in (ROOT / "backend/app/folder.py").read_text()
+
+
+def test_photos_that_look_swapped_are_refused_with_the_protocols_words(tmp_path, photos, monkeypatch):
+    fit = run_fit(tmp_path, photos, "swapped", monkeypatch, strict=True)
+    assert fit.wait(timeout=HANG_S) == bridge.FAILED and fit.refused_swapped
+    assert "--strict" in fit.arguments
+    warned = run_fit(tmp_path / "given", photos, "swapped", monkeypatch)
+    assert warned.wait(timeout=HANG_S) == bridge.SUCCEEDED and not warned.refused_swapped
+    assert [w for w in warned.warnings if backend.core.protocol.SWAPPED_PHOTOS in w]
+    assert fake_backend.SWAPPED == backend.core.protocol.SWAPPED_PHOTOS
+    # the backend's own warning and refusal hold the words (backend/image/photos.py)
+    from test_photos import synthetic_pair
+
+    from backend.image.errors import PhotoError
+    from backend.image.photos import load_pair
+    reflection, transmission = synthetic_pair(tmp_path)
+    assert backend.core.protocol.SWAPPED_PHOTOS in load_pair(transmission, reflection, size=256).warnings[0]
+    with pytest.raises(PhotoError, match=backend.core.protocol.SWAPPED_PHOTOS):
+        load_pair(transmission, reflection, size=256, strict=True)
+
+
+def test_the_rigs_labels_read_as_words():
+    labels = {field.name: field.label for field in rig_settings.rig_fields()}
+    assert (labels["sample_rotation_deg"], labels["sample_skew_deg"]) == ("Sample rotation", "Sample skew")
+    assert not [label for label in labels.values() if label.split()[-1] in ("deg", "px", "cm")], labels
+    assert rig_settings._label("new_setting_px") == "New setting"
 
 
 # -- the bundled backend: isolation and precedence ----------------------------------------------------
@@ -702,3 +758,16 @@ def test_the_gpu_install_refuses_offline_or_without_the_bundled_packages(fake_pi
         gpu_env.TorchInstall(bridge.Backend(sys.executable), tmp_path / "gpu", "torch==2.13.0").start(online=True)
     assert not (tmp_path / "gpu").exists() and not (tmp_path / "gpu.partial").exists()
     assert gpu_env.torch_requirement() == backend.core.dependencies.TORCH.requirement
+
+
+def test_a_warning_reaches_the_runs_log_as_well_as_its_event():
+    """With --json-progress a warning is an event for the caller and a line on stderr, which the
+    add-on keeps as the fit's backend.log (and the batch as its logs/<name>.log)."""
+    import io
+
+    protocol = backend.core.protocol
+    stream, log = io.StringIO(), io.StringIO()
+    protocol.Reporter(json_lines=True, stream=stream, log=log).warning("the photos may be swapped", "a.png")
+    assert protocol.decode(stream.getvalue()) == {"event": "warning", "message": "the photos may be swapped",
+                                                  "file": "a.png"}
+    assert log.getvalue() == "warning: the photos may be swapped\n"

@@ -155,7 +155,7 @@ def _queue(folder, tmp_path, made, **options):
 
     return batch_queue.BatchQueue(folder, backend_bridge.Backend(sys.executable, str(FAKE_BACKEND)),
                                   tmp_path / "fits", {"width_cm": 5.0}, on_fitted,
-                                  batch_queue.BatchOptions(iterations=3, **options))
+                                  batch_queue.BatchOptions({"iterations": 3}, **options))
 
 
 def _poll_until(queue, ended):

@@ -7,7 +7,8 @@ With ``--json-progress`` a command writes one JSON object per line on stdout, no
 ``progress``  {"event": "progress", "stage": "optimise", "iteration": 12, "total": 300,
                "loss": 0.0312, "eta_s": 41.5, "elapsed_s": 7.9}
               stage is one of: load, init, search, optimise, render, report. loss and eta_s may be null.
-``warning``   {"event": "warning", "message": "...", "file": "path or null"}
+``warning``   {"event": "warning", "message": "...", "file": "path or null"} (also a ``warning:`` line on
+              the log, stderr, as in the terminal: a caller's log of the run holds it)
 ``result``    {"event": "result", "out_dir": "...", "params": ".../params.json",
                "files": {"reflection": ..., "transmission": ..., "report": ..., "metrics": ...},
                "metrics": {...}, "wall_s": 52.1}
@@ -27,9 +28,13 @@ A batch of fits (``python -m backend batch``) adds two events and ends with its 
                "csv": ".../catalogue.csv", "done": 39, "failed": 1, "wall_s": 2710.3}
 
 Exit codes: 0 success, 2 bad input (the error names the file and the problem), 1 internal error,
-130 cancelled (partial results are kept, see the fit command). A batch exits with the number of pairs
-that failed (:func:`failed_exit_code`, capped at 125; the Blender batch counts the same way), 2 when it
-cannot start, 130 when stopped. The last line of a run is always a ``result`` or an ``error``.
+130 cancelled (the best parameters so far are kept in :data:`PARTIAL_PARAMS_FILE`, or, once the fit
+has ended, in its params.json). A batch exits with the number of pairs that failed
+(:func:`failed_exit_code`, capped at 125; the Blender batch counts the same way), 2 when it cannot
+start, 130 when stopped. The last line of a run is always a ``result`` or an ``error``.
+
+Photos that look swapped are a warning, or bad input with ``fit --strict``; either message holds
+:data:`SWAPPED_PHOTOS`, which a caller looks for to offer the swap.
 
 Stopping, the other way: SIGINT/SIGTERM from a terminal; a caller that cannot send a catchable
 signal (Windows has none: ``Popen.terminate`` kills) starts ``fit --stop-on-stdin`` with a pipe on
@@ -49,6 +54,8 @@ STAGES = ("load", "init", "search", "optimise", "render", "report")
 PAIR_STATUSES = ("started", "done", "kept", "retrying", "failed", "cancelled")
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_CANCELLED = 0, 1, 2, 130
 STOP_REQUEST = "stop"  # a line on the stdin of ``fit --stop-on-stdin``
+PARTIAL_PARAMS_FILE = "params.partial.json"  # a cancelled fit's best parameters so far, in its --out folder
+SWAPPED_PHOTOS = "the photos may be swapped"  # in the warning or the error of a pair whose lighting reads reversed
 MAX_FAILED_EXIT = 125  # exit codes above are the shell's (126: not executable, 128 + N: killed by signal N)
 
 
@@ -162,8 +169,7 @@ class Reporter:
     def warning(self, message: str, file: str | None = None):
         if self.json_lines:
             self._emit("warning", message=message, file=file)
-        else:
-            self.info(f"warning: {message}")
+        self.info(f"warning: {message}")
 
     def result(self, **fields):
         self._close_bar()

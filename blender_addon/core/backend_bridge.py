@@ -2,9 +2,10 @@
 
 A fit is ``<python> -m backend fit REFLECTION TRANSMISSION --out DIR --json-progress ...`` run with
 ``PYTHONPATH`` pointing at the folder that holds the ``backend`` package (see paths.py). Blender
-must never wait on it, so :class:`FitProcess` reads stdout and stderr on two daemon threads into a
-queue and a bounded buffer; the caller (a modal operator's timer, or the batch loop) calls
-:meth:`FitProcess.poll` as often as it likes and gets the new events without blocking.
+must never wait on it, so :class:`FitProcess` reads stdout and stderr on two daemon threads; the
+caller (a modal operator's timer, the batch loop) calls :meth:`FitProcess.poll` as often as it
+likes and gets the new events without blocking, and the bar over the whole fit
+(backend/core/progress.py) in ``progress`` and ``status``.
 
 Outcomes, each with a message a person can read:
 
@@ -13,18 +14,16 @@ Outcomes, each with a message a person can read:
   without an error event: the exit code or signal and the last lines of stderr), or an exit
   without a result, or a process that could not be started at all;
 - ``cancelled``: :meth:`FitProcess.request_cancel` writes the protocol's stop line on the
-  backend's stdin (``fit --stop-on-stdin``: the backend then writes a ``cancelled`` error and keeps
-  its best parameters). That works on every platform, unlike SIGTERM, which Windows cannot catch.
-  If the process is still alive after a grace period it is killed (on POSIX its whole session, so
-  that any worker it started goes too). It is always reaped (no zombie). Should Blender end without
+  backend's stdin (``fit --stop-on-stdin``: it then keeps its best parameters, the protocol's
+  partial file); unlike SIGTERM, that works on Windows too. Still alive after a grace period, the
+  process is killed (on POSIX its whole session), and always reaped. Should Blender end without
   cancelling, the pipe closes and the backend stops the same way.
 
-A stdout line that is not a protocol event (a library printing on stdout) does not end the fit: it
-becomes a ``warning`` event saying so, and is quoted in the error if the run then ends badly.
+A stdout line that is not a protocol event (a library printing on stdout) becomes a ``warning``
+event saying so, and is quoted in the error if the run then ends badly.
 
-Which backend runs is a :class:`Backend`: an interpreter plus, optionally, a script that replaces
-``-m backend`` (the tests' fake backend), and, for the extension's bundled backend, the package
-folders it runs with in isolation. Choosing and checking the interpreter is backend_setup.py's job.
+Which backend runs is a :class:`Backend` (an interpreter, optionally a script replacing ``-m
+backend``, and the bundled backend's package folders); backend_setup.py chooses and checks it.
 """
 from __future__ import annotations
 
@@ -41,7 +40,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import declarations, paths
-from .fit_progress import describe_progress, progress_fraction
 
 DEVICES = ("cpu", "cuda")
 
@@ -114,6 +112,7 @@ class FitRequest:
     device: str | None = None
     rig_json: Path | None = None
     output_spp: int | None = None   # samples per pixel of the fit's re-renders (None: the backend's default)
+    strict: bool = False            # refuse photos that look swapped (instead of a warning)
 
     def arguments(self) -> list[str]:
         patterns = declarations.fit_patterns()
@@ -123,7 +122,7 @@ class FitRequest:
             raise BackendError(f"Unknown device {self.device!r}; expected one of {', '.join(DEVICES)}")
         options = declarations.fit_options()  # the backend's flags and checks for these values
         values = {"pattern": self.pattern, "iterations": self.iterations, "size": self.size, "device": self.device,
-                  "rig": self.rig_json, "output_spp": self.output_spp}
+                  "rig": self.rig_json, "output_spp": self.output_spp, "strict": self.strict}
         try:
             flags = options.command_line(values)
         except options.FitOptionError as exc:
@@ -173,6 +172,7 @@ class FitProcess:
         self._error_event: dict | None = None
         self._malformed: list[str] = []
         self._timed_out: float | None = None
+        self._whole = None  # the bar over all stages (backend/core/progress.py), from start()
 
     @classmethod
     def fit(cls, backend: Backend, request: FitRequest, log_path: Path | None = None) -> "FitProcess":
@@ -204,6 +204,7 @@ class FitProcess:
             return self._finish(FAILED, f"Could not start the backend with {self.backend.python}: "
                                         f"{exc.strerror or exc}.")
         self.state, self.status = RUNNING, "Starting the backend"
+        self._whole = declarations.fit_progress().FitProgress(started=time.monotonic())
         _live.add(self)
         for target, stream in ((self._read_stdout, self._process.stdout), (self._read_stderr, self._process.stderr)):
             thread = threading.Thread(target=target, args=(stream,), daemon=True, name="fabric-backend-reader")
@@ -245,9 +246,17 @@ class FitProcess:
             if event is not None:
                 self._apply(event)
                 events.append(event)
+        self._follow_progress()
         self._escalate_cancel()
         self._check_exit()
         return events
+
+    def _follow_progress(self):
+        """The bar and its words at this moment: they move between events too (a phase without a count)."""
+        now = time.monotonic()
+        if self._whole.phase is not None and self._cancel_deadline is None:
+            self.progress = max(self.progress, self._whole.fraction(now))
+            self.status = self._whole.describe(now)
 
     def _parse(self, line: str) -> dict | None:
         line = line.strip()
@@ -266,9 +275,7 @@ class FitProcess:
         if kind == "start":
             self.status = f"Backend started ({event.get('device') or 'default device'})"
         elif kind == "progress":
-            fraction = progress_fraction(event.get("stage", ""), event.get("iteration") or 0, event.get("total") or 0)
-            self.progress = max(self.progress, fraction)
-            self.status = describe_progress(event)
+            self._whole.update(event, time.monotonic())
         elif kind == "warning":
             message = str(event.get("message", ""))
             if event.get("file"):
@@ -276,6 +283,7 @@ class FitProcess:
             self.warnings.append(message)
         elif kind == "result":
             self.result = event
+            self._whole.update(event, time.monotonic())
             self.progress, self.status = 1.0, "Fit finished, reading the result"
         elif kind == "error":
             self._error_event = event
@@ -325,6 +333,12 @@ class FitProcess:
                     + (f": {last}" if last else "") + ". See the console for its log.")
         wrote = f" (it wrote {len(self._malformed)} line(s) that were not progress events)" if self._malformed else ""
         return f"The backend ended without reporting a result{wrote}."
+
+    @property
+    def refused_swapped(self) -> bool:
+        """Whether the backend refused the photos as swapped (``fit --strict``): the caller may offer the swap."""
+        return (self.state == FAILED and (self._error_event or {}).get("kind") == "input"
+                and declarations.protocol().SWAPPED_PHOTOS in self.error)
 
     @property
     def outcome(self) -> str | None:
@@ -407,13 +421,11 @@ class FitProcess:
             self._timed_out = limit
             self.request_cancel()
 
-    def wait(self, timeout: float | None = None, interval: float = 0.05, on_event=None) -> str:
+    def wait(self, timeout: float | None = None, interval: float = 0.05) -> str:
         """Blocks until the run ends (batch mode); past ``timeout`` seconds the run is stopped (time_out)."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self.done:
-            for event in self.poll():
-                if on_event is not None:
-                    on_event(event)
+            self.poll()
             if deadline is not None and time.monotonic() > deadline:
                 self.time_out(timeout)
             if not self.done:

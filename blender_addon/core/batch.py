@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import backend_bridge, backend_setup, batch_queue, captures, declarations, fit_progress, rig_settings
+from . import backend_bridge, backend_setup, batch_queue, captures, declarations, rig_settings
 from .batch_queue import BatchOptions
 
 CLI_COMMAND = "fabric_fit"
@@ -105,18 +105,22 @@ def _fit_all(folder: Path, jobs: list, backend, library, rig: dict, options: Bat
 
 
 class _PairLines:
-    """The headless batch's lines about the pairs being fitted: each stage, warnings, how each ended."""
+    """The headless batch's lines about the pairs being fitted: each phase of the fit (in the words
+    and with the time left of the panel's bar, backend/core/progress.py), warnings, how each ended."""
 
     def __init__(self, jobs: list, log):
         fitted = [job for job in jobs if not job.finished]
         self.prefix = {job.name: f"[{number}/{len(fitted)}] {job.name}" for number, job in enumerate(fitted, 1)}
-        self.stage: dict[str, str] = {}
+        self.progress: dict[str, object] = {}   # pair -> its FitProgress
         self.log = log
 
     def event(self, job, event: dict) -> None:
-        if event["event"] == "progress" and event.get("stage") != self.stage.get(job.name):
-            self.stage[job.name] = event.get("stage")
-            self.log(f"     {self.prefix[job.name]}: {fit_progress.describe_progress(event)}")
+        now = time.monotonic()
+        progress = self.progress.setdefault(job.name, declarations.fit_progress().FitProgress(started=now))
+        before = progress.phase
+        progress.update(event, now)
+        if event["event"] == "progress" and progress.phase is not before:
+            self.log(f"     {self.prefix[job.name]}: {progress.describe(now)}")
         elif event["event"] == "warning":
             self.log(f"WARN {self.prefix[job.name]}: {event.get('message')}")
 
@@ -212,12 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "DIR/fabric_materials.blend; an existing file is kept and a new name chosen "
                                       "unless --overwrite)")
     parser.add_argument("--fits", help="parent of the per-pair result folders (default: FOLDER/fabric_fits)")
-    parser.add_argument("--pattern", choices=declarations.fit_patterns(), default=declarations.AUTO_PATTERN)
-    parser.add_argument("--iterations", type=int)
-    parser.add_argument("--size", type=int)
-    parser.add_argument("--device", choices=backend_bridge.DEVICES)
-    parser.add_argument("--output-spp", type=int, help="samples per pixel of each fit's re-renders "
-                                                       "(default: the backend's, 64; fewer for quick previews)")
+    _add_fit_options(parser)
     parser.add_argument("--rig", type=Path, help="RIG.json (CaptureRig settings; default: the spec's rig)")
     parser.add_argument("--width-cm", type=float, help="real width of the photographed square in centimetres")
     parser.add_argument("--timeout", type=float, help="seconds allowed per pair (default: no limit)")
@@ -226,6 +225,35 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--backend-script", default="", help="script run instead of 'python -m backend'")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     return parser
+
+
+# The fit options the batch passes on to every pair: their flags, help and checks are the backend's
+# declaration's (backend/core/fit_options.py), so a value the backend would refuse is refused here.
+FIT_FLAGS = ("pattern", "iterations", "size", "device", "output_spp", "strict")
+
+
+def _add_fit_options(parser: argparse.ArgumentParser) -> None:
+    declared = declarations.fit_options()
+    for name in FIT_FLAGS:
+        option = declared.OPTIONS[name]
+        if option.kind == declared.FLAG:
+            parser.add_argument(option.flag, action="store_true", help=option.help)
+            continue
+
+        def parse(text: str, option=option):
+            try:
+                return option.parse(text)
+            except ValueError as exc:
+                raise argparse.ArgumentTypeError(str(exc)) from None
+
+        parse.__name__ = name
+        parser.add_argument(option.flag, type=parse, metavar=option.metavar, help=option.help,
+                            choices=backend_bridge.DEVICES if name == "device" else None)
+
+
+def _fit_options(args) -> dict:
+    """The fit options given on the command line (the others stay the backend's defaults)."""
+    return {name: getattr(args, name) for name in FIT_FLAGS if getattr(args, name) not in (None, False)}
 
 
 def main(argv: list[str] | None, *, library,
@@ -249,8 +277,7 @@ def main(argv: list[str] | None, *, library,
                                     overwrite=args.overwrite)
             return _summary(report, "imported", started)
         backend = _backend(args, preferred_backend())
-        options = BatchOptions(args.pattern, args.iterations, args.size, args.device, args.rig, args.width_cm,
-                               args.timeout, args.overwrite, args.output_spp)
+        options = BatchOptions(_fit_options(args), args.rig, args.width_cm, args.timeout, args.overwrite)
         if not Path(args.folder).is_dir():
             raise ValueError(f"{args.folder}: not a folder")
         report = run_batch(args.folder, args.out, backend=backend, library=library, options=options,

@@ -18,7 +18,7 @@ the material and the result folder. :meth:`BatchQueue.request_cancel` asks the r
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -31,15 +31,14 @@ PENDING, RUNNING, DONE, FAILED, CANCELLED = (_model.PENDING, _model.RUNNING, _mo
 
 @dataclass
 class BatchOptions:
-    pattern: str = declarations.AUTO_PATTERN
-    iterations: int | None = None
-    size: int | None = None
-    device: str | None = None
-    rig_json: Path | None = None
+    """A batch's settings: ``fit``, every pair's fit options (backend_bridge.FitRequest's fields, checked
+    by the backend's declaration before the first fit: :meth:`BatchQueue.start`), and the batch's own."""
+
+    fit: dict = field(default_factory=dict)
+    rig_json: Path | None = None     # the rig's settings for every pair (each fit gets its own rig.json)
     width_cm: float | None = None
     timeout_s: float | None = None
-    overwrite: bool = False
-    output_spp: int | None = None
+    overwrite: bool = False          # the library file's, not the fits'
 
 
 @dataclass
@@ -119,6 +118,9 @@ class BatchQueue:
 
     # -- running ------------------------------------------------------------------------------
     def start(self) -> BatchQueue:
+        """Starts the first fit; BackendError (the declaration's message) for fit options the backend
+        would refuse, before any fit."""
+        captures.check_fit_options(self.options.fit)
         self._next()
         return self
 
@@ -164,9 +166,7 @@ class BatchQueue:
         self._started_at = time.monotonic()
         try:
             fit = captures.new_fit(self.backend, job.reflection, job.transmission, self.results_parent, job.name,
-                                   self.rig, pattern=self.options.pattern, iterations=self.options.iterations,
-                                   size=self.options.size, device=self.options.device,
-                                   output_spp=self.options.output_spp).start()
+                                   self.rig, **self.options.fit).start()
         except Exception as exc:  # one pair's trouble never stops the batch
             self._end(job, None, _model.INTERNAL, str(exc) or type(exc).__name__)
             self._next()

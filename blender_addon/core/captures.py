@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import json
 import re
-import tempfile
 from pathlib import Path
 
-from .backend_bridge import Backend, FitProcess, FitRequest
+from . import declarations
+from .backend_bridge import Backend, BackendError, FitProcess, FitRequest
 
 _RUN_NUMBER = re.compile(r"_\d{3}$")  # the suffix new_run_folder adds
 
@@ -60,11 +60,19 @@ def run_name(folder: Path) -> str:
     return _RUN_NUMBER.sub("", folder.name) or "Fabric"
 
 
-def default_results_parent(blend_path: str = "") -> Path:
-    """Beside the saved .blend (``fabric_fits``), else in the temporary folder."""
+UNSAVED_RESULTS = "Woven Fabric Fits"  # the results folder of an unsaved .blend, in Documents or the home folder
+PARTIAL = " (partial)"  # the name of a material made from a cancelled fit's best parameters so far
+
+
+def default_results_parent(blend_path: str = "", home: Path | None = None) -> Path:
+    """Beside the saved .blend (``fabric_fits``); for an unsaved one, ``Woven Fabric Fits`` in the
+    user's Documents folder (the home folder where there is none): a place the artist finds again,
+    unlike the system's temporary folder, which is cleared behind their back."""
     if blend_path:
         return Path(blend_path).resolve().parent / "fabric_fits"
-    return Path(tempfile.gettempdir()) / "woven_fabric_fits"
+    home = Path.home() if home is None else home
+    documents = home / "Documents"
+    return (documents if documents.is_dir() else home) / UNSAVED_RESULTS
 
 
 def unused_path(path: str | Path) -> Path:
@@ -84,13 +92,24 @@ def write_rig_json(folder: Path, rig: dict) -> Path:
     return path
 
 
+def check_fit_options(options: dict) -> None:
+    """Raises BackendError with the declaration's message where ``options`` (FitRequest's fields) hold
+    a value the backend would refuse: checked before a fit (or a batch) makes anything."""
+    try:
+        FitRequest(Path(), Path(), Path(), **options).arguments()
+    except TypeError as exc:
+        raise BackendError(f"not an option of a fit: {exc}") from None
+
+
 def new_fit(backend: Backend, reflection: Path, transmission: Path, results_parent: str | Path, name: str,
             rig: dict, **options) -> FitProcess:
     """A fit of one photo pair in a new result folder holding its ``rig.json`` (not started yet).
 
-    ``options`` are FitRequest's (pattern, iterations, size, device, output_spp); the backend's
-    whole stderr goes to ``backend.log`` in the folder when the run ends.
+    ``options`` are FitRequest's (pattern, iterations, size, device, output_spp, strict), checked by the
+    backend's declaration before anything is made (BackendError); the backend's whole stderr goes to
+    ``backend.log`` in the folder when the run ends.
     """
+    check_fit_options(options)
     out_dir = new_run_folder(results_parent, name)
     request = FitRequest(reflection, transmission, out_dir, rig_json=write_rig_json(out_dir, rig), **options)
     return FitProcess.fit(backend, request, log_path=out_dir / "backend.log")
@@ -105,3 +124,14 @@ def read_fit_params(result: dict) -> dict:
         raise ValueError(f"{path}: cannot read the fitted parameters ({exc.strerror or exc})") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: the fitted parameters are not valid JSON ({exc})") from None
+
+
+def cancelled_fit_params(out_dir: str | Path) -> tuple[dict, bool] | None:
+    """What a cancelled fit left in ``out_dir``: (its params.json, False) when it was cancelled after
+    the fit ended (in the re-renders or the report), else (its best parameters so far, True: the
+    protocol's partial file), or None when it was cancelled before it had any."""
+    for name, partial in (("params.json", False), (declarations.protocol().PARTIAL_PARAMS_FILE, True)):
+        path = Path(out_dir) / name
+        if path.is_file():
+            return read_fit_params({"params": str(path)}), partial
+    return None

@@ -13,7 +13,8 @@ without torch), so the panel, the batch, the node group and the shader cannot dr
 - the photo suffixes (``core.formats``) and the ``<name>_R.* / <name>_T.*`` pairing rule
   (``core.pairs.find_pairs``);
 - the files of a complete fit's results folder (``core.results``);
-- the JSON-lines progress protocol (``core.protocol``).
+- the JSON-lines progress protocol (``core.protocol``) and a fit's progress over all its stages
+  (``core.progress``).
 """
 from __future__ import annotations
 
@@ -101,6 +102,12 @@ def missing_result_files(folder: str | Path) -> list[str]:
 def protocol():
     """The backend's protocol module (decode, stages, exit codes): one definition for both sides."""
     return backend_module("core.protocol")
+
+
+def fit_progress():
+    """The backend's ``core.progress`` module: ``FitProgress``, a fit's progress over all its stages
+    (one bar, its phase in words, the time left) from its protocol events."""
+    return backend_module("core.progress")
 
 
 def pair_jobs():

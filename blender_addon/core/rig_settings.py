@@ -9,6 +9,7 @@ what a user interface needs: labels, tooltips, a kind per field, and ``width_cm`
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 
 from . import declarations
@@ -29,6 +30,10 @@ _RIG_TEXT = {
     "gamma": ("Gamma", "Display gamma of the photos"),
     "clamp": ("Clamp", "Radiance clamp before the gamma"),
     "camera_blur_px": ("Camera blur", "Point spread of the camera in pixels (a fit estimates it; 0: sharp)"),
+    "sample_rotation_deg": ("Sample rotation", "How far the sample is turned in the holder, counter-clockwise in "
+                                               "degrees (0: a fit reads it from the photos)"),
+    "sample_skew_deg": ("Sample skew", "How far the sample is pulled out of square, in degrees: its warps and "
+                                       "wefts cross at 90 + skew (a fit reads it with the rotation)"),
     "width_cm": ("Photographed width", "Real width of the photographed square in centimetres "
                                        "(0: unknown); gives the material its real-world scale"),
 }
@@ -77,9 +82,14 @@ def rig_fields() -> list[RigField]:
             kind = "int"
         else:
             kind = "float"
-        label, description = _RIG_TEXT.get(spec.name, (spec.name.replace("_", " ").capitalize(), spec.name))
+        label, description = _RIG_TEXT.get(spec.name, (_label(spec.name), spec.name))
         fields.append(RigField(spec.name, kind, value, label, description))
     return fields
+
+
+def _label(name: str) -> str:
+    """A readable label for a field without one: ``glow_sigma_px`` -> "Glow sigma" (no unit suffix)."""
+    return re.sub(r"_(deg|px|cm)$", "", name).replace("_", " ").capitalize()
 
 
 def rig_dict(values: dict) -> dict:

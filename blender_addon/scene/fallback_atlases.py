@@ -52,10 +52,11 @@ def repair_atlases() -> list[str]:
     """Restores any fallback atlas whose pixels were changed (painted over, edited by a script);
     returns the names of those it restored.
 
-    The atlases are lookup tables of the weave, not textures: texture painting lists them among a
-    material's paint slots (Blender lists every Image Texture node, in nested groups too), so they
-    are checked here, whenever a fabric material is made or updated, before a file is saved and
-    on a timer while the add-on runs (ui/material_operators.py).
+    The atlases are lookup tables of the weave, not textures (the fallback reads them through
+    Environment Texture nodes, so texture painting never offers them as paint slots), yet the Image
+    Editor can still paint them or a script change them: they are checked here, whenever a fabric
+    material is made or updated, before a file is saved and on a timer while the add-on runs
+    (ui/material_operators.py).
     """
     restored = []
     for name, (w, h, pixels) in _atlas_pixels().items():

@@ -1,5 +1,5 @@
 """The "Woven Fabric fallback" node group (bpy layer): the standard-node program of
-core/shader_fallback.py built as Math / Vector Math / Image Texture nodes, ending in the closures of
+core/shader_fallback.py built as Math / Vector Math / Environment Texture nodes, ending in the closures of
 its two outputs, ``BSDF`` (Cycles without OSL) and ``EEVEE`` (see node_group.py for where they go)."""
 from __future__ import annotations
 
@@ -113,13 +113,26 @@ class _NodeBuilder:
         return self.steps[key]
 
     def lookup(self, name, u, v):
-        coord = self.combine(u, v, 0.0)
-        node = self.tree.nodes.new("ShaderNodeTexImage")
-        node.image = self.images[name]
+        """The atlas texel at (u, v), read by an Environment Texture node: Blender offers every Image
+        Texture node of a material (in its groups too) as a texture-paint slot, and the atlases are
+        lookup tables, not paint. Its equirectangular direction of azimuth pi - 2 pi u and elevation
+        pi (v - 1/2) reads the texel at (u, v); u and v clamped to the first and last texel centres
+        read what an Image Texture's Closest / EXTEND read (and keep the azimuth off the seam)."""
+        image = self.images[name]
+        width, height = image.size
+        u = self.math("MINIMUM", self.math("MAXIMUM", u, 0.5 / width), 1.0 - 0.5 / width)
+        v = self.math("MINIMUM", self.math("MAXIMUM", v, 0.5 / height), 1.0 - 0.5 / height)
+        azimuth = self.math("MULTIPLY_ADD", u, -2.0 * math.pi, math.pi)
+        elevation = self.math("MULTIPLY_ADD", v, math.pi, -0.5 * math.pi)
+        level = self.math("COSINE", elevation)
+        direction = self.combine(self.math("MULTIPLY", self.math("COSINE", azimuth), level),
+                                 self.math("MULTIPLY", self.math("SINE", azimuth), level), self.math("SINE", elevation))
+        node = self.tree.nodes.new("ShaderNodeTexEnvironment")
+        node.image = image
         node.interpolation = "Closest"
-        node.extension = "EXTEND"
-        self.tree.links.new(coord, node.inputs["Vector"])
-        self._place(node, (coord,))
+        node.projection = "EQUIRECTANGULAR"
+        self.tree.links.new(direction, node.inputs["Vector"])
+        self._place(node, (direction,))
         return node.outputs["Color"]
 
 
@@ -127,7 +140,7 @@ _FOLD = {
     "ADD": lambda a, b: a + b, "SUBTRACT": lambda a, b: a - b, "MULTIPLY": lambda a, b: a * b,
     "DIVIDE": lambda a, b: a / b if b else 0.0, "MINIMUM": min, "MAXIMUM": max,
     "SINE": math.sin, "COSINE": math.cos, "SQRT": lambda a: math.sqrt(max(a, 0.0)), "EXPONENT": math.exp,
-    "ARCTANGENT": math.atan, "POWER": lambda a, b: a ** b if a > 0 else 0.0,
+    "ARCTANGENT": math.atan, "POWER": lambda a, b: a ** b if a > 0 else 0.0, "MULTIPLY_ADD": lambda a, b, c: a * b + c,
 }
 
 

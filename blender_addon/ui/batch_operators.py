@@ -31,8 +31,7 @@ def new_batch(context, folder: str) -> batch_queue.BatchQueue:
     def make_material(job, params, description, preview):
         return materials.new_fit_material(job.name, params, width, job.out_dir, description, preview).name
 
-    options = batch_queue.BatchOptions(pattern=settings.pattern, iterations=settings.iterations or None,
-                                       size=settings.size or None, device=preferences.selected_device(context))
+    options = batch_queue.BatchOptions(properties.fit_options(settings, preferences.selected_device(context)))
     return batch_queue.BatchQueue(bpy.path.abspath(folder), preferences.selected_backend(context),
                                   preferences.results_parent(context), rig, make_material, options)
 

@@ -26,6 +26,7 @@ from ..core import colour_layer as colour_layer_rules
 from ..core import shader_status
 from ..scene import colour_layer, fallback_atlases, materials, mesh_scale, node_group
 from . import panels
+from .layout import wrapped_labels
 
 REPAIR_INTERVAL_S = 2.0
 
@@ -45,6 +46,13 @@ def scene_shader_status(scene) -> shader_status.ShaderStatus:
         backend = addon.preferences.compute_device_type
     return shader_status.shader_status(scene.render.engine, bool(getattr(cycles, "shading_system", False)),
                                        getattr(cycles, "device", "CPU"), backend)
+
+
+def _fabric_materials(obj) -> list:
+    """The Woven Fabric materials in a mesh's slots (none for any other object)."""
+    if obj.type != "MESH":
+        return []
+    return [slot.material for slot in obj.material_slots if materials.is_fabric_material(slot.material)]
 
 
 class FABRIC_OT_add_colour_layer(bpy.types.Operator):
@@ -99,12 +107,15 @@ class FABRIC_OT_set_real_world_scale(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return any(obj.type == "MESH" for obj in context.selected_objects)
+        if not any(_fabric_materials(obj) for obj in context.selected_objects):
+            cls.poll_message_set("Select a mesh with a Woven Fabric material")
+            return False
+        return True
 
     def execute(self, context):
         done, problems = [], []
         for obj in (o for o in context.selected_objects if o.type == "MESH"):
-            fabrics = [slot.material for slot in obj.material_slots if materials.is_fabric_material(slot.material)]
+            fabrics = _fabric_materials(obj)
             if not fabrics:
                 problems.append(f"{obj.name}: no Woven Fabric material")
                 continue
@@ -179,13 +190,12 @@ class VIEW3D_PT_woven_fabric_material(panels.FabricSubPanel, bpy.types.Panel):
     def draw(self, context):
         layout = self.layout
         status = scene_shader_status(context.scene)
-        row = layout.row()
-        row.label(text=status.text, icon="SHADING_RENDERED" if status.osl else "INFO")
+        wrapped_labels(layout, status.text, context, icon="SHADING_RENDERED" if status.osl else "INFO")
         if status.can_enable_osl:
             layout.operator("fabric.enable_osl", icon="SCRIPT")
         material = active_fabric_material(context)
-        layout.label(text=material.name if material else "Select an object with a Woven Fabric material",
-                     icon="MATERIAL" if material else "BLANK1")
+        wrapped_labels(layout, material.name if material else "Select an object with a Woven Fabric material",
+                       context, icon="MATERIAL" if material else "BLANK1")
         row = layout.row(align=True)
         row.operator("fabric.add_colour_layer", text="Colour Layer: Multiply", icon="BRUSH_DATA").mode = "MULTIPLY"
         row.operator("fabric.add_colour_layer", text="Replace").mode = "REPLACE"

@@ -7,7 +7,12 @@ The fit operator is a modal job (modal_job.py): it starts a backend_bridge.FitPr
 timer polls so Blender stays responsive; ESC or the Cancel button asks the backend to stop (the
 stop line, then SIGKILL after a grace period). Loading another file or disabling the add-on
 cancels a running fit too, so no backend is left running without a reader. A finished fit becomes
-a new material (a new version if the name is taken) unless "Update Active Material" is on.
+a new material (a new version if the name is taken) unless "Update Active Material" is on; a
+cancelled one becomes "<name> (partial)" from its best parameters so far, where it had any.
+
+Photos that look swapped are refused (``fit --strict``, unless "Refuse Swapped Photos" is off): the
+Fit panel then shows both photos, with Swap Photos and Fit As Given. Every warning of a fit goes
+to the status bar, the console (background mode too), the fit's backend.log and the Fit panel.
 """
 from __future__ import annotations
 
@@ -36,16 +41,23 @@ def _material_name(settings) -> str:
     return settings.material_name if settings is not None else ""
 
 
-def new_fit(context, settings) -> backend_bridge.FitProcess:
-    """The fit the panel's settings ask for, in a new result folder (not started)."""
+def new_fit(context, settings, strict: bool | None = None) -> backend_bridge.FitProcess:
+    """The fit the panel's settings ask for, in a new result folder (not started); ``strict`` None:
+    refuse swapped photos as the panel says."""
     reflection = captures.require_photo("reflection", settings.reflection_path, _abspath(settings.reflection_path))
     transmission = captures.require_photo("transmission", settings.transmission_path,
                                           _abspath(settings.transmission_path))
     rig = rig_settings.rig_dict(properties.rig_values(settings.rig))
+    options = properties.fit_options(settings, preferences.selected_device(context), strict)
     return captures.new_fit(preferences.selected_backend(context), reflection, transmission,
                             preferences.results_parent(context), captures.fit_name(settings.material_name, reflection),
-                            rig, pattern=settings.pattern, iterations=settings.iterations or None,
-                            size=settings.size or None, device=preferences.selected_device(context))
+                            rig, **options)
+
+
+def log_warning(operator, warning: str) -> None:
+    """A fit's warning in the status bar and on the console (where background mode shows it)."""
+    operator.report({"WARNING"}, warning)
+    print(f"Woven Fabric: warning: {warning}")
 
 
 class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
@@ -55,6 +67,10 @@ class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
     bl_label = "Fit Fabric"
     # UNDO: the new material gets its own undo step when the fit finishes.
     bl_options = {"REGISTER", "UNDO"}
+
+    as_given: bpy.props.BoolProperty(
+        name="As Given", options={"SKIP_SAVE"},
+        description="Fit the photos in the order given even where their lighting reads the other way round")
 
     active = fit_job
     _scene_name = ""
@@ -67,7 +83,7 @@ class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
     def start_job(self, context):
         settings = context.scene.woven_fabric
         try:
-            fit = new_fit(context, settings)
+            fit = new_fit(context, settings, strict=False if self.as_given else None)
         except (backend_bridge.BackendError, ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return None
@@ -85,7 +101,7 @@ class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
     def follow_job(self, context, fit) -> bool:
         fit.poll()
         for warning in fit.warnings[self._warned:]:
-            self.report({"WARNING"}, warning)
+            log_warning(self, warning)
         self._warned = len(fit.warnings)
         settings = self._settings()
         if settings is None or (settings.fit_progress, settings.fit_status) == (fit.progress, fit.status):
@@ -100,37 +116,80 @@ class FABRIC_OT_fit(modal_job.ModalJobOperator, bpy.types.Operator):
     def finish_job(self, context, fit) -> set:
         settings = self._settings()
         if fit.state == backend_bridge.CANCELLED:
-            self.report({"WARNING"}, fit.error)
-            return {"CANCELLED"}
+            return self._cancelled(context, fit, settings)
         if fit.state == backend_bridge.FAILED:
-            self.report({"ERROR"}, fit.error)
+            hint = " Swap Photos or Fit As Given in the Fit panel." if fit.refused_swapped else ""
+            self.report({"ERROR"}, fit.error + hint)
             if fit.details:
                 print(f"Woven Fabric: backend log of the failed fit:\n{fit.details}")
             return {"CANCELLED"}
         try:
-            material = self._material(context, fit, settings)
+            material = self._material(context, fit, settings, captures.read_fit_params(fit.result))
         except Exception as exc:  # the fit is on disk; say why it did not become a material
             self.report({"ERROR"}, f"The fit finished in {fit.result.get('out_dir')} but could not become "
                                    f"a material: {exc}")
             return {"CANCELLED"}
-        if settings is not None:
-            settings.last_material = material.name
-            settings.fit_status = f"Fit finished: material {material.name}"
+        self._made(settings, material, f"Fit finished: material {material.name}")
         self.report({"INFO"}, f"Fitted material {material.name} (results in {fit.result.get('out_dir')})")
         return {"FINISHED"}
 
-    def _material(self, context, fit, settings):
-        params = captures.read_fit_params(fit.result)
+    def _cancelled(self, context, fit, settings) -> set:
+        """A cancelled fit becomes a material where it left parameters: its params.json when it was
+        cancelled after the fit ended, else its best so far, named as partial."""
+        left = captures.cancelled_fit_params(fit.request.out_dir)
+        if left is None:
+            self.report({"WARNING"}, fit.error)
+            return {"CANCELLED"}
+        params, partial = left
+        try:
+            material = self._material(context, fit, settings, params, captures.PARTIAL if partial else "")
+        except Exception as exc:
+            self.report({"WARNING"}, f"{fit.error} Its parameters could not become a material: {exc}")
+            return {"CANCELLED"}
+        what = "the best parameters so far" if partial else "the fitted parameters"
+        self._made(settings, material, f"Fit cancelled: material {material.name} from {what}")
+        self.report({"WARNING"}, f"Fit cancelled: material {material.name} from {what} "
+                                 f"(in {fit.request.out_dir})")
+        return {"FINISHED"}
+
+    @staticmethod
+    def _made(settings, material, status: str) -> None:
+        if settings is not None:
+            settings.last_material = material.name
+            settings.fit_status = status
+
+    def _material(self, context, fit, settings, params: dict, suffix: str = ""):
+        """The fit's material: the active one updated where the panel asks (never with partial
+        parameters, ``suffix``), else a new one."""
         width = _width_cm(settings) if settings is not None else None
-        folder = fit.result.get("out_dir", "")
-        if settings is not None and settings.update_active_material:
+        folder = str(fit.request.out_dir)
+        if settings is not None and settings.update_active_material and not suffix:
             target = getattr(context.object, "active_material", None) if context.object else None
             if materials.is_fabric_material(target):
                 return materials.update_fit_material(target, params, width, folder)
             self.report({"WARNING"}, "The active object has no Woven Fabric material to update; "
                                      "the fit becomes a new material")
-        name = captures.fit_name(_material_name(settings), fit.request.reflection)
+        name = captures.fit_name(_material_name(settings), fit.request.reflection) + suffix
         return materials.new_fit_material(name, params, width, folder)
+
+
+class FABRIC_OT_swap_photos(bpy.types.Operator):
+    """Swap the reflection and transmission photos (the reflection photo is the one lit from the front)"""
+
+    bl_idname = "fabric.swap_photos"
+    bl_label = "Swap Photos"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        settings = getattr(context.scene, "woven_fabric", None)
+        return settings is not None and bool(settings.reflection_path or settings.transmission_path)
+
+    def execute(self, context):
+        settings = context.scene.woven_fabric
+        settings.reflection_path, settings.transmission_path = settings.transmission_path, settings.reflection_path
+        self.report({"INFO"}, f"Reflection: {settings.reflection_path}; transmission: {settings.transmission_path}")
+        return {"FINISHED"}
 
 
 class FABRIC_OT_cancel_fit(bpy.types.Operator):
@@ -279,10 +338,17 @@ class FABRIC_OT_add_drape_preview(bpy.types.Operator):
     freeze: bpy.props.BoolProperty(name="Freeze Drape", default=True,
                                    description="Keep the draped shape and drop the simulation")
 
+    @classmethod
+    def poll(cls, context):
+        if _last_material(context) is None:
+            cls.poll_message_set("Fit a fabric (or load a fit) first: there is no fitted material")
+            return False
+        return True
+
     def execute(self, context):
         material = bpy.data.materials.get(self.material) if self.material else _last_material(context)
         if material is None:
-            self.report({"ERROR"}, "Fit a fabric (or load a fit) first: there is no fitted material.")
+            self.report({"ERROR"}, f"There is no material {self.material!r}.")
             return {"CANCELLED"}
         try:
             scene = drape.add_drape_preview(material, cloth_size_cm=self.cloth_size_cm, resolution=self.resolution,
@@ -332,7 +398,7 @@ class FABRIC_OT_open_fit_log(bpy.types.Operator):
         return {"FINISHED"}
 
 
-CLASSES = (FABRIC_OT_fit, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_OT_detect_python,
+CLASSES = (FABRIC_OT_fit, FABRIC_OT_swap_photos, FABRIC_OT_cancel_fit, FABRIC_OT_check_backend, FABRIC_OT_detect_python,
            FABRIC_OT_reset_rig, FABRIC_OT_load_fit, FABRIC_OT_assign_material, FABRIC_OT_add_drape_preview,
            FABRIC_OT_open_results, FABRIC_OT_open_fit_log)
 

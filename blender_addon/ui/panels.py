@@ -11,7 +11,8 @@ import bpy
 import bpy.utils.previews
 
 from ..core import backend_bridge, declarations, rig_settings
-from . import modal_job, operators
+from . import modal_job, operators, preferences
+from .layout import wrapped_labels
 
 _previews = None
 
@@ -83,20 +84,49 @@ class VIEW3D_PT_woven_fabric_fit(FabricSubPanel, bpy.types.Panel):
         fit = operators.fit_job.current
         column = _property_style(layout.column())
         column.enabled = fit is None
-        column.prop(settings, "iterations")
-        column.prop(settings, "size")
-        column.prop(settings, "material_name")
-        column.prop(settings, "update_active_material")
-        if fit is None:
-            layout.operator("fabric.fit", icon="PLAY")
-            last = operators.fit_job.job
-            if last is not None and last.state == backend_bridge.FAILED:
-                modal_job.draw_error(layout.box(), last.error, context, last.log_path)
-            elif settings.fit_status:
-                layout.label(text=settings.fit_status)
-        else:
+        for prop in ("iterations", "size", "material_name", "update_active_material", "refuse_swapped"):
+            column.prop(settings, prop)
+        if fit is not None:
             modal_job.draw_progress(layout, settings.fit_progress, settings.fit_status, "fabric.cancel_fit")
             layout.label(text="ESC or the button cancels", icon="INFO")
+            _draw_warnings(layout, fit.warnings, context)
+            return
+        layout.operator("fabric.fit", icon="PLAY")
+        wrapped_labels(layout, f"Fits go to {preferences.results_parent(context)}", context, icon="FILE_FOLDER")
+        last = operators.fit_job.job
+        if last is not None and last.refused_swapped:
+            _draw_swapped(layout.box(), settings, last.error, context)
+        elif last is not None and last.state == backend_bridge.FAILED:
+            modal_job.draw_error(layout.box(), last.error, context, last.log_path)
+        elif settings.fit_status:
+            wrapped_labels(layout, settings.fit_status, context)
+        if last is not None:
+            _draw_warnings(layout, last.warnings, context)
+
+
+def _draw_swapped(box, settings, message: str, context):
+    """Photos refused as swapped: the message, both photos side by side, and what to do."""
+    wrapped_labels(box, message, context, icon="ERROR")
+    row = box.row()
+    for prop, question in (("reflection_path", "Reflection: lit from the front?"),
+                           ("transmission_path", "Transmission: lit from behind?")):
+        column = row.column()
+        column.label(text=question)
+        icon = photo_icon(getattr(settings, prop))
+        if icon:
+            column.template_icon(icon_value=icon, scale=5.0)
+        column.label(text=os.path.basename(bpy.path.abspath(getattr(settings, prop))))
+    row = box.row(align=True)
+    row.operator("fabric.swap_photos", icon="ARROW_LEFTRIGHT")
+    row.operator("fabric.fit", text="Fit As Given", icon="PLAY").as_given = True
+
+
+def _draw_warnings(layout, warnings: list[str], context):
+    """The fit's warnings (its backend.log holds them too), each wrapped."""
+    if warnings:
+        box = layout.box()
+        for warning in warnings:
+            wrapped_labels(box, warning, context, icon="ERROR")
 
 
 class VIEW3D_PT_woven_fabric_result(FabricSubPanel, bpy.types.Panel):

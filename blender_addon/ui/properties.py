@@ -9,6 +9,7 @@ from __future__ import annotations
 import re
 
 import bpy
+import numpy
 
 from ..core import declarations, rig_settings
 
@@ -28,6 +29,8 @@ def _pattern_item(name: str) -> tuple[str, str, str]:
 
 
 PATTERN_ITEMS = tuple(_pattern_item(name) for name in declarations.fit_patterns())
+_MIN_SIZE = declarations.fit_options().MIN_WORKING_SIZE
+_FILM_SIZE = declarations.rig().DEFAULT_RIG.film_size
 
 
 def _rig_property(field: rig_settings.RigField):
@@ -52,9 +55,22 @@ WovenFabricRigSettings = _rig_settings_class()
 
 
 def rig_values(rig) -> dict:
-    """The rig settings as plain values (tuples for vectors)."""
-    return {field.name: (tuple(getattr(rig, field.name)) if field.kind == "vector" else getattr(rig, field.name))
+    """The rig settings as plain values (tuples for vectors), each float the shortest decimal that its
+    single-precision property holds: the 2.2 a property stores as 2.2000000476837 is 2.2 again, so
+    that the rig.json of an unchanged panel is the backend's own rig and the fit the command line's."""
+    def plain(value):
+        return float(str(numpy.float32(value))) if isinstance(value, float) else value
+
+    return {field.name: (tuple(map(plain, getattr(rig, field.name))) if field.kind == "vector"
+                         else plain(getattr(rig, field.name)))
             for field in rig_settings.rig_fields()}
+
+
+def fit_options(settings, device: str | None, strict: bool | None = None) -> dict:
+    """The panel's fit settings as a fit's options (backend_bridge.FitRequest's fields; 0: the backend's
+    default), for a single fit and the sidebar batch alike; ``strict`` None: the panel's choice."""
+    return {"pattern": settings.pattern, "iterations": settings.iterations or None, "size": settings.size or None,
+            "device": device, "strict": settings.refuse_swapped if strict is None else strict}
 
 
 def _photos_changed(self, context):
@@ -77,8 +93,13 @@ class WovenFabricSettings(bpy.types.PropertyGroup):
         name="Iterations", default=0, min=0, soft_max=2000,
         description="Optimiser iterations; 0 uses the backend's default")
     size: bpy.props.IntProperty(
-        name="Working Size", default=0, min=0, soft_max=1024,
-        description="Side in pixels of the working images; 0 uses the backend's default")
+        name="Working Size", default=0, min=0, soft_max=_FILM_SIZE,
+        description=f"Side in pixels of the working images, {_MIN_SIZE} to {_FILM_SIZE}; 0 uses the backend's "
+                    "default")
+    refuse_swapped: bpy.props.BoolProperty(
+        name="Refuse Swapped Photos", default=True,
+        description="Stop before fitting when the photos' lighting reads the other way round (the reflection "
+                    "photo lit from behind): the panel then shows both photos to swap them or fit them as given")
     material_name: bpy.props.StringProperty(
         name="Material", description="Name of the new material; empty: the photo's name")
     update_active_material: bpy.props.BoolProperty(

@@ -1,0 +1,315 @@
+"""A fit's progress over its whole run, read from its protocol events (plain Python: the add-on reads
+it too, through blender_addon/core/declarations.py).
+
+The fit command reports each stage with its own counter (:mod:`backend.core.protocol`: stage,
+iteration, total), and the search stage's counter starts again for each of its steps. Read in
+order, the events still say where a fit is: :data:`PHASES` lists what a fit does, in the order it
+does it, each with its words and its share of a fit's time. :class:`FitProgress` follows one fit
+and gives, at any moment, the phase in words with its count ("Comparing weaves, 2 of 3"), the
+time left over all the phases, and one bar:
+
+    pace(kind) = seconds / shares of the phases done of that kind (those the photos alone set, or
+                 those the search and the working size set), with the current one's counts
+    left       = remainder of the current phase + sum over the phases to come of share * pace(kind)
+    remainder  = seen * (its own pace per count * counts to come)
+                 + (1 - seen) * max(share * pace - its time so far, MIN_REMAINDER * share * pace)
+    bar        = (shares of the phases done + share of the current one * its time so far
+                  / (its time so far + remainder)) / shares of the phases the fit runs
+
+where ``seen`` is the part of the current phase's counts seen so far. A phase a fit passes by (the
+duel where the working size is the search's, trials with nothing to compare) leaves the shares.
+The bar moves as the clock does where the shares hold, also through a phase that reports no count,
+and never runs ahead of the phase the fit is in.
+
+The shares were measured on the benchmark's real pairs by ``tools/fit_timeline.py``, which records
+when each event arrives and replays the records through this module (the figures are in the
+results ledger, ``devtools/bench/results/fit-timeline.jsonl``), on the fit's CPU clock: a busy
+machine stretches the seconds, not the shares. Times are given by the caller (``now``, seconds on
+any monotonic clock), so that a recorded fit replays exactly.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One step of a fit as its events show it.
+
+    stage: the protocol stage whose events it has; words: what the bar says; share: its part of a
+    fit's wall time, where it runs; fixed: whether the photos alone set its work (reading them,
+    placing the weave, the re-renders at the film size, the report), else the search and the
+    working size do; counted: whether its events count its work (else only its start is known);
+    optional: whether a fit may pass it by without an event (the duel runs only where the working
+    size is above the search's); counts: the count its share is for, where its work grows with its
+    count (a fit with five trials has five halves of the two trials' share); patience: the counts
+    without a better loss after which it ends early, though not before count ``ends_from`` (the
+    optimiser: FitSettings.patience, and its first discrete search, FitSettings.first_search).
+    """
+
+    name: str
+    stage: str
+    words: str
+    share: float
+    fixed: bool = False
+    counted: bool = True
+    optional: bool = False
+    counts: int = 0
+    patience: int = 0
+    ends_from: int = 0
+
+
+# In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
+# counted phase ends where its count is complete (the next one begins then: the work of its first
+# count comes before that count's event) or where its counter starts again (the iteration goes
+# back, or the total changes); an uncounted one where its stage's next phase counts.
+PHASES: tuple[Phase, ...] = (
+    Phase("load", "load", "Reading the photos", 0.015, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.116, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.007, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.191, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.158, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.375, patience=20, ends_from=26),
+    Phase("render", "render", "Rendering the result", 0.123, fixed=True),
+    Phase("report", "report", "Writing the report", 0.015, fixed=True, counted=False),
+)
+NAMES = tuple(phase.name for phase in PHASES)
+MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
+# A counted phase done in less than this part of its expected length did no work of its own (the
+# trials a search passes by: a lone start, or a weave and its face twin, which the duel tells apart).
+PASSED_BY_BELOW = 0.1
+# A phase with a patience whose loss has not improved for this part of it is taken to end when its
+# patience runs out (an optimiser that has converged stops early; one still improving runs on).
+PLATEAU = 0.5
+
+
+@dataclass
+class _Current:
+    """The phase a fit is in: when it began, and its first and last counts (time, iteration)."""
+
+    index: int = -1               # into PHASES; -1: before the first event
+    started: float = 0.0          # on the caller's clock
+    first: tuple[float, int] | None = None
+    last: tuple[float, int] | None = None
+    total: int = 0
+    best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
+
+
+@dataclass
+class FitProgress:
+    """Follows one fit: call :meth:`update` with each protocol event (progress and result events
+    count; the others are passed by) and read :meth:`fraction`, :meth:`seconds_left` and
+    :meth:`describe`."""
+
+    started: float
+    current: _Current = field(default_factory=_Current)
+    durations: dict[str, float] = field(default_factory=dict)   # phases done -> seconds
+    totals: dict[str, int] = field(default_factory=dict)        # phases done -> their count's total
+    skipped: set[str] = field(default_factory=set)
+    finished: bool = False
+
+    # -- reading events -----------------------------------------------------------------------
+    def update(self, event: dict, now: float) -> None:
+        if event.get("event") == "result":
+            self._enter(len(PHASES), now)
+            self.finished = True
+        if event.get("event") != "progress":
+            return
+        iteration, total = int(event.get("iteration") or 0), int(event.get("total") or 0)
+        index = self._phase_of(str(event.get("stage")), iteration, total)
+        if index != self.current.index:
+            self._enter(index, now)
+        if iteration <= 0 or not PHASES[index].counted:
+            return
+        current = self.current
+        current.first = current.first or (now, iteration)
+        current.last, current.total = (now, iteration), total
+        loss = event.get("loss")
+        if isinstance(loss, (int, float)) and (current.best is None or loss < current.best[0]):
+            current.best = (float(loss), iteration)
+        if 0 < total <= iteration:   # complete: the next phase's work begins now
+            self._enter(index + 1, now)
+
+    def _phase_of(self, stage: str, iteration: int, total: int) -> int:
+        """The phase an event belongs to: the current one while it goes on, else the next of its stage."""
+        index, current = self.current.index, self.current
+        later = [k for k, p in enumerate(PHASES) if p.stage == stage and k > index]
+        if not 0 <= index < len(PHASES) or PHASES[index].stage != stage:
+            return later[0] if later else max(index, 0)
+        phase = PHASES[index]
+        if not phase.counted:
+            goes_on = iteration <= 0
+        else:
+            goes_on = (iteration <= 0 or current.last is None
+                       or (iteration > current.last[1] and total == current.total))
+        return index if goes_on or not later else later[0]
+
+    def _enter(self, index: int, now: float) -> None:
+        """Ends the current phase at ``now`` and begins phase ``index``; those between are passed by.
+        A phase that did no work of its own (:meth:`_passed_by`) counts as passed by: its time goes
+        to the next one."""
+        started = now
+        if 0 <= self.current.index < len(PHASES):
+            phase = PHASES[self.current.index]
+            if self._passed_by(phase, now):
+                self.skipped.add(phase.name)
+                started = self.current.started
+            else:
+                self.durations[phase.name] = now - self.current.started
+                self.totals[phase.name] = self.current.total
+        self.skipped.update(p.name for p in PHASES[self.current.index + 1:index])
+        self.current = _Current(index, started)
+
+    def _passed_by(self, phase: Phase, now: float) -> bool:
+        """An optional phase left without a count, or a counted one done in less than
+        :data:`PASSED_BY_BELOW` of its expected length."""
+        if not phase.counted:
+            return False
+        if self.current.last is None:
+            return phase.optional
+        pace = self._pace(phase.fixed, with_current=False)
+        return pace is not None and now - self.current.started < PASSED_BY_BELOW * pace * self.share(phase)
+
+    # -- what the bar shows -------------------------------------------------------------------
+    @property
+    def phase(self) -> Phase | None:
+        return PHASES[self.current.index] if 0 <= self.current.index < len(PHASES) else None
+
+    def share(self, phase: Phase) -> float:
+        """A phase's share in this fit: for one whose work grows with its count, scaled by its count's
+        total (once known) over the count its share is for."""
+        total = self.totals.get(phase.name) or (self.current.total if phase is self.phase else 0)
+        return phase.share * total / phase.counts if phase.counts and total else phase.share
+
+    def _pace(self, fixed: bool, with_current: bool = True) -> float | None:
+        """Seconds per share of the phases whose work the photos set (``fixed``), or of those the
+        search and working size set: from the phases of that kind done and (``with_current``) the
+        current one's counts from its second on, else from the other kind's; None before a phase
+        has ended."""
+        seconds, shares = 0.0, 0.0
+        for kind in (fixed, not fixed):
+            for phase in PHASES:
+                if phase.fixed == kind and phase.name in self.durations:
+                    seconds, shares = seconds + self.durations[phase.name], shares + self.share(phase)
+            current = self.current
+            if with_current and self.phase is not None and self.phase.fixed == kind and current.first is not None \
+                    and current.total > current.last[1] > current.first[1]:
+                # the phase's work is its counts after the first (whose event begins it)
+                seconds += current.last[0] - current.first[0]
+                done = (current.last[1] - current.first[1]) / (current.total - current.first[1])
+                shares += self.share(self.phase) * done
+            if shares > 0:
+                return seconds / shares
+        return None
+
+    def _remainder(self, pace: float, now: float) -> float:
+        """The current phase's time left: its share at the fit's pace less its time so far (but at
+        least :data:`MIN_REMAINDER` of that share: a phase that overruns keeps the bar moving, ever
+        slower, short of its end), and from its second count on, more and more its own pace: weighed
+        by the part of its counts seen, which holds the pauses its counts do not show (the
+        optimiser's discrete steps) until it has seen them."""
+        current = self.current
+        expected = pace * self.share(self.phase)
+        by_share = max(expected - (now - current.started), MIN_REMAINDER * expected)
+        if current.first is None or current.last[1] <= current.first[1]:
+            return by_share
+        counted = current.last[1] - current.first[1]
+        per_count = (current.last[0] - current.first[0]) / counted
+        own = max(per_count * (self._last_count() - current.last[1]) - (now - current.last[0]), 0.0)
+        seen = counted / max(current.total - current.first[1], 1)
+        return seen * own + (1.0 - seen) * by_share
+
+    def _last_count(self) -> int:
+        """The count the current phase is expected to end at: its total, or, for a phase with a
+        patience whose loss has not improved for :data:`PLATEAU` of it, where that patience runs out."""
+        current, phase = self.current, self.phase
+        if not phase.patience or current.best is None or current.last[1] - current.best[1] < PLATEAU * phase.patience:
+            return current.total
+        return min(current.total, max(current.best[1] + phase.patience, phase.ends_from, current.last[1]))
+
+    def seconds_left(self, now: float) -> float | None:
+        """The estimated time left (None before a phase has ended: no pace yet)."""
+        if self.finished:
+            return 0.0
+        if self.phase is None or self._pace(True) is None:
+            return None
+        to_come = [p for p in PHASES[self.current.index + 1:] if p.name not in self.skipped]
+        return self._remainder(self._pace(self.phase.fixed), now) + sum(p.share * self._pace(p.fixed) for p in to_come)
+
+    def fraction(self, now: float) -> float:
+        """The bar: the shares of the phases done, and of the current one the part its time so far is
+        of its time so far and left, in_phase / (in_phase + remainder). It moves as the clock does
+        where the shares hold, never stops while the fit runs, and never runs ahead of the phase the
+        fit is in (early on the pace rests on a short first phase). 0 until there is a pace, 1 once
+        the fit has ended."""
+        if self.finished:
+            return 1.0
+        pace = None if self.phase is None else self._pace(self.phase.fixed)
+        if pace is None:
+            return 0.0
+        run = [p for p in PHASES if p.name not in self.skipped]
+        whole = sum(map(self.share, run))
+        before = sum(self.share(p) for p in run if PHASES.index(p) < self.current.index)
+        in_phase = now - self.current.started
+        remainder = self._remainder(pace, now)
+        within = in_phase / (in_phase + remainder) if in_phase + remainder > 0 else 1.0
+        return (before + self.share(self.phase) * within) / whole
+
+    def describe(self, now: float) -> str:
+        """One line: 'Comparing weaves, 2 of 3, about 4 min left'."""
+        phase = self.phase
+        if phase is None:
+            return "Fit finished" if self.finished else "Starting the fit"
+        text = phase.words
+        if phase.counted and self.current.last is not None and self.current.total > 1:
+            text += f", {self.current.last[1]} of {self.current.total}"
+        left = self.seconds_left(now)
+        return text + (f", about {duration_words(left)} left" if left is not None else "")
+
+
+def duration_words(seconds: float) -> str:
+    """'40 s', '3 min', '1 h 05 min': a time left, as precise as an estimate deserves."""
+    seconds = max(0, round(seconds))
+    if seconds < 90:
+        return f"{max(5, round(seconds / 5) * 5)} s"
+    minutes = round(seconds / 60)
+    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+@dataclass(frozen=True)
+class Replay:
+    """How the bar did on one recorded fit (:func:`replay`)."""
+
+    shares: dict[str, float]          # phase -> its part of the fit's time, for the count its share is for
+    worst_eta_error: float            # (estimate - truth) / truth of the time left, largest in size
+    worst_bar_error: float            # bar - elapsed / whole time, largest in size
+    within: float                     # the part of the checks whose estimate is within ETA_CHECK of the truth
+
+
+ETA_CHECK = 0.25  # the promise of the bar's time left, checked by replay: within this part of the truth
+
+
+def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
+    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss]) in arrival order,
+    ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
+    estimate every second and at every event from ``from_fraction`` of the bar on (the bar as an
+    artist sees it: it never goes back) until the last ``tail`` of the fit's time, where a few
+    seconds are a large part of the truth."""
+    follow = FitProgress(started=0.0)
+    pending = list(events)
+    errors, bar_errors, shown = [], [], 0.0
+    for now in sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))}):
+        while pending and pending[0][0] <= now:
+            t, stage, iteration, total, *loss = pending.pop(0)
+            follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total,
+                           "loss": loss[0] if loss else None}, t)
+        left, truth = follow.seconds_left(now), total_s - now
+        shown = max(shown, follow.fraction(now))
+        if left is not None and shown >= from_fraction and truth >= max(tail * total_s, 1.0):
+            errors.append((left - truth) / truth)
+            bar_errors.append(shown - now / total_s)
+    follow.update({"event": "result"}, total_s)
+    shares = {phase.name: follow.durations.get(phase.name, 0.0) / total_s * phase.share / follow.share(phase)
+              for phase in PHASES}
+    within = sum(abs(error) <= ETA_CHECK for error in errors) / len(errors) if errors else 1.0
+    return Replay(shares, max(errors, key=abs, default=0.0), max(bar_errors, key=abs, default=0.0), within)

@@ -1,0 +1,121 @@
+"""When a fit's progress events arrive: the timelines the whole-fit progress bar is weighted on.
+
+``record`` fits photo pairs with ``python -m backend fit R T --out DIR --json-progress`` (one after
+another, each in a fresh folder) and appends, per fit, every progress event (seconds since the
+process started, stage, iteration, total, the process's CPU seconds, loss), the wall and CPU time
+and metrics.json's stage timings to the results ledger
+(``devtools/bench/results/fit-timeline.jsonl``, a row per fit). ``replay`` reads those rows back
+and runs them through the whole-fit progress (``backend/core/progress.py``): each phase's share of
+the wall time, and how far the bar's time-left estimate is from the time that was really left, from
+20 % of the bar on (the product's promise: within 25 %).
+
+    .venv/bin/python tools/fit_timeline.py record --pairs ../shared/data/real [--names a,b] [-- fit options]
+    .venv/bin/python tools/fit_timeline.py replay [--ledger FILE]
+
+The machine may be busy: a share (a phase's seconds over the fit's) is what carries over to another
+machine, not the seconds.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from backend.core.pairs import find_pairs  # noqa: E402
+
+BENCH = "fit-timeline"
+LEDGER = ROOT / "devtools" / "bench" / "results" / f"{BENCH}.jsonl"
+
+
+def timeline(reflection: Path, transmission: Path, out: Path, fit_args: list[str]) -> dict:
+    """One fit with its progress events timed on arrival (seconds since the process started)."""
+    command = [sys.executable, "-m", "backend", "fit", str(reflection), str(transmission), "--out", str(out),
+               "--json-progress", *fit_args]
+    started = time.monotonic()
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    events = []
+    for line in process.stdout:
+        event = json.loads(line)
+        if event["event"] == "progress":
+            events.append([round(time.monotonic() - started, 3), event["stage"], event["iteration"], event["total"],
+                           cpu_seconds(process.pid), event.get("loss")])
+    cpu = cpu_seconds(process.pid)
+    code = process.wait()
+    wall = time.monotonic() - started
+    metrics = json.loads((out / "metrics.json").read_text()) if (out / "metrics.json").is_file() else {}
+    return {"name": reflection.stem.rsplit("_", 1)[0], "exit": code, "wall_s": round(wall, 2), "cpu_s": cpu,
+            "events": events, "timings": metrics.get("timings"), "fit_args": fit_args}
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """The CPU time (user + system) process ``pid`` has used so far (Linux: /proc): on a machine
+    others share, the fit's own clock, which their load does not stretch."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:  # gone already
+        return None
+    return round((int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"), 2)
+
+
+def record(args) -> None:
+    from devtools.bench.ledger import Ledger
+
+    pairs, _ = find_pairs(args.pairs)
+    names = set(args.names.split(",")) if args.names else None
+    ledger = Ledger.open(BENCH, ["tools/fit_timeline.py", *sys.argv[1:]], [args.pairs])
+    for pair in pairs:
+        if names is not None and pair.name not in names:
+            continue
+        with tempfile.TemporaryDirectory() as folder:
+            row = timeline(pair.reflection, pair.transmission, Path(folder) / "fit", args.fit_args)
+        ledger.row(row)
+        print(f"{row['name']}: {row['wall_s']:.0f} s, exit {row['exit']}, {len(row['events'])} events", flush=True)
+
+
+def replay(args) -> None:
+    """Each recorded fit through the whole-fit progress, on both clocks; then the shares to declare:
+    each phase's mean share of the fits' CPU time where it ran, scaled to sum to 1."""
+    from backend.core import progress
+
+    rows = [json.loads(line)["data"] for line in Path(args.ledger).read_text().splitlines() if line.strip()]
+    rows = [row for row in rows if row.get("exit") == 0 and row.get("cpu_s")]
+    measured: dict[str, list[float]] = {name: [] for name in progress.NAMES}
+    for row in rows:
+        for clock, column, total in (("cpu", 4, row["cpu_s"]), ("wall", 0, row["wall_s"])):
+            events = [(event[column], *event[1:4], (event[5:] or [None])[0]) for event in row["events"]]
+            report = progress.replay(events, total)
+            shares = ", ".join(f"{name} {share:.3f}" for name, share in report.shares.items())
+            for name, share in report.shares.items():
+                if clock == "cpu" and share > 0:
+                    measured[name].append(share)
+            print(f"{row['name']:>10} {clock:>4} {total:6.0f} s  time left from 20 % of the bar: within "
+                  f"{progress.ETA_CHECK:.0%} at {report.within:.0%} of the moments, worst "
+                  f"{report.worst_eta_error:+.0%}; bar - time {report.worst_bar_error:+.2f} at worst; shares: {shares}")
+    means = {name: sum(values) / len(values) for name, values in measured.items() if values}
+    whole = sum(means.values())
+    print("shares to declare: " + ", ".join(f"{name} {mean / whole:.3f}" for name, mean in means.items()))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    rec = sub.add_parser("record", help="fit pairs and record their timelines in the results ledger")
+    rec.add_argument("--pairs", required=True, help="folder of <name>_R.* / <name>_T.* photo pairs")
+    rec.add_argument("--names", help="only these pairs (comma-separated)")
+    rec.add_argument("fit_args", nargs="*", help="fit options after --")
+    rep = sub.add_parser("replay", help="run the recorded timelines through the whole-fit progress")
+    rep.add_argument("--ledger", default=str(LEDGER))
+    args = parser.parse_args(argv)
+    record(args) if args.command == "record" else replay(args)
+
+
+if __name__ == "__main__":
+    main()
