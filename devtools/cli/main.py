@@ -15,8 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from backend.app.cli.common import INPUT_ERRORS, input_error_message
-from backend.core.protocol import EXIT_CANCELLED, EXIT_INPUT
+from backend.app.cli.main import run
 
 from . import bench, dataset, evaluate_init, fuzz, photolike, signatures, train
 
@@ -33,11 +32,4 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
     args.argv = argv  # the command line, for the results ledger
-    try:
-        return args.run(args)
-    except INPUT_ERRORS as exc:
-        print(f"error: {input_error_message(exc)}", file=sys.stderr)
-        return EXIT_INPUT
-    except KeyboardInterrupt:
-        print("cancelled", file=sys.stderr)
-        return EXIT_CANCELLED
+    return run(args)

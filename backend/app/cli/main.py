@@ -30,7 +30,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    return run(build_parser().parse_args(argv))
+
+
+def run(args) -> int:
+    """Run a parsed command line: bad input is one line on stderr and exit code 2, Ctrl+C exit code 130."""
     try:
         return args.run(args)
     except INPUT_ERRORS as exc:
