@@ -322,6 +322,12 @@ def test_fit_operator_makes_new_versions_and_reports_errors(tmp_path, extension_
         # An earlier fit's folder becomes a material again (named after the photo, not the folder).
         assert bpy.ops.fabric.load_fit(filepath=str(results / "linen_001" / "params.json")) == {{"FINISHED"}}
         assert settings.last_material == "linen.003", settings.last_material
+        # A params.json edited into something that is not a fit: an error, and no material made.
+        materials_before = set(bpy.data.materials.keys())
+        crafted = results / "linen_001" / "crafted.json"
+        crafted.write_text((results / "linen_001" / "params.json").read_text().replace('"twill1"', '"satin9"'))
+        refused(bpy.ops.fabric.load_fit, "not a fit's parameters: pattern", filepath=str(crafted))
+        assert set(bpy.data.materials.keys()) == materials_before and settings.last_material == "linen.003"
         print("FIT OK")
     """)
     assert "FIT OK" in output

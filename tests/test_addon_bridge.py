@@ -505,6 +505,8 @@ def test_the_batch_builds_a_library_from_results_without_fitting(tmp_path, capsy
     write_results(results / "linen", "linen")
     write_results(results / "wool", "wool")
     write_results(results / "half", "half", files=["params.json", "reflection.png"])  # a copy cut short
+    crafted = write_results(results / "crafted", "crafted") / "params.json"  # edited by hand: not a fit
+    crafted.write_text(crafted.read_text().replace('"roughness": [0.6, 0.66]', '"roughness": [NaN, 0.66]'))
     (results / "logs").mkdir()
     (results / "logs" / "wool.log").write_text("warning: ...")
     write_results(results / ".staging" / "denim", "denim")  # the batch's own hidden folders are passed by
@@ -514,12 +516,13 @@ def test_the_batch_builds_a_library_from_results_without_fitting(tmp_path, capsy
     code = batch.main(["--from-results", str(results), "--width-cm", "4"], library=library,
                       preferred_backend=lambda: bridge.Backend("/nonexistent/python", ""))
     out = capsys.readouterr().out
-    assert code == 1, out
+    assert code == 2, out  # the failed folders' count
     assert library.added == [("linen", "twill1", 4.0, "linen", "reflection.png"),
                              ("wool", "twill1", 4.0, "wool", "reflection.png")]
     assert library.written == [results / "fabric_materials.blend"]
     assert "FAIL half: incomplete results folder" in out and "no metrics.json, transmission.png, report.png" in out
-    assert "2 imported, 1 failed" in out
+    assert f"FAIL crafted: {crafted}: not a fit's parameters: roughness: nan is outside" in out
+    assert "2 imported, 2 failed" in out
 
     single = RecordingLibrary()  # one fit's folder, given itself
     assert batch.main(["--from-results", str(results / "linen"), "--out", str(tmp_path / "one.blend")],

@@ -158,3 +158,29 @@ def test_the_batch_catalogue_is_renamed_into_place(tmp_path, monkeypatch):
                                                               (".catalogue.writing.csv", csv_path)]
     assert [row["name"] for row in json.loads(json_path.read_text())["pairs"]] == ["denim", "linen"]
     assert csv_path.read_bytes().count(b"\r\n") == 3  # the header and two rows, as the csv module ends them
+
+
+# argv[1]: the folder; argv[2]: which of the add-on's files to write there. The process kills itself
+# at the rename that would put the new file in place.
+ADDON_KILLED_AT_RENAME = textwrap.dedent("""
+    import os, signal, sys
+    from blender_addon.core import asset_catalogs, captures
+
+    os.replace = lambda source, target: os.kill(os.getpid(), signal.SIGKILL)
+    if sys.argv[2] == "rig":
+        captures.write_rig_json(sys.argv[1], {"film_size": 512, "width_cm": 4.0})
+    else:
+        asset_catalogs.ensure_catalogs(sys.argv[1], ["Fabrics/Plain"])
+""")
+
+
+@pytest.mark.parametrize("writer, name", [("rig", "rig.json"), ("catalogs", "blender_assets.cats.txt")])
+def test_the_addon_killed_as_it_writes_leaves_its_earlier_file_whole(tmp_path, writer, name):
+    from blender_addon.core import asset_catalogs
+
+    assert asset_catalogs.CATALOG_FILE == "blender_assets.cats.txt"
+    path = tmp_path / name
+    path.write_text(OLD)
+    process = child(ADDON_KILLED_AT_RENAME, str(tmp_path), writer)
+    assert process.wait(HANG_S) == -signal.SIGKILL
+    assert path.read_text() == OLD

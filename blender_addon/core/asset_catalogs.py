@@ -18,11 +18,11 @@ already exists in the file under another UUID (made by hand in Blender) keeps it
 from __future__ import annotations
 
 import colorsys
-import os
 import uuid
 from pathlib import Path
 
 from . import declarations, dye
+from .paths import write_whole
 
 CATALOG_FILE = "blender_assets.cats.txt"
 ROOT_CATALOG = "Fabrics"
@@ -85,16 +85,14 @@ def merged(text: str, paths) -> tuple[str, dict[str, str]]:
 def ensure_catalogs(folder: str | Path, paths) -> dict[str, str]:
     """Makes sure the catalog file in ``folder`` lists ``paths``; returns path -> UUID to use.
 
-    Written through a temporary file and a rename, so a failure never leaves half a file; raises
-    OSError when the folder cannot be written.
+    Written whole or not at all (:func:`.paths.write_whole`); raises OSError when the folder cannot
+    be written.
     """
     target = Path(folder) / CATALOG_FILE
     text = target.read_text(encoding="utf-8") if target.is_file() else ""
     new_text, ids = merged(text, list(paths))
     if new_text != text:
-        temporary = target.with_name(target.name + ".part")
-        temporary.write_text(new_text, encoding="utf-8")
-        os.replace(temporary, target)
+        write_whole(target, new_text)
     return ids
 
 

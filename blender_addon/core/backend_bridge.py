@@ -378,7 +378,7 @@ class FitProcess:
         if self.log_path is not None and self._stderr_all:
             try:
                 self.log_path.parent.mkdir(parents=True, exist_ok=True)
-                self.log_path.write_text("".join(self._stderr_all), encoding="utf-8")
+                paths.write_whole(self.log_path, "".join(self._stderr_all))
             except OSError:
                 pass  # the log is a convenience; the error message already says what happened
         return self

@@ -11,7 +11,7 @@ import json
 import re
 from pathlib import Path
 
-from . import declarations
+from . import declarations, paths, rig_settings
 from .backend_bridge import Backend, BackendError, FitProcess, FitRequest
 
 _RUN_NUMBER = re.compile(r"_\d{3}$")  # the suffix new_run_folder adds
@@ -87,9 +87,7 @@ def unused_path(path: str | Path) -> Path:
 
 
 def write_rig_json(folder: Path, rig: dict) -> Path:
-    path = Path(folder) / "rig.json"
-    path.write_text(json.dumps(rig, indent=2) + "\n")
-    return path
+    return paths.write_whole(Path(folder) / "rig.json", json.dumps(rig, indent=2) + "\n")
 
 
 def check_fit_options(options: dict) -> None:
@@ -116,14 +114,25 @@ def new_fit(backend: Backend, reflection: Path, transmission: Path, results_pare
 
 
 def read_fit_params(result: dict) -> dict:
-    """The ``params.json`` named by a fit's result event, as a dict."""
+    """The ``params.json`` named by a fit's result event, as a dict, checked whole before anything
+    is made from it: ValueError naming the file and the problem where it is not a fit (wrong types,
+    values out of range or not finite, an unknown weave, a bad rig), so no material is half made."""
     path = Path(result.get("params") or Path(result["out_dir"]) / "params.json")
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the fitted parameters ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
+    except (ValueError, RecursionError) as exc:  # bad syntax or encoding, an integer of thousands of digits
         raise ValueError(f"{path}: the fitted parameters are not valid JSON ({exc})") from None
+    try:
+        declarations.check_params(data)
+        rig = data.get("rig")
+        if rig is not None and not isinstance(rig, dict):
+            raise ValueError(f"rig: expected an object of the rig's settings, got {type(rig).__name__}")
+        rig_settings.capture_rig(rig)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a fit's parameters: {exc}") from None
+    return data
 
 
 def cancelled_fit_params(out_dir: str | Path) -> tuple[dict, bool] | None:

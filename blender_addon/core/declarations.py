@@ -30,6 +30,16 @@ def parameters() -> tuple:
     return backend_module("core.params").PARAMETERS
 
 
+def check_params(data) -> None:
+    """Raises ValueError naming the parameter and the problem where ``data`` (a params.json's
+    object) is not a fit the shader can draw: the backend's own check (``FabricParams.from_dict``:
+    numbers of the declared shapes, finite and in range, a known weave), and a preset weave."""
+    fabric = backend_module("core.params").FabricParams.from_dict(data)
+    if fabric.pattern not in preset_names():
+        raise ValueError(f"pattern: the Woven Fabric shader draws the preset weaves ({', '.join(preset_names())}), "
+                         f"not {fabric.pattern!r}")
+
+
 def default_params() -> dict:
     """``FabricParams().to_dict()``: every parameter's default value."""
     return backend_module("core.params").FabricParams().to_dict()

@@ -52,6 +52,13 @@ def bundled_wheels() -> tuple[str, ...]:
         return ()
 
 
+def write_whole(path: str | Path, content: str | bytes) -> Path:
+    """Writes a file whole or not at all, as the backend writes its own (``core.jsonfile.write_whole``:
+    a hidden temporary beside it, synced, renamed over it), so a crash or a kill mid-write never
+    leaves an artist's file half written."""
+    return backend_module("core.jsonfile").write_whole(path, content)
+
+
 def backend_module(name: str):
     """Imports ``backend.<name>`` (a torch-free module such as core.params) under a private alias."""
     if _ALIAS not in sys.modules:

@@ -134,7 +134,7 @@ def update_osl_source(path: str | Path | None = None) -> bool:
     text = path.read_text()
     new = replace_table_block(text)
     if new != text:
-        path.write_text(new)
+        paths.write_whole(path, new)
         return True
     return False
 
