@@ -197,6 +197,8 @@ def test_extension_registers_panel_operators_preferences_and_command(tmp_path, e
         settings.rig.front_light = (1.0, 2.0, 3.0)
         bpy.ops.fabric.reset_rig()
         assert all(close(rig_values()[n], v) for n, v in expected_rig.items()), rig_values()
+        film = settings.rig.bl_rna.properties["film_size"]
+        assert (film.hard_min, film.hard_max) == (32, 4096), (film.hard_min, film.hard_max)  # the backend's range
         weaves = [item.identifier for item in settings.bl_rna.properties["pattern"].enum_items]
         assert weaves == json.loads(os.environ["FABRIC_TEST_PATTERNS"]) and settings.pattern == "auto", weaves
         labels = {item.identifier: item.name for item in settings.bl_rna.properties["pattern"].enum_items}

@@ -38,7 +38,8 @@ def _rig_property(field: rig_settings.RigField):
     if field.kind == "vector":
         return bpy.props.FloatVectorProperty(size=3, subtype="XYZ", **common)
     if field.kind == "int":
-        return bpy.props.IntProperty(min=16, soft_max=4096, **common)
+        rig = declarations.rig()  # the only int setting is the film size: its range is the backend's
+        return bpy.props.IntProperty(min=rig.MIN_FILM_SIZE, max=rig.MAX_FILM_SIZE, **common)
     lower = {"glow_strength": 0.0, "width_cm": 0.0}.get(field.name, 1e-4)
     return bpy.props.FloatProperty(min=lower, **common)
 
