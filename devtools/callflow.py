@@ -20,7 +20,9 @@ The measure, for two modules A and B::
 
 so data that goes down once (A calls B, B returns its values to A) alternates 0 times, and every
 further call across counts one: A calling B in a loop of n times, n - 1; B calling A back n times
-from one call, n - 1. Calls within a module, or through a third module (A -> C -> B), are not crossings of
+from one call, n - 1. The report also counts the callbacks: calls into a module already on the
+stack below the caller (A -> B -> A), which a loop of calls from A into B never makes: data going
+back up. Calls within a module, or through a third module (A -> C -> B), are not crossings of
 A and B. The counts depend on the run (its settings, its data), so compare runs of one command.
 
 It prints the calls each way and the alternations for ``--between``, the call sites (caller ->
@@ -154,6 +156,26 @@ def alternations(crossings: list[Crossing], a: str, b: str, group) -> tuple[int,
     return into_b, into_a, alternating
 
 
+def callbacks(crossings: list[Crossing], group) -> Counter:
+    """(module called back, the module calling it) -> calls, of one thread's crossings: calls into a
+    module that is already on the stack below the caller (``A -> B -> A``: a callback, or data
+    going back up), as ``group(module)`` names them. A pipeline whose data goes down once has none;
+    a loop of calls from A into B has none either (B returns before A calls again)."""
+    stack, counts = [], Counter()
+    for crossing in crossings:
+        caller, callee = group(crossing.caller[0]), group(crossing.callee[0])
+        if crossing.kind == "return":
+            if stack:
+                stack.pop()
+            continue
+        if not stack:
+            stack.append(caller)
+        if caller != callee and callee in stack[:-1]:
+            counts[(callee, caller)] += 1
+        stack.append(callee)
+    return counts
+
+
 def save(flow: CallFlow, path: str) -> None:
     """The crossings as JSON lines (thread, kind, caller module, caller function, callee module, callee
     function), for :func:`load`."""
@@ -205,6 +227,11 @@ def report(flow: CallFlow, between: tuple[str, str] | None, depth: int | None, s
         pairs = Counter({pair: count for pair, count in pairs.items() if all(under(m, among) for m in pair)})
     lines.append("module pairs that alternate most (alternations):")
     lines += [f"  {first} <-> {second}: {count}" for (first, second), count in pairs.most_common(sites) if count]
+    back = sum((callbacks(crossings, group) for crossings in threads), Counter())
+    if among is not None:
+        back = Counter({pair: count for pair, count in back.items() if all(under(m, among) for m in pair)})
+    lines.append(f"calls back into a module below on the stack (callbacks): {sum(back.values())}")
+    lines += [f"  {caller} -> {callee}: {count}" for (callee, caller), count in back.most_common(sites)]
     return "\n".join(lines)
 
 

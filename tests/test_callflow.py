@@ -66,3 +66,13 @@ def test_every_pair_in_one_pass_counts_as_the_pair_alone():
     crossings = flow.crossings[threading.get_ident()]
     alone = alternations(crossings, "pkg.search", "pkg.objective", lambda m: m)
     assert pair_alternations(crossings, lambda m: m) == {("pkg.objective", "pkg.search"): alone[2]}
+
+
+def test_callbacks_count_calls_back_into_a_module_below_and_not_a_loop_of_calls_down():
+    from devtools.callflow import callbacks
+    flow = CallFlow("pkg")
+    with flow.tracing():
+        SEARCH.looped(OBJECTIVE, range(4))     # down four times, never back
+        SEARCH.called_back(OBJECTIVE, range(3))  # objective calls search's note back three times
+    crossings = flow.crossings[threading.get_ident()]
+    assert callbacks(crossings, lambda m: m) == {("pkg.search", "pkg.objective"): 3}
