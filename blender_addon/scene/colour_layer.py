@@ -62,8 +62,10 @@ def _layer_count(tree) -> int:
 
 
 def _stacked(tree, previous, colour, alpha, mode, location):
-    """The colour map with the new layer over what was there before (``previous``, or nothing)."""
-    if previous is None:
+    """The colour map with the new layer over what was there before (``previous``, or white: the
+    map's neutral). A Replace layer mixes in by its alpha: Blender's image colour is black where a
+    pixel is transparent, which as the map alone would multiply the fabric to black."""
+    if previous is None and mode == "MULTIPLY":
         return colour
     mix = tree.nodes.new("ShaderNodeMix")
     mix.data_type = "RGBA"
@@ -74,7 +76,10 @@ def _stacked(tree, previous, colour, alpha, mode, location):
     else:
         mix.blend_type = "MIX"
         tree.links.new(alpha, mix.inputs["Factor"])
-    tree.links.new(previous, mix.inputs["A"])
+    if previous is None:
+        mix.inputs["A"].default_value = (1.0, 1.0, 1.0, 1.0)
+    else:
+        tree.links.new(previous, mix.inputs["A"])
     tree.links.new(colour, mix.inputs["B"])
     return mix.outputs["Result"]
 
