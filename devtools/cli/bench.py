@@ -31,7 +31,7 @@ from ..bench.render import bench_render
 
 def run_bench(args) -> int:
     return {"render": _render, "fit": _fit, "placement": _placement, "fit-speed": _fit_speed,
-            "batch": _batch}[args.what](args)
+            "batch": _batch, "profile": _profile}[args.what](args)
 
 
 def _fit(args) -> int:
@@ -67,6 +67,14 @@ def _batch(args) -> int:
         raise InputError(f"bench batch: {exc}") from None
 
 
+def _profile(args) -> int:
+    from ..bench.profile import bench_profile
+    extra = _iterations(args) + shlex.split(args.fit_args)
+    ledger = open_ledger(args, "profile", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())),
+                         fit_device(extra))
+    return bench_profile(tuple(args.pair) if args.pair else None, extra, args.top, args.json, ledger=ledger)
+
+
 def _render(args) -> int:
     chosen = device(args.device)
     return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json, device=chosen,
@@ -87,7 +95,7 @@ def fit_device(fit_args: list[str]) -> str:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "batch"])
+    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "batch", "profile"])
     p.add_argument("--json", action="store_true", help="JSON lines")
     p.add_argument("--synthetic", nargs="*", default=[],
                    help="fit, placement: folders with cases.json and <name>_R/_T images (golden renders, "
@@ -96,12 +104,14 @@ def add_parser(sub) -> None:
     p.add_argument("--real", nargs="*", default=[], help="fit: folders of <name>_R.* / <name>_T.* photo pairs")
     p.add_argument("--keep", help="fit: keep every fit's results in this folder (<kind>_<name>/)")
     p.add_argument("--no-novel-light", action="store_true", help="fit: skip the novel-light renders")
-    p.add_argument("--fit-args", default="", help='fit: extra arguments of every fit, one string ("--size 512")')
+    p.add_argument("--fit-args", default="", help='fit, profile: extra arguments of every fit, one string '
+                                                  '("--size 512")')
     p.add_argument("--cases", nargs="*", help="fit, placement: only these names")
     p.add_argument("--iterations", type=positive_int,
                    help="iterations per fit (fit, fit-speed: the fit's default; batch: 20)")
     p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
-                   help="fit-speed: the photo pair (default: the bundled example)")
+                   help="fit-speed, profile: the photo pair (default: the bundled example)")
+    p.add_argument("--top", type=positive_int, default=12, help="profile: the top operators and functions shown")
     p.add_argument("--fit-size", type=positive_int, help="fit-speed: the fit's --size (default: the fit's default)")
     p.add_argument("--rounds", type=positive_int,
                    help="fit-speed: compiled + eager rounds (default 2); batch: how often the ways take turns "
