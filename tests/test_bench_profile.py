@@ -60,8 +60,29 @@ def test_the_command_prints_and_records_each_section_of_a_profiled_fit(tmp_path,
         return 0
 
     monkeypatch.setattr(profile, "backend_main", fit)
-    assert main(["bench", "profile", "--iterations", "2", "--json", "--no-record"]) == 0
+    assert main(["bench", "profile", "--iterations", "2", "--json", "--no-record", "--operators"]) == 0
     printed = [json.loads(line) for line in capsys.readouterr().out.splitlines() if line.startswith("{")]
-    assert [row.get("section", row.get("summary")) for row in printed] == ["stages", "operators", "functions",
-                                                                           "profile"]
-    assert printed[1]["backward_s"] > 0 and printed[-1]["fit"] == ["fit", "--example", "--iterations", "2"]
+    assert [row.get("section", row.get("summary")) for row in printed] == ["stages", "passes", "functions",
+                                                                           "operators", "profile"]
+    assert printed[1]["backward_s"] > 0 and printed[1]["step_s"] == 0.0  # a backward pass, no optimiser
+    assert printed[3]["backward_s"] > 0 and printed[-1]["fit"] == ["fit", "--example", "--iterations", "2"]
+    assert torch.autograd.backward is original_backward  # the hooks are gone afterwards
+
+
+original_backward = torch.autograd.backward
+
+
+def test_a_timed_call_adds_its_wall_time_once_even_when_it_calls_itself():
+    seconds = {"backward": 0.0}
+    calls = []
+
+    class Owner:
+        @staticmethod
+        def work(n):
+            calls.append(n)
+            return Owner.work(n - 1) if n else 0
+
+    with profile.timed(Owner, "work", seconds, "backward"):
+        Owner.work(3)
+    assert calls == [3, 2, 1, 0] and 0 < seconds["backward"] < 1.0  # one outer call's time, not four
+    assert Owner.work.__name__ == "work" and not hasattr(Owner.work, "__wrapped__")

@@ -1,31 +1,38 @@
 """Where a fit's time goes: ``python -m devtools bench profile [--pair R T] [--iterations N]
-[--fit-args "..."] [--top N] [--json]``.
+[--fit-args "..."] [--top N] [--operators] [--json]``.
 
-Runs one whole ``fit`` command in this process (by default on the bundled example, rendered first),
-under two profilers at once, and prints:
+Runs one whole ``fit`` command in this process (by default on the bundled example, rendered first)
+and prints:
 
 - ``stages``: the fit's own stage timings (metrics.json ``timings``: the lattice, the search, the
   optimisation) and the rest of the command (loading, re-renders, metrics, report), seconds and
   shares of the command's wall time;
-- ``operators``: torch's operators (:mod:`torch.profiler`, CPU), their self time split into the
-  backward pass (an operator with an ancestor event of autograd's engine,
-  ``autograd::engine::evaluate_function: ...``), the optimiser's step (under ``Optimizer.step``)
-  and the rest (the forward renders, with or without gradients), with the top operators of each;
+- ``passes``: the wall time inside autograd's backward passes (``torch.autograd.backward`` and
+  ``torch.autograd.grad``, timed around each call) and inside the optimiser's steps (``Adam.step``),
+  and their shares: the rest is the forward renders, the search's decisions and the files;
 - ``functions``: the backend's Python functions (:mod:`cProfile`), the top by cumulative time and
-  by self time (calls, seconds).
+  by self time (calls, seconds);
+- with ``--operators``, ``operators``: torch's operators (:mod:`torch.profiler`, CPU), their self
+  time split into the backward pass (an operator with an ancestor event of autograd's engine,
+  ``autograd::engine::evaluate_function: ...``), the optimiser's step (under ``Optimizer.step``)
+  and the rest, with the top operators of each. The profiler keeps every event in memory (a
+  default fit of a real pair needs more than 20 GB): give it a short fit (``--iterations``,
+  ``--fit-args "--size 128"``).
 
-Both profilers slow the fit (cProfile most where Python loops): read shares, not seconds, and compare
-a before and an after measured on the same machine. The ledger
-(``devtools/bench/results/profile.jsonl``) keeps one record per section and the summary.
+cProfile slows the fit where Python loops: read shares, not seconds, and compare a before and an
+after measured on the same machine. The ledger (``devtools/bench/results/profile.jsonl``) keeps one
+record per section and the summary.
 """
 from __future__ import annotations
 
 import cProfile
+import functools
 import json
 import pstats
 import tempfile
 import time
 from collections import defaultdict
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import torch
@@ -112,22 +119,59 @@ def stage_table(timings: dict, wall_s: float) -> dict:
             "stages": {name: [round(s, 3), round(s / wall_s, 3)] for name, s in stages.items()}}
 
 
+@contextmanager
+def timed(owner, name: str, seconds: dict, key: str):
+    """``owner.name`` replaced, while the block runs, by a wrapper adding each call's wall time to
+    ``seconds[key]`` (a call inside another timed one of the same key is not counted twice)."""
+    original = getattr(owner, name)
+    depth = [0]
+
+    @functools.wraps(original)
+    def wrapper(*args, **kwargs):
+        depth[0] += 1
+        started = time.perf_counter()
+        try:
+            return original(*args, **kwargs)
+        finally:
+            depth[0] -= 1
+            if depth[0] == 0:
+                seconds[key] += time.perf_counter() - started
+
+    setattr(owner, name, wrapper)
+    try:
+        yield
+    finally:
+        setattr(owner, name, original)
+
+
+def pass_table(seconds: dict, wall_s: float) -> dict:
+    """The timed passes' seconds and shares of the command's wall time."""
+    return {"section": "passes", **{f"{kind}_s": round(s, 6) for kind, s in seconds.items()},
+            **{f"{kind}_share": round(s / wall_s, 3) for kind, s in seconds.items()}}
+
+
 def bench_profile(pair: tuple[str, str] | None, fit_args: list[str], top: int, as_json: bool,
-                  ledger: Ledger = NOT_RECORDED) -> int:
-    with tempfile.TemporaryDirectory(prefix="wfc-profile-") as tmp:
+                  with_operators: bool = False, ledger: Ledger = NOT_RECORDED) -> int:
+    seconds = {"backward": 0.0, "step": 0.0}
+    with tempfile.TemporaryDirectory(prefix="wfc-profile-") as tmp, ExitStack() as hooks:
         out = Path(tmp) / "fit"
         argv = ["fit", *(pair or ()), *([] if pair else ["--example"]), "--out", str(out), *fit_args]
+        hooks.enter_context(timed(torch.autograd, "backward", seconds, "backward"))
+        hooks.enter_context(timed(torch.autograd, "grad", seconds, "backward"))
+        hooks.enter_context(timed(torch.optim.Adam, "step", seconds, "step"))
+        operators = hooks.enter_context(torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU])) \
+            if with_operators else None
         python = cProfile.Profile()
         started = time.perf_counter()
-        with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as operators:
-            code = python.runcall(backend_main, argv)
+        code = python.runcall(backend_main, argv)
         wall = time.perf_counter() - started
         if code != 0:
             print(f"bench profile: the fit ended with exit code {code}")
             return code
         timings = json.loads((out / "metrics.json").read_text()).get("timings", {})
-    rows = [stage_table(timings, wall), operator_split(operators.events(), top),
-            function_table(pstats.Stats(python), top)]
+    rows = [stage_table(timings, wall), pass_table(seconds, wall), function_table(pstats.Stats(python), top)]
+    if operators is not None:
+        rows.append(operator_split(operators.events(), top))
     for row in rows:
         print(json.dumps(row) if as_json else _text(row), flush=True)
         ledger.row(row)
@@ -143,6 +187,9 @@ PASSES = ("forward", "backward", "step")
 def _text(row: dict) -> str:
     if row["section"] == "stages":
         return "stages: " + ", ".join(f"{name} {s:.1f} s ({share:.0%})" for name, (s, share) in row["stages"].items())
+    if row["section"] == "passes":
+        return "passes: " + ", ".join(f"{kind} {row[kind + '_s']:.1f} s ({row[kind + '_share']:.0%} of the wall)"
+                                      for kind in ("backward", "step"))
     if row["section"] == "operators":
         split = ", ".join(f"{kind} {row[kind + '_s']:.1f} s ({row[kind + '_share']:.0%})" for kind in PASSES)
         lines = [f"operators (self CPU {row['total_s']:.1f} s): {split}"]

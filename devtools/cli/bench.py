@@ -72,7 +72,8 @@ def _profile(args) -> int:
     extra = _iterations(args) + shlex.split(args.fit_args)
     ledger = open_ledger(args, "profile", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())),
                          fit_device(extra))
-    return bench_profile(tuple(args.pair) if args.pair else None, extra, args.top, args.json, ledger=ledger)
+    return bench_profile(tuple(args.pair) if args.pair else None, extra, args.top, args.json, args.operators,
+                         ledger=ledger)
 
 
 def _render(args) -> int:
@@ -112,6 +113,8 @@ def add_parser(sub) -> None:
     p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
                    help="fit-speed, profile: the photo pair (default: the bundled example)")
     p.add_argument("--top", type=positive_int, default=12, help="profile: the top operators and functions shown")
+    p.add_argument("--operators", action="store_true", help="profile: also torch's operators, forward and backward "
+                                                            "(keeps every event in memory: a short fit)")
     p.add_argument("--fit-size", type=positive_int, help="fit-speed: the fit's --size (default: the fit's default)")
     p.add_argument("--rounds", type=positive_int,
                    help="fit-speed: compiled + eager rounds (default 2); batch: how often the ways take turns "
