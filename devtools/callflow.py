@@ -227,12 +227,16 @@ def report(flow: CallFlow, between: tuple[str, str] | None, depth: int | None, s
         pairs = Counter({pair: count for pair, count in pairs.items() if all(under(m, among) for m in pair)})
     lines.append("module pairs that alternate most (alternations):")
     lines += [f"  {first} <-> {second}: {count}" for (first, second), count in pairs.most_common(sites) if count]
+    return "\n".join(lines + _callback_lines(threads, group, among, sites))
+
+
+def _callback_lines(threads: list[list[Crossing]], group, among: str | None, sites: int) -> list[str]:
+    """The callbacks' count and the pairs (calling module -> module called back) that make most."""
     back = sum((callbacks(crossings, group) for crossings in threads), Counter())
     if among is not None:
         back = Counter({pair: count for pair, count in back.items() if all(under(m, among) for m in pair)})
-    lines.append(f"calls back into a module below on the stack (callbacks): {sum(back.values())}")
-    lines += [f"  {caller} -> {callee}: {count}" for (callee, caller), count in back.most_common(sites)]
-    return "\n".join(lines)
+    return [f"calls back into a module below on the stack (callbacks): {sum(back.values())}",
+            *(f"  {caller} -> {callee}: {count}" for (callee, caller), count in back.most_common(sites))]
 
 
 def _between_lines(threads: list[list[Crossing]], between: tuple[str, str], group, sites: int) -> list[str]:
