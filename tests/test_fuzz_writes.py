@@ -19,6 +19,7 @@ from backend.core.jsonfile import replacing, write_whole
 from backend.core.params import FabricParams
 from backend.core.results import RESULT_FILES
 from backend.fit.settings import FitResult
+from blender_addon.core import asset_catalogs
 from devtools.fuzz.images import ENCODINGS, FILM, base_pair
 
 HANG_S = 120  # a liveness bound, not a timing
@@ -174,11 +175,8 @@ ADDON_KILLED_AT_RENAME = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("writer, name", [("rig", "rig.json"), ("catalogs", "blender_assets.cats.txt")])
+@pytest.mark.parametrize("writer, name", [("rig", "rig.json"), ("catalogs", asset_catalogs.CATALOG_FILE)])
 def test_the_addon_killed_as_it_writes_leaves_its_earlier_file_whole(tmp_path, writer, name):
-    from blender_addon.core import asset_catalogs
-
-    assert asset_catalogs.CATALOG_FILE == "blender_assets.cats.txt"
     path = tmp_path / name
     path.write_text(OLD)
     process = child(ADDON_KILLED_AT_RENAME, str(tmp_path), writer)

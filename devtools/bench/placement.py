@@ -85,10 +85,8 @@ def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool
                   f"tiles of the true pattern off {tiles}; {row['seconds']:.1f} s", flush=True)
         ledger.row(row)
     result = summary(rows)
-    if as_json:  # the summary carries the gates it was measured with, as the ledger keeps it
-        result["gates"] = {name: value for name, value, _ in table}
-        print(json.dumps(result), flush=True)
-    else:
-        print("  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    ledger.summary({**result, "gates": {name: value for name, value, _ in table}})
+    measured_with = {**result, "gates": {name: value for name, value, _ in table}}
+    # as JSON, the summary carries the gates it was measured with, as the ledger keeps it
+    print(json.dumps(measured_with) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
+    ledger.summary(measured_with)
     return 0

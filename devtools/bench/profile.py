@@ -155,7 +155,8 @@ def bench_profile(pair: tuple[str, str] | None, fit_args: list[str], top: int, a
     seconds = {"backward": 0.0, "step": 0.0}
     with tempfile.TemporaryDirectory(prefix="wfc-profile-") as tmp, ExitStack() as hooks:
         out = Path(tmp) / "fit"
-        argv = ["fit", *(pair or ()), *([] if pair else ["--example"]), "--out", str(out), *fit_args]
+        command = ["fit", *(pair or ()), *([] if pair else ["--example"]), *fit_args]
+        argv = [*command, "--out", str(out)]
         hooks.enter_context(timed(torch.autograd, "backward", seconds, "backward"))
         hooks.enter_context(timed(torch.autograd, "grad", seconds, "backward"))
         hooks.enter_context(timed(torch.optim.Adam, "step", seconds, "step"))
@@ -175,7 +176,7 @@ def bench_profile(pair: tuple[str, str] | None, fit_args: list[str], top: int, a
     for row in rows:
         print(json.dumps(row) if as_json else _text(row), flush=True)
         ledger.row(row)
-    summary = {"summary": "profile", "wall_s": round(wall, 2), "fit": argv[:-2 - len(fit_args)] + fit_args}
+    summary = {"summary": "profile", "wall_s": round(wall, 2), "fit": command}
     print(json.dumps(summary) if as_json else f"profiled wall {summary['wall_s']} s (both profilers on)", flush=True)
     ledger.summary(summary)
     return 0
