@@ -126,10 +126,7 @@ def read_fit_params(result: dict) -> dict:
         raise ValueError(f"{path}: the fitted parameters are not valid JSON ({exc})") from None
     try:
         declarations.check_params(data)
-        rig = data.get("rig")
-        if rig is not None and not isinstance(rig, dict):
-            raise ValueError(f"rig: expected an object of the rig's settings, got {type(rig).__name__}")
-        rig_settings.capture_rig(rig)
+        rig_settings.capture_rig(data.get("rig"))
     except ValueError as exc:
         raise ValueError(f"{path}: not a fit's parameters: {exc}") from None
     return data

@@ -63,8 +63,10 @@ def with_defaults(rig: dict | None = None) -> dict:
 def capture_rig(rig: dict | None = None):
     """The backend's ``CaptureRig`` for a rig dict whose missing (or None) settings are the spec's.
 
-    Raises ValueError (the backend's RigError) naming the bad setting.
+    Raises ValueError (the backend's RigError) naming the bad setting, or where ``rig`` is not a dict.
     """
+    if rig is not None and not isinstance(rig, dict):
+        raise ValueError(f"rig: expected an object of the rig's settings, got {type(rig).__name__}")
     return _capture_rig(with_defaults(rig))
 
 
