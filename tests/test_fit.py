@@ -158,7 +158,8 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
 
     def optimise(run, settings=settings):
         reports.clear()
-        return _optimise(run, settings, lambda run: None, lambda *report: reports.append(report))
+        return _optimise(run, settings, lambda run: None,
+                         lambda *report, **optimiser: reports.append((*report, optimiser)))
 
     # the best at step 38, never beaten: the search at 50 has its turn, then 20 steps past 38 it ends
     flat = ScriptedRun([10.0 - 0.1 * min(i, 37) for i in range(100)])
@@ -167,6 +168,9 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     unwarped = ScriptedRun([10.0 - 0.1 * min(i, 37) for i in range(100)])
     assert optimise(unwarped, dataclasses.replace(settings, spacing_warp=False)) == 58 and unwarped.warp_reads == []
     assert reports[-1][:3] == ("optimise", 100, 100)  # the progress bar completes
+    # each report says how long the best has held and the patience: the whole-fit bar's time left reads them
+    assert reports[-1][-1] == {"since_best": 20, "patience": 20}
+    assert [r[-1]["since_best"] for r in reports[36:40]] == [0, 0, 1, 2]
     # before the search: a plateau of 30 steps does not end it; the search's gain starts a new count
     gained = ScriptedRun([10.0 - 0.1 * min(i, 9) for i in range(100)], search_gain=0.5)
     assert optimise(gained) == 70 and gained.searches == [50]

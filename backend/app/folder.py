@@ -182,7 +182,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     settings = fit_settings(options, rig)
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
-                 progress=lambda stage, i, n, loss, eta: reporter.progress(stage, i, n, loss, eta),
+                 progress=reporter.progress,
                  initial_for=initial_for,
                  pattern_probabilities=initial_for.pattern_probabilities if initial_for is not None else None,
                  should_stop=should_stop)

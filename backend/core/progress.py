@@ -69,7 +69,7 @@ PHASES: tuple[Phase, ...] = (
     Phase("starts", "search", "Trying starting points", 0.007, counts=2),
     Phase("trials", "search", "Comparing weaves", 0.191, counts=2),
     Phase("duel", "search", "Checking the weave at full size", 0.158, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.375, patience=20, ends_from=26),
+    Phase("optimise", "optimise", "Optimising", 0.375, patience=20, ends_from=25),
     Phase("render", "render", "Rendering the result", 0.123, fixed=True),
     Phase("report", "report", "Writing the report", 0.015, fixed=True, counted=False),
 )
@@ -78,9 +78,6 @@ MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this p
 # A counted phase done in less than this part of its expected length did no work of its own (the
 # trials a search passes by: a lone start, or a weave and its face twin, which the duel tells apart).
 PASSED_BY_BELOW = 0.1
-# A phase with a patience whose loss has not improved for this part of it is taken to end when its
-# patience runs out (an optimiser that has converged stops early; one still improving runs on).
-PLATEAU = 0.5
 
 
 @dataclass
@@ -93,6 +90,8 @@ class _Current:
     last: tuple[float, int] | None = None
     total: int = 0
     best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
+    since_best: int | None = None           # counts since its best loss last moved (the fit's, else read from its losses)
+    patience: int | None = None             # counts without a new best after which it ends (the fit's, else its Phase's)
 
 
 @dataclass
@@ -127,6 +126,13 @@ class FitProgress:
         loss = event.get("loss")
         if isinstance(loss, (int, float)) and (current.best is None or loss < current.best[0]):
             current.best = (float(loss), iteration)
+        since_best, patience = event.get("since_best"), event.get("patience")
+        if isinstance(patience, int):
+            current.patience = patience
+        if isinstance(since_best, int):
+            current.since_best = since_best
+        elif current.best is not None:   # a fit that does not say: where its reported loss was lowest
+            current.since_best = iteration - current.best[1]
         if 0 < total <= iteration:   # complete: the next phase's work begins now
             self._enter(index + 1, now)
 
@@ -207,25 +213,42 @@ class FitProgress:
         least :data:`MIN_REMAINDER` of that share: a phase that overruns keeps the bar moving, ever
         slower, short of its end), and from its second count on, more and more its own pace: weighed
         by the part of its counts seen, which holds the pauses its counts do not show (the
-        optimiser's discrete steps) until it has seen them."""
+        optimiser's discrete steps) until it has seen them. Both count only the counts it is expected
+        to run (:meth:`expected_end`)."""
         current = self.current
         expected = pace * self.share(self.phase)
         by_share = max(expected - (now - current.started), MIN_REMAINDER * expected)
         if current.first is None or current.last[1] <= current.first[1]:
             return by_share
-        counted = current.last[1] - current.first[1]
+        end, last = self.expected_end(), current.last[1]
+        counted = last - current.first[1]
         per_count = (current.last[0] - current.first[0]) / counted
-        own = max(per_count * (self._last_count() - current.last[1]) - (now - current.last[0]), 0.0)
+        own = max(per_count * (end - last) - (now - current.last[0]), 0.0)
         seen = counted / max(current.total - current.first[1], 1)
-        return seen * own + (1.0 - seen) * by_share
+        to_run = (end - last) / (current.total - last) if current.total > last else 1.0
+        return seen * own + (1.0 - seen) * by_share * to_run
 
-    def _last_count(self) -> int:
-        """The count the current phase is expected to end at: its total, or, for a phase with a
-        patience whose loss has not improved for :data:`PLATEAU` of it, where that patience runs out."""
+    def expected_end(self) -> float:
+        """The count the current phase is expected to end at: its total, or, for a phase that ends
+        early once its best loss has held for its patience P (the optimiser), between that and where
+        it ends if its best holds from now on (``stop``: P counts after the best, but not before count
+        ``ends_from``), weighed by the chance that the best holds, read from how long it has held
+        already (``since``, s counts): with every chance of a new best per count as likely as any
+        other (a uniform prior: Laplace's rule of succession), the chance of P - s more counts without
+        one after s without one is (s + 1) / (P + 1):
+
+            end = q * stop + (1 - q) * total,   q = min(1, (s + 1) / (P + 1))
+
+        A fit whose best still moves is expected to run nearly all its counts, one whose best has
+        held for nearly its patience to stop soon; after a new best it may run on again."""
         current, phase = self.current, self.phase
-        if not phase.patience or current.best is None or current.last[1] - current.best[1] < PLATEAU * phase.patience:
-            return current.total
-        return min(current.total, max(current.best[1] + phase.patience, phase.ends_from, current.last[1]))
+        patience = phase.patience if current.patience is None else current.patience
+        if not patience or current.since_best is None or current.last is None:
+            return float(current.total)
+        last, since = current.last[1], max(current.since_best, 0)
+        stop = min(current.total, max(last + patience - since, phase.ends_from, last))
+        held = min(1.0, (since + 1) / (patience + 1))
+        return held * stop + (1.0 - held) * current.total
 
     def seconds_left(self, now: float) -> float | None:
         """The estimated time left (None before a phase has ended: no pace yet)."""

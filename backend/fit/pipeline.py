@@ -31,8 +31,9 @@ the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unles
 ``settings.light_falloff`` is off), and, once it is read, with their uneven yarn spacing (unless
 ``settings.spacing_warp`` is off).
 
-Each stage reports through ``progress(stage, iteration, total, loss, eta_s)``. Everything is
-deterministic for a given input, settings and seed (fixed jitter, no random steps).
+Each stage reports through ``progress(stage, iteration, total, loss, eta_s)``; the optimiser adds
+``since_best`` and ``patience`` (from them the whole-fit progress bar reads how soon it may end).
+Everything is deterministic for a given input, settings and seed (fixed jitter, no random steps).
 """
 from __future__ import annotations
 
@@ -81,7 +82,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     started = time.perf_counter()
     timings: dict[str, float] = {}
     torch.manual_seed(settings.seed)
-    progress = progress or (lambda *args: None)
+    progress = progress or (lambda *args, **fields: None)
     patterns = priors.FIT_PATTERNS if settings.pattern == "auto" else (settings.pattern,)
     progress("search", 0, 1, None, None)
     spectra = Spectra.of([reflection, transmission], workers=torch.get_num_threads())
@@ -360,10 +361,12 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             best, improved_at = run.best_loss, done
         if converged(settings, done, improved_at, search_round):
             run.end_warp_trial()
-            progress("optimise", settings.iterations, settings.iterations, value, 0.0)
+            progress("optimise", settings.iterations, settings.iterations, value, 0.0,
+                     since_best=done - improved_at, patience=settings.patience)
             return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
-        progress("optimise", done, settings.iterations, value, eta)
+        progress("optimise", done, settings.iterations, value, eta, since_best=done - improved_at,
+                 patience=settings.patience)
     run.end_warp_trial()
     return done
 

@@ -10,7 +10,9 @@ from ..model.spacing_warp import SpacingWarp
 from ..texture.features import LossWeights
 
 OPTIMISED = tuple(s.name for s in PARAMETERS if s.optimised)
-Progress = Callable[[str, int, int, float | None, float | None], None]  # stage, iteration, total, loss, eta_s
+# stage, iteration, total, loss, eta_s; the optimiser adds since_best= and patience= (keywords: the
+# steps since its best loss last moved, and the steps without a new best after which it ends)
+Progress = Callable[..., None]
 
 
 class FitCancelled(Exception):

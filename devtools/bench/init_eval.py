@@ -133,7 +133,7 @@ def _timed_fit(reflection, transmission, settings, use_network: bool, model) -> 
     trace: list[tuple[float, int, float]] = []
     started = time.perf_counter()
 
-    def progress(stage, iteration, total, loss, eta):
+    def progress(stage, iteration, total, loss, eta, **_optimiser):
         if stage == "optimise" and loss is not None:
             trace.append((time.perf_counter() - started, iteration, float(loss)))
 
