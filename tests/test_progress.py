@@ -2,6 +2,7 @@
 events, one bar, the time left. Times are given to it, so every check here is replayable."""
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -11,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from backend.core import progress, protocol  # noqa: E402
-from backend.core.progress import MIN_REMAINDER, PHASES, PLATEAU, FitProgress, duration_words, replay  # noqa: E402
+from backend.core.progress import MIN_REMAINDER, PHASES, FitProgress, duration_words, replay  # noqa: E402
 
 
 def progress_event(stage: str, iteration: int, total: int) -> dict:
@@ -24,14 +25,38 @@ def counts(stage: str, start: float, end: float, total: int, first: int = 1) -> 
     return [(start + (end - start) * (k - first) / max(steps, 1), stage, k, total) for k in range(first, total + 1)]
 
 
-def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
+def optimiser_work(first: int, stop: int = 100) -> list[float]:
+    """The work of the optimiser's steps ``first``..``stop`` of 100, in steps: each discrete search
+    (after the steps PHASES declares, not after the last) as long as SEARCH_COUNTS steps."""
+    optimiser = next(p for p in PHASES if p.pauses)
+    return [1 + optimiser.pause_counts * (k in optimiser.pauses and k < 100) for k in range(first, stop + 1)]
+
+
+def optimiser_events(start: float, unit: float, first: int, stop: int = 100, best_at: int | None = None) -> list:
+    """The optimiser's events from ``start``, its steps ``first``..``stop`` of 100 ``unit`` seconds
+    each (:func:`optimiser_work`); stopping before 100, its last event says 100 of 100. With
+    ``best_at``, each event says the steps since its best last moved (every step a new best up to
+    that one), else nothing."""
+    at, events = start, []
+    for k, units in zip(range(first, stop + 1), optimiser_work(first, stop)):
+        at += units * unit
+        since = None if best_at is None else max(0, k - best_at)
+        events.append((at, "optimise", 100 if k == stop else k, 100, None, since))
+    return events
+
+
+def fit_timeline(wall: float = 100.0, duel: bool = True, stop: int = 100, best_at: int | None = None) -> list:
     """A fit whose every phase lasts its share of ``wall``, its counts evenly spaced, in the fit's order of
     events: each stage's first event of iteration 0, the search's counter starting again for the
-    starting points, the trials and the duel (each with the count its share is for), then 100
-    optimiser steps (the duel's 10 first)."""
+    starting points, the trials and the duel (each with the count its share is for), then the
+    optimiser's steps (the duel's 10 first; :func:`optimiser_events`). An optimiser that stops at
+    step ``stop`` before its 100 keeps the pace of its share for 100: it ends sooner, and the fit."""
     shares = {phase.name: phase.share for phase in PHASES}
     if not duel:
         shares["optimise"] += shares.pop("duel")
+    first = 11 if duel else 1
+    unit = shares["optimise"] * wall / sum(optimiser_work(first))
+    shares["optimise"] *= sum(optimiser_work(first, stop)) / sum(optimiser_work(first))
     ends, at = {}, 0.0
     for name in (p.name for p in PHASES if p.name in shares):
         at += shares[name] * wall
@@ -46,8 +71,7 @@ def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
         step = (ends["duel"] - ends["trials"]) / n["duel"]
         events += counts("search", ends["trials"] + step, ends["duel"], n["duel"])
         previous = ends["duel"]
-    first = 11 if duel else 1
-    events += counts("optimise", previous + (ends["optimise"] - previous) / (101 - first), ends["optimise"], 100, first)
+    events += optimiser_events(previous, unit, first, stop, best_at)
     events += [(ends["optimise"], "render", 0, 1)]
     events += counts("render", ends["optimise"] + (ends["render"] - ends["optimise"]) / 10, ends["render"], 10)
     events += [(ends["render"], "report", 0, 1), (ends["report"], "report", 1, 1)]
@@ -56,10 +80,11 @@ def fit_timeline(wall: float = 100.0, duel: bool = True) -> list:
 
 def follow(events: list, until: float | None = None) -> FitProgress:
     fit = FitProgress(started=0.0)
-    for t, stage, iteration, total in events:
+    for t, stage, iteration, total, *optional in events:
         if until is not None and t > until:
             break
-        fit.update(progress_event(stage, iteration, total), t)
+        loss, since_best = (*optional, None, None)[:2]
+        fit.update({**progress_event(stage, iteration, total), "loss": loss, "since_best": since_best}, t)
     return fit
 
 
@@ -73,7 +98,7 @@ def test_the_phases_follow_the_protocols_stages_and_share_the_whole_fit():
 def test_the_events_are_placed_in_the_phases_the_fit_runs():
     fit = FitProgress(started=0.0)
     seen = []
-    for t, stage, iteration, total in fit_timeline():
+    for t, stage, iteration, total, *_ in fit_timeline():
         fit.update(progress_event(stage, iteration, total), t)
         if not seen or seen[-1] != fit.phase.name:
             seen.append(fit.phase.name)
@@ -99,8 +124,8 @@ def test_a_fit_at_the_search_size_passes_the_duel_by_and_gives_its_time_to_the_o
     events = fit_timeline(duel=False)
     fit = follow(events)
     assert fit.skipped == {"duel"} and "duel" not in fit.durations
-    trials_done = [t for t, stage, iteration, total in events if stage == "search"][-1]
-    optimised = next(t for t, stage, iteration, total in events if (stage, iteration) == ("optimise", 100))
+    trials_done = [t for t, stage, *_ in events if stage == "search"][-1]
+    optimised = next(t for t, stage, iteration, *_ in events if (stage, iteration) == ("optimise", 100))
     assert fit.durations["optimise"] == pytest.approx(optimised - trials_done)
 
 
@@ -184,32 +209,78 @@ def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
     assert fit.seconds_left(t_trials) == pytest.approx(expected)
 
 
-def test_an_optimiser_whose_loss_has_settled_is_expected_to_stop_when_its_patience_runs_out():
-    """PLATEAU: the optimiser ends once its best loss has not moved for its patience (FitSettings'),
-    not before its first discrete search. Its loss unchanged for half its patience, the time left
-    counts the steps to that end, not to its total; a loss still falling counts them all."""
-    optimiser = next(p for p in PHASES if p.name == "optimise")
-    start = [(0.0, "load", 0, 1), (1.0, "load", 1, 1), (1.0, "search", 0, 1), (10.0, "search", 1, 1),
-             (20.0, "search", 1, 1)]
-
-    def after(losses):
-        fit = follow(start)
-        for step, loss in enumerate(losses, start=1):
-            fit.update({**progress_event("optimise", step, 100), "loss": loss}, 20.0 + step)
-        return fit
-
-    settled = 30 + round(PLATEAU * optimiser.patience)
-    falling = after([1.0 / k for k in range(1, settled + 1)])
-    flat = after([1.0 / min(k, 30) for k in range(1, settled + 1)])
-    now = 20.0 + settled
-    assert flat._last_count() == 30 + optimiser.patience and falling._last_count() == 100
-    assert flat.seconds_left(now) < falling.seconds_left(now)
-    assert after([1.0] * 12)._last_count() == optimiser.ends_from  # settled at once: not before the first search
-    assert after([1.0] * 9)._last_count() == 100   # not yet half its patience
+OPTIMISER = next(p for p in PHASES if p.name == "optimise")
 
 
-def test_the_optimisers_patience_is_the_fits():
+def optimiser_after(since: list[int | None], losses: list[float] | None = None, patience: int | None = None):
+    """A fit whose optimiser has had steps 1..len(since), one a second, each saying ``since`` (the
+    steps since its best last moved; None: it does not say) and its ``losses`` where given."""
+    fit = follow([(0.0, "load", 0, 1), (1.0, "load", 1, 1), (1.0, "search", 0, 1), (10.0, "search", 1, 1),
+                  (20.0, "search", 1, 1)])
+    for step, held in enumerate(since, start=1):
+        event = {**progress_event("optimise", step, 100), "since_best": held, "patience": patience,
+                 "loss": losses[step - 1] if losses else None}
+        fit.update(event, 20.0 + step)
+    return fit
+
+
+def test_an_optimiser_whose_best_has_held_is_expected_to_stop_when_its_patience_runs_out():
+    """The optimiser ends once its best loss has held for its patience P (after its first discrete
+    search): after s steps without a new best, the chance of P - s more is (s + 1) / (P + 1), and the
+    work left is to that stop where it is the likelier end, else to its total (each discrete search
+    to come counted as SEARCH_COUNTS steps)."""
+    patience, pause = OPTIMISER.patience, OPTIMISER.pause_counts
+    whole = (100 - 30) + pause * 2   # from step 30: the searches after steps 50 and 75
+
+    def held_for(s: int) -> list[int]:
+        """30 steps whose best held for the last ``s``."""
+        return [0] * (30 - s) + list(range(1, s + 1))
+
+    likelier = next(s for s in range(patience) if progress.held_to_patience(s, patience) >= 0.5)
+    assert likelier == math.ceil((patience - 1) / 2)   # from s = (P - 1) / 2 on
+    assert optimiser_after(held_for(0)).work_left() == optimiser_after(held_for(likelier - 1)).work_left() == whole
+    assert optimiser_after(held_for(likelier)).work_left() == pytest.approx(patience - likelier)   # before step 50
+    assert optimiser_after(held_for(patience - 1)).work_left() == pytest.approx(1)   # it ends with the next step
+    # a new best after a long hold: it may run on again
+    assert optimiser_after(held_for(patience - 1)[:-1] + [0]).work_left() == pytest.approx(whole)
+    # its best held for its patience before the first search: it ends with that search, not before
+    assert optimiser_after(list(range(12)) + [patience]).work_left() == pytest.approx((25 - 13) + pause)
+    # a fit that says its patience is 0 runs every step; one that does not say reads its best from its losses
+    assert optimiser_after(held_for(patience - 1), patience=0).work_left() == pytest.approx(whole)
+    losses = [1.0 / k for k in range(1, 18)] + [1.0] * 13   # its best at step 17, held for 13
+    assert optimiser_after([None] * 30, losses).work_left() == pytest.approx(optimiser_after(held_for(13)).work_left())
+
+
+def test_the_optimisers_patience_and_searches_are_the_fits():
     from backend.fit.settings import FitSettings
 
-    optimiser = next(p for p in PHASES if p.name == "optimise")
-    assert (optimiser.patience, optimiser.ends_from) == (FitSettings().patience, FitSettings().first_search + 1)
+    settings = FitSettings()
+    searches = tuple(settings.first_search + k * settings.search_every for k in range(settings.max_searches))
+    assert (OPTIMISER.patience, OPTIMISER.ends_from, OPTIMISER.pauses) == \
+        (settings.patience, settings.first_search, searches)
+
+
+def test_an_early_stop_brings_the_time_left_close_and_never_below_zero():
+    """A fit whose optimiser stops at step 45 (its best at step 25, held for its patience; its steps at
+    the pace of its share for 100): once its best has held for half its patience the time left is
+    within ETA_CHECK of the truth (before, the fit is expected to run on), closer over the whole fit
+    than where it does not say how long its best has held; never below zero; the bar never goes back."""
+    events = fit_timeline(200.0, stop=45, best_at=25)
+    wall = events[-1][0]
+    said = replay(events, wall)
+    unsaid = replay([event[:4] for event in events], wall)
+    assert said.within > unsaid.within, (said, unsaid)
+    fit = FitProgress(started=0.0)
+    pending, bar = list(events), 0.0
+    for now in [t / 4 for t in range(int(wall * 4))]:
+        while pending and pending[0][0] <= now:
+            t, stage, iteration, total, *optional = pending.pop(0)
+            loss, since = (*optional, None, None)[:2]
+            fit.update({**progress_event(stage, iteration, total), "loss": loss, "since_best": since}, t)
+        left = fit.seconds_left(now)
+        assert left is None or left >= 0.0
+        assert fit.fraction(now) >= bar - 1e-9, now
+        bar = fit.fraction(now)
+        settled = fit.phase is OPTIMISER and (fit.current.since_best or 0) >= OPTIMISER.patience / 2
+        if settled or fit.phase is not None and fit.phase.fixed and fit.phase.name != "load" and now > wall / 2:
+            assert abs(left - (wall - now)) <= progress.ETA_CHECK * (wall - now), now

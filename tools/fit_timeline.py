@@ -46,7 +46,7 @@ def timeline(reflection: Path, transmission: Path, out: Path, fit_args: list[str
         event = json.loads(line)
         if event["event"] == "progress":
             events.append([round(time.monotonic() - started, 3), event["stage"], event["iteration"], event["total"],
-                           cpu_seconds(process.pid), event.get("loss")])
+                           cpu_seconds(process.pid), event.get("loss"), event.get("since_best")])
     cpu = cpu_seconds(process.pid)
     code = process.wait()
     wall = time.monotonic() - started
@@ -81,27 +81,72 @@ def record(args) -> None:
 
 
 def replay(args) -> None:
-    """Each recorded fit through the whole-fit progress, on both clocks; then the shares to declare:
-    each phase's mean share of the fits' CPU time where it ran, scaled to sum to 1."""
+    """Each recorded fit through the whole-fit progress, on both clocks; then what to declare, measured
+    on the fits named by ``--tune`` only (all by default), so that the others are held out: each
+    phase's mean share of those fits' CPU time where it ran, scaled to sum to 1, and how many of the
+    optimiser's steps one of its discrete searches lasts (progress.SEARCH_COUNTS)."""
     from backend.core import progress
 
     rows = [json.loads(line)["data"] for line in Path(args.ledger).read_text().splitlines() if line.strip()]
     rows = [row for row in rows if row.get("exit") == 0 and row.get("cpu_s")]
+    labels = _labels(rows)
+    tune = set(args.tune.split(",")) if args.tune else set(labels)
+    unknown = tune - set(labels)
+    if unknown:
+        raise SystemExit(f"--tune: no recorded fit {', '.join(sorted(unknown))} (recorded: {', '.join(labels)})")
     measured: dict[str, list[float]] = {name: [] for name in progress.NAMES}
-    for row in rows:
+    pauses: list[float] = []
+    within: dict[bool, list[float]] = {True: [], False: []}
+    for label, row in zip(labels, rows):
+        tuned = label in tune
         for clock, column, total in (("cpu", 4, row["cpu_s"]), ("wall", 0, row["wall_s"])):
-            events = [(event[column], *event[1:4], (event[5:] or [None])[0]) for event in row["events"]]
+            events = [(event[column], *event[1:4], (event[5:] or [None])[0], (event[6:] or [None])[0])
+                      for event in row["events"]]
             report = progress.replay(events, total)
             shares = ", ".join(f"{name} {share:.3f}" for name, share in report.shares.items())
-            for name, share in report.shares.items():
-                if clock == "cpu" and share > 0:
-                    measured[name].append(share)
-            print(f"{row['name']:>10} {clock:>4} {total:6.0f} s  time left from 20 % of the bar: within "
-                  f"{progress.ETA_CHECK:.0%} at {report.within:.0%} of the moments, worst "
+            if clock == "cpu":
+                within[tuned].append(report.within)
+                if tuned:
+                    for name, share in report.shares.items():
+                        if share > 0:
+                            measured[name].append(share)
+                    pauses += search_counts(events)
+            print(f"{label:>10} {'tuned' if tuned else 'held out':>8} {clock:>4} {total:6.0f} s  time left from 20 % "
+                  f"of the bar: within {progress.ETA_CHECK:.0%} at {report.within:.0%} of the moments, worst "
                   f"{report.worst_eta_error:+.0%}; bar - time {report.worst_bar_error:+.2f} at worst; shares: {shares}")
+    for tuned, values in within.items():
+        if values:
+            print(f"{'tuned' if tuned else 'held out'} (cpu): within {progress.ETA_CHECK:.0%} at "
+                  f"{sum(values) / len(values):.0%} of the moments on average over {len(values)} fits")
     means = {name: sum(values) / len(values) for name, values in measured.items() if values}
     whole = sum(means.values())
-    print("shares to declare: " + ", ".join(f"{name} {mean / whole:.3f}" for name, mean in means.items()))
+    print("shares to declare: " + ", ".join(f"{name} {mean / whole:.4f}" for name, mean in means.items()))
+    if pauses:
+        print(f"search counts to declare: {sum(pauses) / len(pauses):.1f} (from {len(pauses)} searches)")
+
+
+def _labels(rows: list[dict]) -> list[str]:
+    """A name per recorded fit: the pair's, and for a pair recorded again, its pair's with .2, .3, ..."""
+    seen: dict[str, int] = {}
+    labels = []
+    for row in rows:
+        seen[row["name"]] = seen.get(row["name"], 0) + 1
+        labels.append(row["name"] + (f".{seen[row['name']]}" if seen[row["name"]] > 1 else ""))
+    return labels
+
+
+def search_counts(events: list) -> list[float]:
+    """How many of the optimiser's steps each of its discrete searches lasted: the step before which
+    one ran (progress.PHASES' pauses) less the median step, over that median."""
+    from backend.core import progress
+
+    [optimiser] = [phase for phase in progress.PHASES if phase.pauses]
+    steps = [event for event in events if event[1] == optimiser.stage]
+    intervals = {b[2]: b[0] - a[0] for a, b in zip(steps, steps[1:]) if b[2] == a[2] + 1}
+    if len(intervals) < 3:
+        return []
+    median = sorted(intervals.values())[len(intervals) // 2]
+    return [(intervals[k] - median) / median for k in optimiser.pauses if k in intervals]
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -113,6 +158,8 @@ def main(argv: list[str] | None = None) -> None:
     rec.add_argument("fit_args", nargs="*", help="fit options after --")
     rep = sub.add_parser("replay", help="run the recorded timelines through the whole-fit progress")
     rep.add_argument("--ledger", default=str(LEDGER))
+    rep.add_argument("--tune", help="the recorded fits to measure what to declare on (comma-separated, as replay "
+                                    "names them: a pair recorded again gets .2, .3, ...); the others are held out")
     args = parser.parse_args(argv)
     record(args) if args.command == "record" else replay(args)
 

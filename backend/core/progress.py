@@ -44,7 +44,10 @@ class Phase:
     size is above the search's); counts: the count its share is for, where its work grows with its
     count (a fit with five trials has five halves of the two trials' share); patience: the counts
     without a better loss after which it ends early, though not before count ``ends_from`` (the
-    optimiser: FitSettings.patience, and its first discrete search, FitSettings.first_search).
+    optimiser: FitSettings.patience, and its first discrete search, FitSettings.first_search);
+    pauses: the counts after which it does extra work before its next event, unless it has reached
+    its total (the optimiser's discrete searches: FitSettings.first_search, search_every,
+    max_searches), each as long as ``pause_counts`` of its counts.
     """
 
     name: str
@@ -57,21 +60,27 @@ class Phase:
     counts: int = 0
     patience: int = 0
     ends_from: int = 0
+    pauses: tuple[int, ...] = ()
+    pause_counts: float = 0.0
 
 
+# A discrete search of the optimiser (20 loss evaluations) takes as long as this many of its steps
+# (measured by tools/fit_timeline.py replay on the fits it tunes on).
+SEARCH_COUNTS = 21.3
 # In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
 # counted phase ends where its count is complete (the next one begins then: the work of its first
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.015, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.116, fixed=True, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.007, counts=2),
-    Phase("trials", "search", "Comparing weaves", 0.191, counts=2),
-    Phase("duel", "search", "Checking the weave at full size", 0.158, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.375, patience=20, ends_from=25),
-    Phase("render", "render", "Rendering the result", 0.123, fixed=True),
-    Phase("report", "report", "Writing the report", 0.015, fixed=True, counted=False),
+    Phase("load", "load", "Reading the photos", 0.0138, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.1152, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.0060, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.1943, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.1550, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.3802, patience=20, ends_from=25, pauses=(25, 50, 75),
+          pause_counts=SEARCH_COUNTS),
+    Phase("render", "render", "Rendering the result", 0.1213, fixed=True),
+    Phase("report", "report", "Writing the report", 0.0142, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
@@ -90,8 +99,8 @@ class _Current:
     last: tuple[float, int] | None = None
     total: int = 0
     best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
-    since_best: int | None = None           # counts since its best loss last moved (the fit's, else read from its losses)
-    patience: int | None = None             # counts without a new best after which it ends (the fit's, else its Phase's)
+    since_best: int | None = None   # counts since its best loss last moved (the fit's, else read from its losses)
+    patience: int | None = None     # counts without a new best after which it ends (the fit's, else its Phase's)
 
 
 @dataclass
@@ -202,53 +211,50 @@ class FitProgress:
                     and current.total > current.last[1] > current.first[1]:
                 # the phase's work is its counts after the first (whose event begins it)
                 seconds += current.last[0] - current.first[0]
-                done = (current.last[1] - current.first[1]) / (current.total - current.first[1])
+                done = self._work(current.first[1], current.last[1]) / self._work(current.first[1], current.total)
                 shares += self.share(self.phase) * done
             if shares > 0:
                 return seconds / shares
         return None
 
     def _remainder(self, pace: float, now: float) -> float:
-        """The current phase's time left: its share at the fit's pace less its time so far (but at
-        least :data:`MIN_REMAINDER` of that share: a phase that overruns keeps the bar moving, ever
-        slower, short of its end), and from its second count on, more and more its own pace: weighed
-        by the part of its counts seen, which holds the pauses its counts do not show (the
-        optimiser's discrete steps) until it has seen them. Both count only the counts it is expected
-        to run (:meth:`expected_end`)."""
+        """The current phase's time left: until its second count, its share at the fit's pace less
+        its time so far (but at least :data:`MIN_REMAINDER` of that share: a phase that overruns keeps
+        the bar moving, ever slower, short of its end); from then on its own pace per count times
+        the work it is expected to do still (:meth:`work_left`: its counts to come and its pauses
+        before them), less the time since its last count."""
         current = self.current
-        expected = pace * self.share(self.phase)
-        by_share = max(expected - (now - current.started), MIN_REMAINDER * expected)
         if current.first is None or current.last[1] <= current.first[1]:
-            return by_share
-        end, last = self.expected_end(), current.last[1]
-        counted = last - current.first[1]
-        per_count = (current.last[0] - current.first[0]) / counted
-        own = max(per_count * (end - last) - (now - current.last[0]), 0.0)
-        seen = counted / max(current.total - current.first[1], 1)
-        to_run = (end - last) / (current.total - last) if current.total > last else 1.0
-        return seen * own + (1.0 - seen) * by_share * to_run
+            expected = pace * self.share(self.phase)
+            return max(expected - (now - current.started), MIN_REMAINDER * expected)
+        per_count = (current.last[0] - current.first[0]) / self._work(current.first[1], current.last[1])
+        return max(per_count * self.work_left() - (now - current.last[0]), 0.0)
 
-    def expected_end(self) -> float:
-        """The count the current phase is expected to end at: its total, or, for a phase that ends
-        early once its best loss has held for its patience P (the optimiser), between that and where
-        it ends if its best holds from now on (``stop``: P counts after the best, but not before count
-        ``ends_from``), weighed by the chance that the best holds, read from how long it has held
-        already (``since``, s counts): with every chance of a new best per count as likely as any
-        other (a uniform prior: Laplace's rule of succession), the chance of P - s more counts without
-        one after s without one is (s + 1) / (P + 1):
+    def _work(self, after: int, to: int) -> float:
+        """The current phase's work from its count ``after`` to its count ``to``, in counts: one each,
+        and :attr:`Phase.pause_counts` for each of its pauses between (none after its total)."""
+        phase, total = self.phase, self.current.total
+        pauses = sum(after < k <= to and k < total for k in phase.pauses)
+        return (to - after) + phase.pause_counts * pauses
 
-            end = q * stop + (1 - q) * total,   q = min(1, (s + 1) / (P + 1))
-
-        A fit whose best still moves is expected to run nearly all its counts, one whose best has
-        held for nearly its patience to stop soon; after a new best it may run on again."""
+    def work_left(self) -> float:
+        """The current phase's work to come, in counts (:meth:`_work`): to its total, or, for a phase
+        that ends early once its best loss has held for its patience P (the optimiser), to where it
+        ends if its best holds from now on (P counts after the best, but not before count
+        ``ends_from``) where that is the likelier end. The chance is read from how long the best
+        has held already (s counts): with the chance of a new best at a count unknown, every value
+        as likely as another (a uniform prior: Laplace's rule of succession), the chance of P - s
+        more counts without one after s without one is (s + 1) / (P + 1), at least one half from
+        s = (P - 1) / 2 on. The likelier end, not the mean of the two: the time left is promised
+        within a part of the truth (:data:`ETA_CHECK`), which a mean of two ends far apart misses
+        at both. After a new best the phase may run on again, and its time left grows back."""
         current, phase = self.current, self.phase
+        last = current.last[1] if current.last is not None else 0
         patience = phase.patience if current.patience is None else current.patience
-        if not patience or current.since_best is None or current.last is None:
-            return float(current.total)
-        last, since = current.last[1], max(current.since_best, 0)
-        stop = min(current.total, max(last + patience - since, phase.ends_from, last))
-        held = min(1.0, (since + 1) / (patience + 1))
-        return held * stop + (1.0 - held) * current.total
+        if patience and current.since_best is not None and held_to_patience(current.since_best, patience) >= 0.5:
+            stop = min(current.total, max(last + patience - max(current.since_best, 0), phase.ends_from, last))
+            return self._work(last, stop)
+        return self._work(last, current.total)
 
     def seconds_left(self, now: float) -> float | None:
         """The estimated time left (None before a phase has ended: no pace yet)."""
@@ -290,6 +296,12 @@ class FitProgress:
         return text + (f", about {duration_words(left)} left" if left is not None else "")
 
 
+def held_to_patience(since_best: int, patience: int) -> float:
+    """The chance that a best loss that has held for ``since_best`` counts holds until ``patience``
+    (Laplace's rule of succession: :meth:`FitProgress.work_left`)."""
+    return min(1.0, (max(since_best, 0) + 1) / (patience + 1))
+
+
 def duration_words(seconds: float) -> str:
     """'40 s', '3 min', '1 h 05 min': a time left, as precise as an estimate deserves."""
     seconds = max(0, round(seconds))
@@ -313,7 +325,7 @@ ETA_CHECK = 0.25  # the promise of the bar's time left, checked by replay: withi
 
 
 def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
-    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss]) in arrival order,
+    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss[, since_best]]) in arrival order,
     ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
     estimate every second and at every event from ``from_fraction`` of the bar on (the bar as an
     artist sees it: it never goes back) until the last ``tail`` of the fit's time, where a few
@@ -323,9 +335,10 @@ def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float
     errors, bar_errors, shown = [], [], 0.0
     for now in sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))}):
         while pending and pending[0][0] <= now:
-            t, stage, iteration, total, *loss = pending.pop(0)
+            t, stage, iteration, total, *optional = pending.pop(0)
+            loss, since_best = (*optional, None, None)[:2]
             follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total,
-                           "loss": loss[0] if loss else None}, t)
+                           "loss": loss, "since_best": since_best}, t)
         left, truth = follow.seconds_left(now), total_s - now
         shown = max(shown, follow.fraction(now))
         if left is not None and shown >= from_fraction and truth >= max(tail * total_s, 1.0):
