@@ -118,7 +118,7 @@ def fit(args) -> int:
     if mode in ("slow", "stubborn"):
         for i in range(600):
             emit("progress", stage="optimise", iteration=i, total=600, loss=1.0 / (i + 1), eta_s=60 - i * 0.1,
-                 elapsed_s=i * 0.1)
+                 elapsed_s=i * 0.1, since_best=0, patience=20)
             if STOP.wait(0.1):
                 if i >= 1:
                     Path(args.out).mkdir(parents=True, exist_ok=True)
@@ -139,8 +139,9 @@ def fit(args) -> int:
              ("optimise", range(1, iterations + 1), iterations), ("render", (0, 1), 1), ("report", (0, 1), 1)]
     for stage, counts, total in steps:
         for i in counts:
-            emit("progress", stage=stage, iteration=i, total=total, loss=0.1 / i if stage == "optimise" else None,
-                 eta_s=None, elapsed_s=0.0)
+            optimiser = stage == "optimise"   # its loss falls at every step: a new best each time
+            emit("progress", stage=stage, iteration=i, total=total, loss=0.1 / i if optimiser else None,
+                 eta_s=None, elapsed_s=0.0, since_best=0 if optimiser else None, patience=20 if optimiser else None)
             if mode == "garbage" and stage == "search" and (i, total) == (1, 3):
                 print("Warning: some library printed this on stdout")
             time.sleep(delay)

@@ -508,6 +508,11 @@ def test_fit_example_end_to_end(tmp_path):
     stages = {e["stage"] for e in events if e["event"] == "progress"}
     assert {"load", "search", "optimise", "render", "report"} <= stages
     assert all(set(e) >= {"stage", "iteration", "total", "loss", "eta_s"} for e in events if e["event"] == "progress")
+    # the optimiser says how long its best has held and its patience (the whole-fit bar's time left reads them)
+    optimiser = [e for e in events if e["event"] == "progress" and e["stage"] == "optimise"]
+    assert optimiser and all(isinstance(e["since_best"], int) and e["patience"] == FitSettings().patience
+                             for e in optimiser)
+    assert all(e["since_best"] is None for e in events if e["event"] == "progress" and e["stage"] != "optimise")
     fitted = FabricParams.from_dict(json.loads((out / "params.json").read_text()))
     assert fitted.pattern == "twill1"
     assert fitted.tiles == pytest.approx((92.0, 131.0), rel=0.01)

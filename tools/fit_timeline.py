@@ -2,15 +2,18 @@
 
 ``record`` fits photo pairs with ``python -m backend fit R T --out DIR --json-progress`` (one after
 another, each in a fresh folder) and appends, per fit, every progress event (seconds since the
-process started, stage, iteration, total, the process's CPU seconds, loss), the wall and CPU time
-and metrics.json's stage timings to the results ledger
-(``devtools/bench/results/fit-timeline.jsonl``, a row per fit). ``replay`` reads those rows back
-and runs them through the whole-fit progress (``backend/core/progress.py``): each phase's share of
-the wall time, and how far the bar's time-left estimate is from the time that was really left, from
-20 % of the bar on (the product's promise: within 25 %).
+process started, stage, iteration, total, the process's CPU seconds, loss, the optimiser's
+since_best: rows recorded before it have none), the wall and CPU time and metrics.json's stage
+timings to the results ledger (``devtools/bench/results/fit-timeline.jsonl``, a row per fit).
+``replay`` reads those rows back and runs them through the whole-fit progress
+(``backend/core/progress.py``): each phase's share of the wall time, and how far the bar's
+time-left estimate is from the time that was really left, from 20 % of the bar on (the product's
+promise: within 25 %); then the shares and the length of the optimiser's discrete searches to
+declare, measured on the fits ``--tune`` names (the others held out: their figures are the honest
+ones).
 
     .venv/bin/python tools/fit_timeline.py record --pairs ../shared/data/real [--names a,b] [-- fit options]
-    .venv/bin/python tools/fit_timeline.py replay [--ledger FILE]
+    .venv/bin/python tools/fit_timeline.py replay [--ledger FILE] [--tune satin1,twill1,...]
 
 The machine may be busy: a share (a phase's seconds over the fit's) is what carries over to another
 machine, not the seconds.

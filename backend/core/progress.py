@@ -9,22 +9,29 @@ and gives, at any moment, the phase in words with its count ("Comparing weaves, 
 time left over all the phases, and one bar:
 
     pace(kind) = seconds / shares of the phases done of that kind (those the photos alone set, or
-                 those the search and the working size set), with the current one's counts
+                 those the search and the working size set), with the current one's work so far
     left       = remainder of the current phase + sum over the phases to come of share * pace(kind)
-    remainder  = seen * (its own pace per count * counts to come)
-                 + (1 - seen) * max(share * pace - its time so far, MIN_REMAINDER * share * pace)
+    remainder  = before its second count: max(share * pace - its time so far, MIN_REMAINDER * share * pace)
+                 from then on: its seconds per count * its work left - the time since its last count
+    work left  = its counts to come and its pauses before them (the optimiser's discrete searches,
+                 SEARCH_COUNTS counts each), to its total or, for the optimiser, to where it ends
+                 once its best loss has held for its patience, where that is the likelier end
     bar        = (shares of the phases done + share of the current one * its time so far
                   / (its time so far + remainder)) / shares of the phases the fit runs
 
-where ``seen`` is the part of the current phase's counts seen so far. A phase a fit passes by (the
-duel where the working size is the search's, trials with nothing to compare) leaves the shares.
-The bar moves as the clock does where the shares hold, also through a phase that reports no count,
-and never runs ahead of the phase the fit is in.
+The optimiser says in its events how many steps its best loss has held (``since_best``) and its
+patience; after s steps without a new best the chance of holding to a patience P is taken as
+(s + 1) / (P + 1) (Laplace's rule of succession: :meth:`FitProgress.work_left`). A phase a fit
+passes by (the duel where the working size is the search's, trials with nothing to compare) leaves
+the shares. The bar moves as the clock does where the shares hold, also through a phase that
+reports no count, and never runs ahead of the phase the fit is in; where the time left grows (a
+new best after a long hold) it may step back, which a caller showing it holds (the add-on does).
 
-The shares were measured on the benchmark's real pairs by ``tools/fit_timeline.py``, which records
-when each event arrives and replays the records through this module (the figures are in the
-results ledger, ``devtools/bench/results/fit-timeline.jsonl``), on the fit's CPU clock: a busy
-machine stretches the seconds, not the shares. Times are given by the caller (``now``, seconds on
+The shares and SEARCH_COUNTS were measured on some of the benchmark's real pairs by
+``tools/fit_timeline.py``, which records when each event arrives and replays the records through
+this module (``replay --tune``: the other recorded fits are held out; the figures are in the results
+ledger, ``devtools/bench/results/fit-timeline.jsonl``), on the fit's CPU clock: a busy machine
+stretches the seconds, not the shares. Times are given by the caller (``now``, seconds on
 any monotonic clock), so that a recorded fit replays exactly.
 """
 from __future__ import annotations
