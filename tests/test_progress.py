@@ -236,7 +236,7 @@ def test_an_optimiser_whose_best_has_held_is_expected_to_stop_when_its_patience_
         """30 steps whose best held for the last ``s``."""
         return [0] * (30 - s) + list(range(1, s + 1))
 
-    likelier = next(s for s in range(patience) if progress.held_to_patience(s, patience) >= 0.5)
+    likelier = next(s for s in range(patience) if progress.held_to_patience(s, patience) >= progress.LIKELIER)
     assert likelier == math.ceil((patience - 1) / 2)   # from s = (P - 1) / 2 on
     assert optimiser_after(held_for(0)).work_left() == optimiser_after(held_for(likelier - 1)).work_left() == whole
     assert optimiser_after(held_for(likelier)).work_left() == pytest.approx(patience - likelier)   # before step 50

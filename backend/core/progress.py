@@ -94,6 +94,9 @@ MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this p
 # A counted phase done in less than this part of its expected length did no work of its own (the
 # trials a search passes by: a lone start, or a weave and its face twin, which the duel tells apart).
 PASSED_BY_BELOW = 0.1
+# The optimiser is expected to stop when its patience runs out where its best is at least this likely
+# to hold until then (held_to_patience), else to run to its total: the likelier of the two ends.
+LIKELIER = 0.5
 
 
 @dataclass
@@ -251,14 +254,15 @@ class FitProgress:
         ``ends_from``) where that is the likelier end. The chance is read from how long the best
         has held already (s counts): with the chance of a new best at a count unknown, every value
         as likely as another (a uniform prior: Laplace's rule of succession), the chance of P - s
-        more counts without one after s without one is (s + 1) / (P + 1), at least one half from
-        s = (P - 1) / 2 on. The likelier end, not the mean of the two: the time left is promised
-        within a part of the truth (:data:`ETA_CHECK`), which a mean of two ends far apart misses
-        at both. After a new best the phase may run on again, and its time left grows back."""
+        more counts without one after s without one is (s + 1) / (P + 1), at least one half
+        (:data:`LIKELIER`) from s = (P - 1) / 2 on. The likelier end, not the mean of the two: the
+        time left is promised within a part of the truth (:data:`ETA_CHECK`), which a mean of two
+        ends far apart misses at both. After a new best the phase may run on again, and its time
+        left grows back."""
         current, phase = self.current, self.phase
         last = current.last[1] if current.last is not None else 0
         patience = phase.patience if current.patience is None else current.patience
-        if patience and current.since_best is not None and held_to_patience(current.since_best, patience) >= 0.5:
+        if patience and current.since_best is not None and held_to_patience(current.since_best, patience) >= LIKELIER:
             stop = min(current.total, max(last + patience - max(current.since_best, 0), phase.ends_from, last))
             return self._work(last, stop)
         return self._work(last, current.total)
