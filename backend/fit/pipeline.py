@@ -47,8 +47,8 @@ import numpy as np
 import torch
 
 from ..core import priors
-from ..core.progress import SPARSE_STEP_COST
 from ..core.params import FabricParams
+from ..core.progress import SPARSE_STEP_COST
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
 from ..texture.candidates import Candidate
