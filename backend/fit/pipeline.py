@@ -13,8 +13,9 @@ taking the values the one before returned.
                fine): Adam on the continuous parameters and, where it is estimated, the camera blur;
                after ``first_search`` iterations and then every ``search_every`` the photos' uneven
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
-               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); it ends
-               early once the best loss stops moving (:func:`converged`)
+               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); its first
+               ``sparse_fraction`` of the steps render a quarter of the samples, a new jitter each
+               (:func:`_optimise`); it ends early once the best loss stops moving (:func:`converged`)
     coarse to fine
                with a working size above BASE_SIZE (dense weaves), the search runs at BASE_SIZE with
                the same samples per image, its camera blur on sub-pixels (:func:`_coarse`), and only
@@ -135,7 +136,9 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
-    sparse = _sparse_objectives(reflection, transmission, rig, settings) if settings.sparse_fraction > 0 else []
+    # the compiled renderer takes no sparse steps: their shapes would cost a compile of their own
+    sparse = _sparse_objectives(reflection, transmission, rig, settings) \
+        if settings.sparse_fraction > 0 and not settings.compile else []
     steps = _optimise(run, settings, check_stop, progress, duel_steps, sparse)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["warp_s"] = run.warp_s  # of optimise_s
