@@ -30,6 +30,7 @@ harmonic amplitudes above a noise floor, L1 of the quantiles.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -189,11 +190,19 @@ def log_spectrum(image: torch.Tensor, keep: float = SPECTRUM_KEEP) -> torch.Tens
     # The power's blur (gaussian_blur's matrix products, B P B^T) at the kept bins only: B's rows of the band.
     rows = blur_matrix(n, SPECTRUM_POWER_BLUR, n - 1, power.dtype, power.device)[n // 2 - half: n // 2 + half]
     band = rows @ power @ rows.T
-    mask = torch.ones_like(band, dtype=torch.bool)
-    d = SPECTRUM_DC_HALF
-    mask[half - d: half + d + 1, half - d: half + d + 1] = False
-    values = torch.log(band[mask] + 1e-12)
+    values = torch.log(band.reshape(-1)[_kept_bins(2 * half, SPECTRUM_DC_HALF, band.device)] + 1e-12)
     return (values - values.mean()) / (values.std() + 1e-8)
+
+
+@functools.lru_cache(maxsize=8)
+def _kept_bins(side: int, dc_half: int, device: torch.device) -> torch.Tensor:
+    """Flat indices, in row-major order, of a (side, side) band's bins without the (2 dc_half + 1)^2
+    around its centre: made once on the CPU (a boolean mask's indexing would wait for the device at
+    every loss evaluation to learn how many bins it keeps)."""
+    mask = torch.ones(side, side, dtype=torch.bool, device="cpu")
+    centre = side // 2
+    mask[centre - dc_half: centre + dc_half + 1, centre - dc_half: centre + dc_half + 1] = False
+    return mask.reshape(-1).nonzero()[:, 0].to(device)
 
 
 def describe(image: torch.Tensor, probe: LatticeProbe, gamma: float = 2.2) -> Descriptor:
