@@ -42,8 +42,9 @@ PIXEL_OUTLIER_SHARE = 0.005     # ...and at most this share of the pixels are
 # shifts by value, so rounding may move a little of the gradient between neighbours.
 GRADIENT_COSINE_MIN = 0.999     # cosine between the two gradients over all optimised parameters
 GRADIENT_NORM_TOLERANCE = 0.01  # relative difference of their norms, and of the camera blur's gradient
-# Waits for the device in one Adam step at most: the loss (1), the light falloff's block means (1), the
-# camera blur's kernel radius (1) and, at a new best, its terms, parameters and blur (3); 2 to spare.
+# Waits for the device in one Adam step at most: the loss (1), the light falloff's block means and its
+# coefficients back (2), the camera blur's kernel radius (1) and, at a new best, its terms, parameters
+# and blur (3); 1 to spare.
 MAX_SYNCS_PER_STEP = 8
 
 

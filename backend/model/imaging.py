@@ -149,7 +149,7 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     mirror-padded by ``radius`` ("reflect": the edge sample is not repeated, as in
     :func:`blur_matrix`), evaluated every ``stride`` pixels: :func:`gaussian_blur` with a Gaussian's
     taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2."""
-    kernel = taps if isinstance(taps, torch.Tensor) else torch.tensor(taps, dtype=image.dtype, device=image.device)
+    kernel = taps if isinstance(taps, torch.Tensor) else _kernel(tuple(taps), image.dtype, image.device)
     channels = image.shape[2]
     planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
     planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, stride),
@@ -157,6 +157,13 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
                       groups=channels)
     return planes[0].permute(1, 2, 0)
+
+
+@functools.lru_cache(maxsize=32)
+def _kernel(taps: tuple[float, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """Taps as a tensor, made once per device: a copy to a GPU at every blur would wait for it. Read
+    it, never write to it."""
+    return torch.tensor(taps, dtype=dtype, device=device)
 
 
 @functools.lru_cache(maxsize=32)

@@ -57,13 +57,15 @@ class PhotoLight:
     def gain(self, photo: int, size: int, dtype=torch.float32, device="cpu") -> torch.Tensor:
         """(size, size) linear gain of photo 0 (reflection) or 1 (transmission)."""
         c = torch.tensor(self.reflection if photo == 0 else self.transmission, dtype=dtype, device=device)
-        return torch.exp(torch.einsum("k,kij->ij", c, basis(size, dtype, device)))
+        return _gain(c, size)
 
     def apply(self, reflection: torch.Tensor, transmission: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The two (size, size, 3) linear radiance images under the photos' light."""
         if self.flat:
             return reflection, transmission
-        return tuple(image * self.gain(k, image.shape[0], image.dtype, image.device)[..., None]
+        # both photos' coefficients in one copy to the images' device (each copy to a GPU waits for it)
+        c = torch.tensor((self.reflection, self.transmission), dtype=reflection.dtype, device=reflection.device)
+        return tuple(image * _gain(c[k], image.shape[0])[..., None]
                      for k, image in enumerate((reflection, transmission)))
 
     @property
@@ -79,6 +81,11 @@ class PhotoLight:
         if not data:
             return cls()
         return cls(*(tuple(float(c) for c in data[k]) for k in ("reflection", "transmission")))
+
+
+def _gain(c: torch.Tensor, size: int) -> torch.Tensor:
+    """(size, size) linear gain exp(c . basis) of the coefficients ``c`` (3,)."""
+    return torch.exp(torch.einsum("k,kij->ij", c, basis(size, c.dtype, c.device)))
 
 
 def linear_photo(display: torch.Tensor, gamma: float, vignette: torch.Tensor | None

@@ -49,7 +49,13 @@ MIN_FLOOR = 1e-3  # modulation depth below which harmonics are treated as noise
 
 
 def luminance(image: torch.Tensor) -> torch.Tensor:
-    return image @ torch.tensor(LUMA, dtype=image.dtype, device=image.device)
+    return image @ _luma(image.dtype, image.device)
+
+
+@functools.lru_cache(maxsize=8)
+def _luma(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """LUMA as a tensor, made once per device (a copy to a GPU at every use would wait for it)."""
+    return torch.tensor(LUMA, dtype=dtype, device=device)
 
 
 def colour16(image: torch.Tensor) -> torch.Tensor:
@@ -126,6 +132,7 @@ class LatticeProbe:
                                for j in range(regions)] for i in range(regions)], dtype=torch.float64)
         self.column_means = (band / areas[..., None]).to(device=device, dtype=dtype)  # (i, j, x)
         self.dtype = dtype
+        self._orders: tuple[torch.Tensor, torch.Tensor] | None = None  # the harmonics' m and n (phase_ramp)
 
     def __call__(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(coefficients / region mean (regions^2, harmonics, 3), complex; noise floor (regions^2, 1, 3))."""
@@ -152,8 +159,10 @@ class LatticeProbe:
 
     def phase_ramp(self, dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
         """e^{2 pi i (m dx + n dy)} for translations (dx, dy) in tile units: (..., harmonics)."""
-        m = torch.tensor([h[0] for h in self.harmonics], dtype=torch.float32, device=dx.device)
-        n = torch.tensor([h[1] for h in self.harmonics], dtype=torch.float32, device=dx.device)
+        if self._orders is None or self._orders[0].device != dx.device:  # made once: a copy to a GPU waits for it
+            self._orders = (torch.tensor([h[0] for h in self.harmonics], dtype=torch.float32, device=dx.device),
+                            torch.tensor([h[1] for h in self.harmonics], dtype=torch.float32, device=dx.device))
+        m, n = self._orders
         return torch.polar(torch.ones(1, device=dx.device), 2 * math.pi * (dx[..., None] * m + dy[..., None] * n))
 
 
