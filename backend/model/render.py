@@ -119,6 +119,14 @@ COMPILE_OPTIONS = {"max_fusion_size": 256}
 EAGER_BLOCK_SAMPLES = 1 << 17
 
 
+def full_precision_convolutions() -> None:
+    """cuDNN's float32 convolutions in full precision, not TF32 (its default on recent GPUs: a 10-bit
+    mantissa, about 1e-3 relative). The camera blur is such a convolution, and nothing of the model is
+    measured in reduced precision: its gradient tests (against the float64 reference) allow float32
+    rounding only. Process-wide: torch has no per-call switch."""
+    torch.backends.cudnn.conv.fp32_precision = "ieee"
+
+
 class Renderer:
     """Renders (reflection, transmission) pairs of one rig, size, sample count and jitter seed."""
 
@@ -128,6 +136,8 @@ class Renderer:
                  compile: bool = False, subpixel_blur: bool | None = False,
                  gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
+        if self.device.type == "cuda":
+            full_precision_convolutions()
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
         self.size, self.spp = size, spp
         self.ranges = self.camera.row_chunks(max_chunk_samples)
