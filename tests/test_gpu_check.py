@@ -175,3 +175,16 @@ def test_asked_for_without_cuda_the_gpu_tests_fail_loudly():
 def test_the_render_step_names_say_which_is_the_baseline():
     assert render_step("cuda") == "render on cuda"
     assert render_step("cpu", 2) == "render on cpu (2 threads)"
+
+
+def test_the_command_refuses_a_device_this_machine_lacks(tmp_path, capsys, monkeypatch):
+    from devtools.cli.main import main
+
+    monkeypatch.setattr("torch.cuda.is_available", lambda: False)
+    assert main(["gpu-check", "--out", str(tmp_path / "out"), "--no-record"]) == 2  # the default: cuda
+    assert "--device cuda: CUDA is not available" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+    # the bench's --device goes to the fits, once
+    assert main(["bench", "fit", "--real", str(tmp_path), "--device", "cpu", "--fit-args", "--device cpu",
+                 "--no-record"]) == 2
+    assert "give the device once" in capsys.readouterr().err
