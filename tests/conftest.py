@@ -75,9 +75,54 @@ def build_module():
     return module
 
 
-def pytest_collection_modifyitems(items):
+def pytest_collection_modifyitems(config, items):
     """Tests marked ``slow`` run first (in their collected order), the rest after them: pytest-xdist
     hands out tests in list order, so a minute-long test collected late would run alone at the end
     while the other workers wait for it. Under ``-n 0`` a module's slow tests leave its other tests
-    apart, so its module-scoped fixtures are built twice (a render or two: cheaper than the idle tail)."""
+    apart, so its module-scoped fixtures are built twice (a render or two: cheaper than the idle tail).
+
+    Tests marked ``gpu`` are deselected where no CUDA device is present, unless the marker expression
+    names them (``-m gpu``: then they run and fail, saying there is no device); the terminal summary
+    says how many were not run (:func:`pytest_terminal_summary`)."""
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    if cuda_present() or gpu_requested(config):
+        return
+    gpu = [item for item in items if item.get_closest_marker("gpu") is not None]
+    if gpu:
+        config.hook.pytest_deselected(items=gpu)
+        items[:] = [item for item in items if item.get_closest_marker("gpu") is None]
+    _GPU_NOT_RUN["count"] = max(_GPU_NOT_RUN["count"], len(gpu))
+    if hasattr(config, "workeroutput"):  # a pytest-xdist worker: the controller prints the summary
+        config.workeroutput[GPU_NOT_RUN_KEY] = len(gpu)
+
+
+GPU_NOT_RUN_KEY = "gpu_tests_not_run"  # the count a pytest-xdist worker hands its controller
+_GPU_NOT_RUN = {"count": 0}  # GPU tests deselected in this session (the most any worker collected)
+GPU_CHECK = "python -m devtools gpu-check"  # runs them, with the GPU benchmarks, on a machine with CUDA
+
+
+def cuda_present() -> bool:
+    import torch  # here, not at the top: OMP_NUM_THREADS is set above before torch is first imported
+
+    return torch.cuda.is_available()
+
+
+def gpu_requested(config) -> bool:
+    """Whether the marker expression (``-m``) names the ``gpu`` marker: the caller asked for them."""
+    return "gpu" in (config.getoption("markexpr", default="") or "")
+
+
+def gpu_not_run_line(count: int) -> str:
+    return (f"{count} GPU test(s) NOT RUN: no CUDA device is present (deselected; tests marked gpu). "
+            f"On a machine with CUDA run them with `{GPU_CHECK}` (or `pytest -m gpu`).")
+
+
+def pytest_testnodedown(node, error):
+    """pytest-xdist, on the controller: a worker's count of GPU tests it deselected."""
+    count = getattr(node, "workeroutput", {}).get(GPU_NOT_RUN_KEY, 0)
+    _GPU_NOT_RUN["count"] = max(_GPU_NOT_RUN["count"], count)
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _GPU_NOT_RUN["count"]:
+        terminalreporter.write_sep("=", gpu_not_run_line(_GPU_NOT_RUN["count"]), yellow=True, bold=True)

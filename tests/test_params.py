@@ -159,3 +159,30 @@ def test_parameters_at_a_bound_are_named_by_component():
         "roughness (warp) = 1 (upper bound)", "thickness (warp) = 0.01 (lower bound)",
         "specular_albedo (warp, r) = 0 (lower bound)"]
     assert FabricParams().at_bounds([s.name for s in PARAMETERS if s.optimised]) == []
+
+
+
+def _read_afresh(t: ParamTensors) -> FabricParams:
+    """What to_params gave before it kept host copies: every tensor read now."""
+    return FabricParams.clamped_from(pattern=t.pattern, weave=t.weave,
+                                     **{n: v.detach().tolist() for n, v in t.values.items()})
+
+
+def test_host_values_follow_every_in_place_change_of_the_tensors():
+    """ParamTensors keeps host copies of the values it read (a GPU fit reads the discrete parameters at
+    every step), by tensor version: an optimiser step, a copy_ or an item set is seen at the next read."""
+    t = ParamTensors.from_params(FabricParams.from_interchange(EXAMPLE), requires_grad=["roughness"])
+    assert t.to_params() == _read_afresh(t) and t.scalar("tiles") == tuple(t.values["tiles"].tolist())
+    with torch.no_grad():
+        t.values["tiles"].copy_(torch.tensor([50.0, 60.0]))
+        t.values["gap_scale"][1] = 0.5
+        t.values["noise"].fill_(1.0)
+    assert t.scalar("tiles") == (50.0, 60.0) and t.scalar("gap_scale")[1] == 0.5 and t.scalar("noise") == 1.0
+    before = t.scalar("roughness")
+    optimiser = torch.optim.SGD([t.values["roughness"]], lr=0.1)
+    t.values["roughness"].sum().backward()
+    optimiser.step()
+    assert t.scalar("roughness") != before and t.scalar("roughness") == tuple(t.values["roughness"].tolist())
+    assert t.to_params() == _read_afresh(t)  # nested (2, 3) values keep their shape
+    other = t.with_values(tiles=torch.tensor([70.0, 80.0]))
+    assert other.scalar("tiles") == (70.0, 80.0) and t.scalar("tiles") == (50.0, 60.0)

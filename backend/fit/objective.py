@@ -30,7 +30,7 @@ from ..core.rig import CaptureRig
 from ..image.metrics import spectrum_corr
 from ..model.imaging import downsample_linear
 from ..model.param_tensors import ParamTensors
-from ..model.photo_light import PhotoLight, linear_photo, solve
+from ..model.photo_light import PhotoLight, block_means, linear_photo, solve_blocks
 from ..model.render import RenderedPair, Renderer
 from ..texture.features import Descriptor, LatticeProbe, LossWeights, describe, descriptor_terms, luminance
 from ..texture.frequencies import lattice_of
@@ -99,9 +99,9 @@ class Objective:
         if not self.fit_light:
             return PhotoLight()
         renders = (reflection.detach(), transmission.detach())
-        solved = [solve(luminance(render), (render < self.rig.clamp).all(dim=-1), photo, photo_ok)
-                  for render, (photo, photo_ok) in zip(renders, self._photo_linear())]
-        return PhotoLight(*solved)
+        means = torch.stack([block_means(luminance(render), (render < self.rig.clamp).all(dim=-1), photo, photo_ok)
+                             for render, (photo, photo_ok) in zip(renders, self._photo_linear())])
+        return PhotoLight(*(solve_blocks(m) for m in means.cpu()))  # one copy from the device per render
 
     def rendered(self, fabric: ParamTensors | FabricParams, camera_blur_px: float | torch.Tensor | None = None
                  ) -> tuple[RenderedPair, PhotoLight]:

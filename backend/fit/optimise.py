@@ -135,14 +135,14 @@ class Run:
         self.optimiser.zero_grad(set_to_none=True)
         terms = self.objective.terms(self.fabric, self._blur if self.estimates_blur else self.camera_blur_px)
         loss = terms["loss"]
-        value = float(loss.detach())
+        value = float(loss.detach())  # the step's one wait for the device (on a GPU)
         if not math.isfinite(value):
-            bad = ", ".join(k for k, v in terms.items() if not math.isfinite(as_float(v)))
+            bad = ", ".join(k for k, v in _on_host(terms).items() if not math.isfinite(v))
             raise FloatingPointError(f"the fit's loss is not finite ({bad}) at "
                                      f"{self.fabric.to_params().to_interchange()}")
         loss.backward()
         if value < self.best_loss:  # the parameters that produced this loss (before the step)
-            self._keep_best(value, {k: as_float(v) for k, v in terms.items()})
+            self._keep_best(value, _on_host(terms))
         self.optimiser.step()
         self.fabric.clamp_()
         if self.estimates_blur:
@@ -187,7 +187,7 @@ class Run:
                                       copy.deepcopy(self.optimiser.state_dict()), self.camera_blur_px,
                                       (self.best_loss, self.best, self.best_blur, self.best_terms))
         with torch.no_grad():
-            self.fabric.values["tiles"].copy_(torch.tensor(tiles))
+            self.fabric.values["tiles"].copy_(torch.tensor(tiles, device=self.fabric.values["tiles"].device))
         self.best_loss = math.inf  # the best so far was under the warp before; what the trial finds is under this one
 
     def _stretch_kept(self, tiles: tuple[float, float]) -> tuple[float, float]:
@@ -267,6 +267,13 @@ class Run:
 
         self.camera_blur_px, current = parabolic_step(loss_at, self.camera_blur_px, current, span, clamped)
         return current
+
+
+def _on_host(terms: dict[str, torch.Tensor]) -> dict[str, float]:
+    """The loss terms as numbers, brought from the device in one copy (each ``float`` of a GPU tensor
+    is a copy of its own, and a wait)."""
+    values = torch.stack([v.detach().reshape(()) for v in terms.values()]).cpu().tolist()
+    return dict(zip(terms, values))
 
 
 def parabolic_step(loss_at: Callable[[float], float], x: float, current: float, span: float,

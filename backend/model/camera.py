@@ -73,8 +73,9 @@ class CameraSamples:
         """
         draws = []
         for row in range(row0, row1):
-            gen = torch.Generator().manual_seed(rng.hash32_int(self.seed * 1_000_003 + row))
-            draws.append(torch.rand((2, self.size, self.spp), generator=gen, dtype=torch.float64))
+            # drawn on the CPU whatever the device (and the default device): the same jitter everywhere
+            gen = torch.Generator(device="cpu").manual_seed(rng.hash32_int(self.seed * 1_000_003 + row))
+            draws.append(torch.rand((2, self.size, self.spp), generator=gen, dtype=torch.float64, device="cpu"))
         u = torch.stack(draws, 1).to(self.device)  # (2, rows, size, spp)
         k = math.isqrt(self.spp)
         sample = torch.arange(self.spp, dtype=torch.int64, device=self.device)

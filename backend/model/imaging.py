@@ -38,7 +38,7 @@ NO_BLUR_PX = 1e-3  # a Gaussian blur this narrow or narrower is none (the identi
 CONV_TAPS_PER_PIXEL = 0.1  # the convolution where a kernel's taps are at most this share of the image's side
 
 
-def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Tensor:
+def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor, value: float | None = None) -> torch.Tensor:
     """Separable Gaussian blur of an (H, W, C) image, standard deviation ``sigma`` pixels, with
     mirrored borders (differentiable; the identity for sigma <= 0): the weights
     exp(-t^2 / 2 sigma^2) / sum over |t| <= radius = ceil(3 sigma) (at most min(H, W) - 1).
@@ -56,12 +56,16 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
       for colour images whose kernel has at most CONV_TAPS_PER_PIXEL taps per pixel of the side:
       faster for the camera's short kernels. On a single plane (the spectrum's blurs) PyTorch's
       convolution is the slower, so one channel keeps the products.
+
+    ``value``: a tensor ``sigma``'s value where the caller has read it already (each read of a GPU
+    tensor waits for the device).
     """
-    if sigma <= NO_BLUR_PX:
+    value = as_float(sigma) if value is None else value
+    if value <= NO_BLUR_PX:
         return image
     height, width = image.shape[0], image.shape[1]
     limit = min(height, width) - 1  # one radius for both axes, as the add-on's preview blur
-    radius = blur_radius(as_float(sigma), limit)
+    radius = blur_radius(value, limit)
     if isinstance(sigma, torch.Tensor):
         return _convolved(image, gaussian_taps(sigma, radius, image.dtype), radius)
     if image.shape[2] > 1 and 2 * radius + 1 <= CONV_TAPS_PER_PIXEL * min(height, width):
@@ -69,7 +73,7 @@ def gaussian_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
     return gaussian_blur_products(image, sigma)
 
 
-def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Tensor:
+def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor, value: float | None = None) -> torch.Tensor:
     """The camera blur of ``sigma`` pixels acting on an image of sub-pixels (2 H, 2 W, C): blurred
     there (``2 sigma`` sub-pixels, :func:`gaussian_blur`), then each pixel the mean of its 2 x 2
     (H, W, C), as a sensor integrates the light the optics blurred.
@@ -81,10 +85,12 @@ def subpixel_blur(image: torch.Tensor, sigma: float | torch.Tensor) -> torch.Ten
     0.24): a false lattice. And a Gaussian's weights sampled at whole pixels pass f at its response
     folded about the pixel grid, G(f) + G(1 - f): twice the optics' at Nyquist. On sub-pixels both
     folds move to 1 cycle per pixel, where the Gaussian has nothing left (tests/test_render.py).
+    ``value``: as :func:`gaussian_blur`'s.
     """
-    if sigma <= NO_BLUR_PX:
+    value = as_float(sigma) if value is None else value
+    if value <= NO_BLUR_PX:
         return _pooled(image)
-    radius = blur_radius(2.0 * as_float(sigma), min(image.shape[0], image.shape[1]) - 1)
+    radius = blur_radius(2.0 * value, min(image.shape[0], image.shape[1]) - 1)
     # The blur and the 2 x 2 mean in one kernel (the Gaussian's taps convolved with (1/2, 1/2)),
     # evaluated at every other sub-pixel: the same sums as subpixel_blur_reference's, and the whole
     # blurred sub-pixel image is never made.
@@ -143,7 +149,7 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     mirror-padded by ``radius`` ("reflect": the edge sample is not repeated, as in
     :func:`blur_matrix`), evaluated every ``stride`` pixels: :func:`gaussian_blur` with a Gaussian's
     taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2."""
-    kernel = taps if isinstance(taps, torch.Tensor) else torch.tensor(taps, dtype=image.dtype, device=image.device)
+    kernel = taps if isinstance(taps, torch.Tensor) else _kernel(tuple(taps), image.dtype, image.device)
     channels = image.shape[2]
     planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
     planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, stride),
@@ -151,6 +157,13 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
                       groups=channels)
     return planes[0].permute(1, 2, 0)
+
+
+@functools.lru_cache(maxsize=32)
+def _kernel(taps: tuple[float, ...], dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """Taps as a tensor, made once per device: a copy to a GPU at every blur would wait for it. Read
+    it, never write to it."""
+    return torch.tensor(taps, dtype=dtype, device=device)
 
 
 @functools.lru_cache(maxsize=32)

@@ -25,6 +25,8 @@ class ParamTensors:
         self.pattern = pattern
         self.weave = weave
         self.values = values
+        # name -> (tensor, its version, its values as a flat list): host copies of the values read last
+        self._host: dict[str, tuple[torch.Tensor, int, list[float]]] = {}
 
     @classmethod
     def from_params(cls, params: FabricParams, device="cpu", dtype=torch.float32,
@@ -45,14 +47,39 @@ class ParamTensors:
             return values[name]
         raise AttributeError(name)
 
+    def host(self, names: Iterable[str] | None = None) -> dict[str, list[float]]:
+        """The values of some parameters (None: all) as flat lists of Python floats.
+
+        On a GPU every read of a value is a wait for the device, so a value is copied to the host
+        only where its tensor changed since it was last read here (its version counter moves with
+        every in-place change: an optimiser step, a ``copy_``, an item set), and the values that
+        did change come over in one copy. A render reads the discrete parameters (tiles, gap scale,
+        twist, noise) on the host at every step; they change only at a discrete search."""
+        names = list(self.values) if names is None else list(names)
+        stale = []
+        for name in names:
+            t = self.values[name]
+            kept = self._host.get(name)
+            if kept is None or kept[0] is not t or kept[1] != t._version:
+                stale.append(name)
+        if stale:
+            tensors = [self.values[n].detach() for n in stale]
+            flat = torch.cat([t.reshape(-1) for t in tensors]).cpu().tolist()
+            start = 0
+            for name, t in zip(stale, tensors):
+                self._host[name] = (self.values[name], self.values[name]._version, flat[start:start + t.numel()])
+                start += t.numel()
+        return {name: self._host[name][2] for name in names}
+
     def scalar(self, name: str) -> tuple[float, ...] | float:
         """Detached Python value(s) of a parameter (for the non-differentiable lookups)."""
-        t = self.values[name].detach().cpu()
-        return tuple(t.tolist()) if t.ndim else float(t)
+        values = self.host((name,))[name]
+        return tuple(values) if self.values[name].ndim else values[0]
 
     def to_params(self) -> FabricParams:
         """Back to a validated FabricParams (clamped into range)."""
-        values = {name: t.detach().cpu().tolist() for name, t in self.values.items()}
+        flat = self.host()
+        values = {name: _shaped(flat[name], t.shape) for name, t in self.values.items()}
         return FabricParams.clamped_from(pattern=self.pattern, weave=self.weave, **values)
 
     @torch.no_grad()
@@ -74,3 +101,13 @@ class ParamTensors:
                 raise ParamError(f"{name}: unknown parameter")
             values[name] = value
         return ParamTensors(self.pattern, self.weave, values)
+
+
+def _shaped(flat: list[float], shape: torch.Size):
+    """A flat list of values back in a tensor's shape, as ``tolist()`` gives it (a float for a 0-d one)."""
+    if not shape:
+        return flat[0]
+    if len(shape) == 1:
+        return list(flat)
+    step = len(flat) // shape[0]
+    return [_shaped(flat[i * step:(i + 1) * step], shape[1:]) for i in range(shape[0])]

@@ -57,13 +57,15 @@ class PhotoLight:
     def gain(self, photo: int, size: int, dtype=torch.float32, device="cpu") -> torch.Tensor:
         """(size, size) linear gain of photo 0 (reflection) or 1 (transmission)."""
         c = torch.tensor(self.reflection if photo == 0 else self.transmission, dtype=dtype, device=device)
-        return torch.exp(torch.einsum("k,kij->ij", c, basis(size, dtype, device)))
+        return _gain(c, size)
 
     def apply(self, reflection: torch.Tensor, transmission: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The two (size, size, 3) linear radiance images under the photos' light."""
         if self.flat:
             return reflection, transmission
-        return tuple(image * self.gain(k, image.shape[0], image.dtype, image.device)[..., None]
+        # both photos' coefficients in one copy to the images' device (each copy to a GPU waits for it)
+        c = torch.tensor((self.reflection, self.transmission), dtype=reflection.dtype, device=reflection.device)
+        return tuple(image * _gain(c[k], image.shape[0])[..., None]
                      for k, image in enumerate((reflection, transmission)))
 
     @property
@@ -81,6 +83,11 @@ class PhotoLight:
         return cls(*(tuple(float(c) for c in data[k]) for k in ("reflection", "transmission")))
 
 
+def _gain(c: torch.Tensor, size: int) -> torch.Tensor:
+    """(size, size) linear gain exp(c . basis) of the coefficients ``c`` (3,)."""
+    return torch.exp(torch.einsum("k,kij->ij", c, basis(size, c.dtype, c.device)))
+
+
 def linear_photo(display: torch.Tensor, gamma: float, vignette: torch.Tensor | None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """(linear radiance, unclipped mask) of a display-space photo (size, size, 3) taken through the
@@ -96,17 +103,31 @@ def solve(render: torch.Tensor, render_ok: torch.Tensor, photo: torch.Tensor, ph
     """(c_x, c_y, c_r) fitting log(photo / render) over the BLOCKS x BLOCKS blocks where neither is
     clipped nor black. ``render`` and ``photo`` are (size, size) linear luminances, the masks are True
     where a pixel is usable."""
+    return solve_blocks(block_means(render, render_ok, photo, photo_ok).cpu())
+
+
+def block_means(render: torch.Tensor, render_ok: torch.Tensor, photo: torch.Tensor, photo_ok: torch.Tensor
+                ) -> torch.Tensor:
+    """(3, BLOCKS^2) float64 on the images' device: per block the share of usable pixels, the render's
+    and the photo's mean (:func:`solve`'s inputs reduced to what the least squares read)."""
     with torch.no_grad():
         def blocks(image):
             return F.adaptive_avg_pool2d(image[None, None].double(), BLOCKS)[0, 0].ravel()
 
-        ok = blocks((render_ok & photo_ok).double()) > 0.99
-        r, p = blocks(render), blocks(photo)
+        return torch.stack((blocks((render_ok & photo_ok).double()), blocks(render), blocks(photo)))
+
+
+def solve_blocks(means: torch.Tensor) -> tuple[float, float, float]:
+    """:func:`solve` from its :func:`block_means`, on the CPU: a fit on a GPU brings the block means of
+    both photos over in one copy (16 x 16 blocks: a least-squares problem too small for a device)."""
+    with torch.no_grad():
+        usable, r, p = means
+        ok = usable > 0.99
         ok &= (r > DARK) & (p > DARK)
         if int(ok.sum()) < 16:  # too little of the image to see a falloff on
             return NO_LIGHT
-        design = torch.cat((torch.ones(1, BLOCKS, BLOCKS, dtype=torch.float64),
-                            basis(BLOCKS, torch.float64)), 0).reshape(4, -1).T[ok]
+        design = torch.cat((torch.ones(1, BLOCKS, BLOCKS, dtype=torch.float64, device=means.device),
+                            basis(BLOCKS, torch.float64, means.device)), 0).reshape(4, -1).T[ok]
         ratio = (torch.log(p) - torch.log(r))[ok]
         coefficients = torch.linalg.lstsq(design, ratio[:, None]).solution[1:, 0]
         return tuple(float(c) for c in coefficients.clamp(-LIMIT, LIMIT))

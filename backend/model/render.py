@@ -79,7 +79,7 @@ from .compile_cache import allow_cached_custom_gradients, use_persistent_compile
 from .geometry import GeometryKey, TileBands, sample_geometry, tile_bands, twisted_fibers
 from .imaging import NO_BLUR_PX, display_transform, gaussian_blur, subpixel_blur
 from .layers import WeaveLookup
-from .param_tensors import ParamTensors
+from .param_tensors import ParamTensors, as_float
 from .photo_light import PhotoLight
 from .projections import SampleProjections, project, retwisted
 from .spacing_warp import SpacingWarp
@@ -119,6 +119,14 @@ COMPILE_OPTIONS = {"max_fusion_size": 256}
 EAGER_BLOCK_SAMPLES = 1 << 17
 
 
+def full_precision_convolutions() -> None:
+    """cuDNN's float32 convolutions in full precision, not TF32 (its default on recent GPUs: a 10-bit
+    mantissa, about 1e-3 relative). The camera blur is such a convolution, and nothing of the model is
+    measured in reduced precision: its gradient tests (against the float64 reference) allow float32
+    rounding only. Process-wide: torch has no per-call switch."""
+    torch.backends.cudnn.conv.fp32_precision = "ieee"
+
+
 class Renderer:
     """Renders (reflection, transmission) pairs of one rig, size, sample count and jitter seed."""
 
@@ -128,6 +136,8 @@ class Renderer:
                  compile: bool = False, subpixel_blur: bool | None = False,
                  gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
+        if self.device.type == "cuda":
+            full_precision_convolutions()
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
         self.size, self.spp = size, spp
         self.ranges = self.camera.row_chunks(max_chunk_samples)
@@ -364,11 +374,12 @@ class Renderer:
             fabric = ParamTensors.from_params(fabric, self.device, self.dtype)
         blur = self.rig.camera_blur_px if camera_blur_px is None else camera_blur_px
         sigma = blur * self.size / self.rig.film_size
-        if sigma <= NO_BLUR_PX or sigma >= self._subpixel_below or not self.subpixel:
+        value = as_float(sigma)  # read once: on a GPU each read of a tensor waits for the device
+        if value <= NO_BLUR_PX or value >= self._subpixel_below or not self.subpixel:
             r, t = self._radiance_once(fabric, progress)
-            return gaussian_blur(r, sigma), gaussian_blur(t, sigma)
+            return gaussian_blur(r, sigma, value), gaussian_blur(t, sigma, value)
         r, t = self._radiance_once(fabric, progress, fine=True)
-        return subpixel_blur(r, sigma), subpixel_blur(t, sigma)
+        return subpixel_blur(r, sigma, value), subpixel_blur(t, sigma, value)
 
     def _radiance_once(self, fabric: ParamTensors, progress=None, fine: bool = False
                        ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -377,8 +388,7 @@ class Renderer:
         step) render one parameter set at up to seven blurs, and the blur comes after the radiance."""
         if not self._keep or (torch.is_grad_enabled() and any(v.requires_grad for v in fabric.values.values())):
             return self.radiance(fabric, progress, fine)
-        key = (fabric.pattern, fabric.weave, tuple((name, value.detach().cpu().flatten().tolist())
-                                                   for name, value in fabric.values.items()))
+        key = (fabric.pattern, fabric.weave, tuple((name, tuple(values)) for name, values in fabric.host().items()))
         if self._last_radiance is None or self._last_radiance[0] != key:
             self._last_radiance = (key, {})
         kept = self._last_radiance[1]

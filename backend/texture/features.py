@@ -30,6 +30,7 @@ harmonic amplitudes above a noise floor, L1 of the quantiles.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -48,7 +49,13 @@ MIN_FLOOR = 1e-3  # modulation depth below which harmonics are treated as noise
 
 
 def luminance(image: torch.Tensor) -> torch.Tensor:
-    return image @ torch.tensor(LUMA, dtype=image.dtype, device=image.device)
+    return image @ _luma(image.dtype, image.device)
+
+
+@functools.lru_cache(maxsize=8)
+def _luma(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """LUMA as a tensor, made once per device (a copy to a GPU at every use would wait for it)."""
+    return torch.tensor(LUMA, dtype=dtype, device=device)
 
 
 def colour16(image: torch.Tensor) -> torch.Tensor:
@@ -125,6 +132,7 @@ class LatticeProbe:
                                for j in range(regions)] for i in range(regions)], dtype=torch.float64)
         self.column_means = (band / areas[..., None]).to(device=device, dtype=dtype)  # (i, j, x)
         self.dtype = dtype
+        self._orders: tuple[torch.Tensor, torch.Tensor] | None = None  # the harmonics' m and n (phase_ramp)
 
     def __call__(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(coefficients / region mean (regions^2, harmonics, 3), complex; noise floor (regions^2, 1, 3))."""
@@ -151,8 +159,10 @@ class LatticeProbe:
 
     def phase_ramp(self, dx: torch.Tensor, dy: torch.Tensor) -> torch.Tensor:
         """e^{2 pi i (m dx + n dy)} for translations (dx, dy) in tile units: (..., harmonics)."""
-        m = torch.tensor([h[0] for h in self.harmonics], dtype=torch.float32, device=dx.device)
-        n = torch.tensor([h[1] for h in self.harmonics], dtype=torch.float32, device=dx.device)
+        if self._orders is None or self._orders[0].device != dx.device:  # made once: a copy to a GPU waits for it
+            self._orders = (torch.tensor([h[0] for h in self.harmonics], dtype=torch.float32, device=dx.device),
+                            torch.tensor([h[1] for h in self.harmonics], dtype=torch.float32, device=dx.device))
+        m, n = self._orders
         return torch.polar(torch.ones(1, device=dx.device), 2 * math.pi * (dx[..., None] * m + dy[..., None] * n))
 
 
@@ -189,11 +199,19 @@ def log_spectrum(image: torch.Tensor, keep: float = SPECTRUM_KEEP) -> torch.Tens
     # The power's blur (gaussian_blur's matrix products, B P B^T) at the kept bins only: B's rows of the band.
     rows = blur_matrix(n, SPECTRUM_POWER_BLUR, n - 1, power.dtype, power.device)[n // 2 - half: n // 2 + half]
     band = rows @ power @ rows.T
-    mask = torch.ones_like(band, dtype=torch.bool)
-    d = SPECTRUM_DC_HALF
-    mask[half - d: half + d + 1, half - d: half + d + 1] = False
-    values = torch.log(band[mask] + 1e-12)
+    values = torch.log(band.reshape(-1)[_kept_bins(2 * half, SPECTRUM_DC_HALF, band.device)] + 1e-12)
     return (values - values.mean()) / (values.std() + 1e-8)
+
+
+@functools.lru_cache(maxsize=8)
+def _kept_bins(side: int, dc_half: int, device: torch.device) -> torch.Tensor:
+    """Flat indices, in row-major order, of a (side, side) band's bins without the (2 dc_half + 1)^2
+    around its centre: made once on the CPU (a boolean mask's indexing would wait for the device at
+    every loss evaluation to learn how many bins it keeps)."""
+    mask = torch.ones(side, side, dtype=torch.bool, device="cpu")
+    centre = side // 2
+    mask[centre - dc_half: centre + dc_half + 1, centre - dc_half: centre + dc_half + 1] = False
+    return mask.reshape(-1).nonzero()[:, 0].to(device)
 
 
 def describe(image: torch.Tensor, probe: LatticeProbe, gamma: float = 2.2) -> Descriptor:

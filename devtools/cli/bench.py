@@ -2,7 +2,7 @@
 
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
-        [--no-novel-light] [--fit-args "EXTRA FIT ARGUMENTS"]
+        [--no-novel-light] [--device D] [--fit-args "EXTRA FIT ARGUMENTS"]
     bench placement --synthetic DIR ... [--cases ...] [--json]     (the fit's placement and lattice only)
     bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
@@ -38,7 +38,7 @@ def _fit(args) -> int:
     synthetic = args.synthetic + args.golden
     if not synthetic and not args.real:
         raise InputError("bench fit: give --synthetic DIR (golden or photo-like) and/or --real DIR")
-    extra = _iterations(args) + shlex.split(args.fit_args)
+    extra = _iterations(args) + shlex.split(args.fit_args) + _device(args)
     ledger = open_ledger(args, "fit", synthetic + args.real, fit_device(extra))
     return bench_fit(synthetic, args.real, args.cases, extra, args.json, keep=args.keep,
                      novel_light=not args.no_novel_light, ledger=ledger)
@@ -69,7 +69,7 @@ def _batch(args) -> int:
 
 def _profile(args) -> int:
     from ..bench.profile import bench_profile
-    extra = _iterations(args) + shlex.split(args.fit_args)
+    extra = _iterations(args) + shlex.split(args.fit_args) + _device(args)
     ledger = open_ledger(args, "profile", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())),
                          fit_device(extra))
     return bench_profile(tuple(args.pair) if args.pair else None, extra, args.top, args.json, args.operators,
@@ -77,7 +77,7 @@ def _profile(args) -> int:
 
 
 def _render(args) -> int:
-    chosen = device(args.device)
+    chosen = device(args.device or "cpu")
     return bench_render(size=args.size or 512, spp=args.spp, runs=args.runs, as_json=args.json, device=chosen,
                         ledger=open_ledger(args, "render", device=str(chosen)))
 
@@ -85,6 +85,17 @@ def _render(args) -> int:
 def _iterations(args) -> list[str]:
     """The fit's ``--iterations`` where the bench was given one."""
     return ["--iterations", str(args.iterations)] if args.iterations else []
+
+
+def _device(args) -> list[str]:
+    """The fits' ``--device`` where the bench was given one (fit, profile); ``--fit-args`` may not
+    name a device too."""
+    if not args.device:
+        return []
+    if "--device" in shlex.split(args.fit_args):
+        raise InputError("bench: --device and --fit-args \"--device ...\": give the device once")
+    device(args.device)  # refused here, not in every fit, where there is no such device
+    return ["--device", args.device]
 
 
 def fit_device(fit_args: list[str]) -> str:
@@ -123,7 +134,7 @@ def add_parser(sub) -> None:
                                                      "size (default 64)")
     p.add_argument("--spp", type=positive_int, default=4)
     p.add_argument("--runs", type=positive_int, default=5)
-    p.add_argument("--device", default="cpu")
+    p.add_argument("--device", help="render: the device rendered on (default cpu); fit, profile: the fits' --device")
     p.add_argument("--pairs", type=positive_int, default=4, help="batch: synthetic pairs (default 4)")
     p.add_argument("--film", type=positive_int, default=128, help="batch: the pairs' film size (default 128)")
     p.add_argument("--cpus-per-fit", type=positive_int, default=1, help="batch: threads of each Ray fit (default 1)")

@@ -7,6 +7,7 @@
     bench render|fit|placement|batch|fit-speed [...]     (devtools/cli/bench.py)
     signatures                                           (devtools/cli/signatures.py)
     fuzz [--photos N] [--options N] [--seed S]           (devtools/cli/fuzz.py)
+    gpu-check [--out DIR] [--budget-s S] [--device D]    (devtools/cli/gpu_check.py)
 
 Bad input ends as the backend's commands do: exit code 2 and one line naming the file and the problem.
 """
@@ -17,13 +18,13 @@ import sys
 
 from backend.app.cli.main import run
 
-from . import bench, dataset, evaluate_init, fuzz, photolike, signatures, train
+from . import bench, dataset, evaluate_init, fuzz, gpu_check, photolike, signatures, train
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m devtools", description="Woven fabric capture: developer tools")
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in (dataset, train, evaluate_init, photolike, bench, signatures, fuzz):
+    for module in (dataset, train, evaluate_init, photolike, bench, signatures, fuzz, gpu_check):
         module.add_parser(sub)
     return parser
 
