@@ -169,7 +169,7 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     assert optimise(unwarped, dataclasses.replace(settings, spacing_warp=False)) == 58 and unwarped.warp_reads == []
     assert reports[-1][:3] == ("optimise", 100, 100)  # the progress bar completes
     # each report says how long the best has held and the patience: the whole-fit bar's time left reads them
-    assert reports[-1][-1] == {"since_best": 20, "patience": 20}
+    assert reports[-1][-1] == {"since_best": 20, "patience": 20, "sparse_steps": 0}  # no sparse objectives: none
     assert [r[-1]["since_best"] for r in reports[36:40]] == [0, 0, 1, 2]
     # before the search: a plateau of 30 steps does not end it; the search's gain starts a new count
     gained = ScriptedRun([10.0 - 0.1 * min(i, 9) for i in range(100)], search_gain=0.5)
@@ -209,7 +209,7 @@ def test_the_first_steps_render_sparse_samples_in_turn_and_the_run_converges_onl
     from backend.fit.pipeline import _optimise
     settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=10, sparse_fraction=0.6)
     flat = SparseScriptedRun([5.0] * 100)  # nothing ever improves: only the full steps' patience ends it
-    steps = _optimise(flat, settings, lambda run: None, lambda *report: None, sparse=["a", "b", "c", "d"])
+    steps = _optimise(flat, settings, lambda run: None, lambda *report, **fields: None, sparse=["a", "b", "c", "d"])
     assert flat.used[:60] == ["a", "b", "c", "d"] * 15 and set(flat.used[60:]) == {"full"}
     assert ("rescored", 60, "full") in flat.events and flat.events.index(("warp trial ended", 60)) < \
         flat.events.index(("rescored", 60, "full"))
@@ -217,16 +217,16 @@ def test_the_first_steps_render_sparse_samples_in_turn_and_the_run_converges_onl
     # the duel's steps count: the sparse steps start after them; none where the duel passed the fraction
     after_duel = SparseScriptedRun([5.0] * 100)
     after_duel.history = [(i, 5.0) for i in range(10)]
-    _optimise(after_duel, settings, lambda run: None, lambda *report: None, done=10, sparse=["a", "b"])
+    _optimise(after_duel, settings, lambda run: None, lambda *report, **fields: None, done=10, sparse=["a", "b"])
     assert after_duel.used[:50] == ["a", "b"] * 25 and after_duel.used[50] == "full"
     late = SparseScriptedRun([5.0] * 100)
     late.history = [(i, 5.0) for i in range(10)]
-    _optimise(late, dataclasses.replace(settings, sparse_fraction=0.05), lambda run: None, lambda *r: None,
+    _optimise(late, dataclasses.replace(settings, sparse_fraction=0.05), lambda run: None, lambda *r, **fields: None,
               done=10, sparse=["a"])
     assert set(late.used) == {"full"} and not any(e[0] == "rescored" for e in late.events)
     # without sparse objectives (or at a fraction of 0) every step renders every sample
     plain = SparseScriptedRun([5.0] * 100)
-    _optimise(plain, settings, lambda run: None, lambda *report: None)
+    _optimise(plain, settings, lambda run: None, lambda *report, **fields: None)
     assert set(plain.used) == {"full"}
 
 
