@@ -101,7 +101,7 @@ class Run:
         with torch.no_grad():
             fabric = ParamTensors.from_params(self.best, self.objective.renderer.device)
             terms = self.objective.terms(fabric, self.best_blur)
-        self.best_terms = {k: as_float(v) for k, v in terms.items()}
+        self.best_terms = _on_host(terms)
         self.best_loss = self.best_terms["loss"]
 
     @property
