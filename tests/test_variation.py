@@ -1,0 +1,126 @@
+"""Yarn variation (backend/core/variation.py, backend/model/variation.py): the hash (same bits in
+torch as in plain Python, exact in float32, its distribution), the smooth values, and the renders
+(none by default, the reference with variation on, gradients)."""
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+import torch
+
+from backend.core import variation as core
+from backend.core.params import SPECS, FabricParams
+from backend.model import variation
+
+
+def _plain_permute(x: int) -> int:
+    """R written out independently of the module: ((x + 1013) mod 4091)^3 mod 4091."""
+    return pow((x + 1013) % 4091, 3, 4091)
+
+
+def test_the_permutation_permutes_and_stays_exact_in_float32():
+    assert sorted(_plain_permute(x) for x in range(4091)) == list(range(4091))
+    inputs = range(3 * 4091)  # h + lo + the offset stay below this
+    assert [core.permute(x) for x in inputs] == [_plain_permute(x) for x in inputs]
+    # the products of two residues are below 2^24: float32 gives the same numbers
+    assert (core.HASH_MODULUS - 1) ** 2 < 2 ** 24
+    y = np.arange(4091, dtype=np.float32)
+    square = np.mod(y * y, np.float32(4091))
+    assert np.array_equal(np.mod(square * y, np.float32(4091)).astype(np.int64), [pow(v, 3, 4091) for v in range(4091)])
+
+
+def _float32_hash(stream: int, component: int, *keys: int) -> int:
+    """The hash as float32 arithmetic does it (OSL, Blender's Math nodes: floored modulo)."""
+    f = np.float32
+    p = f(4091)
+
+    def perm(x):
+        y = np.mod(x + f(1013), p)
+        return np.mod(np.mod(y * y, p) * y, p)
+
+    h = perm(perm(f(stream)) + f(component))
+    for n in keys:
+        n = f(n)
+        lo = np.mod(n, p)
+        hi = np.mod((n - lo) / p, p)
+        h = perm(perm(h + lo) + hi)
+    return int(h)
+
+
+def test_torch_float32_and_plain_python_give_the_same_bits():
+    rng = random.Random(5)
+    keys = [rng.randrange(-(1 << 23), 1 << 23) for _ in range(300)] + list(range(-300, 300))
+    knots = [rng.randrange(-5000, 5000) for _ in keys]
+    for stream in (0, 3, 9):
+        for component in (0, 1):
+            got = variation.hash_keys(stream, component, torch.tensor(keys), torch.tensor(knots)).tolist()
+            assert got == [core.hash_keys(stream, component, k, j) for k, j in zip(keys, knots)]
+            assert got[:40] == [_float32_hash(stream, component, k, j) for k, j in zip(keys[:40], knots[:40])]
+    xs = torch.tensor([rng.uniform(-50, 50) for _ in range(200)], dtype=torch.float64)
+    ks = torch.tensor([rng.randrange(-100, 100) for _ in range(200)])
+    got = variation.smooth(4, xs, 2.5, ks)
+    expected = [core.smooth(4, float(x), 2.5, int(k)) for x, k in zip(xs, ks)]
+    torch.testing.assert_close(got, torch.tensor(expected, dtype=torch.float64), rtol=1e-12, atol=1e-12)
+
+
+def test_the_hash_is_deterministic_and_spread_evenly():
+    k = torch.arange(-20000, 20000)
+    first, again = variation.hash_keys(2, 0, k), variation.hash_keys(2, 0, k)
+    assert torch.equal(first, again)
+    counts = torch.bincount(first % 64, minlength=64).double()
+    expected = len(k) / 64
+    chi2 = float(((counts - expected) ** 2 / expected).sum())
+    assert chi2 < CHI2_64_BOUND
+    # streams and components are different sequences, neighbouring keys are not alike
+    other = variation.hash_keys(3, 0, k)
+    assert (first == other).double().mean() < 0.002
+    g = variation.gauss(2, k)
+    assert abs(float(g.mean())) < 0.03 and abs(float(g.var()) - 1.0) < 0.05
+    for lag in (1, 2, 4091):
+        assert abs(float(torch.corrcoef(torch.stack((g[:-lag], g[lag:])))[0, 1])) < 0.03, lag
+    two_keys = variation.gauss(2, k, torch.tensor(7))
+    assert abs(float(torch.corrcoef(torch.stack((two_keys[:-1], two_keys[1:])))[0, 1])) < 0.03
+    assert float(g.abs().max()) < core.GAUSS_SCALE
+
+
+# chi-square with 63 degrees of freedom is below this with probability about 0.999 (a fixed hash either
+# passes or fails: this one passes with room)
+CHI2_64_BOUND = 104.0
+
+
+def test_smooth_values_have_unit_variance_and_the_correlation_length():
+    x = torch.arange(0, 40000, dtype=torch.float64) * 0.37
+    for length in (1.0, 6.0):
+        g = variation.smooth(1, x, length)
+        assert abs(float(g.var()) - 1.0) < 0.08, length
+    # on yarn indices with length 1, independent yarns: G itself
+    k = torch.arange(-50, 50)
+    assert torch.equal(variation.smooth(0, k.double(), 1.0), variation.gauss(0, k))
+    # a long correlation: neighbours alike; continuous across the knots
+    near = variation.smooth(1, torch.tensor([2.999999, 3.0], dtype=torch.float64) * 8.0, 8.0)
+    assert abs(float(near[0] - near[1])) < 1e-4
+    g = variation.smooth(1, torch.arange(0, 20000, dtype=torch.float64), 8.0)
+    assert float(torch.corrcoef(torch.stack((g[:-1], g[1:])))[0, 1]) > 0.9
+
+
+def test_variation_parameters_are_declared_with_ranges_priors_and_no_variation_by_default():
+    default = FabricParams()
+    assert core.PARAMETER_NAMES == tuple(name for name in SPECS if "variation" in name)
+    for name in core.PARAMETER_NAMES:
+        spec = SPECS[name]
+        assert spec.per_yarn and not spec.optimised and not spec.searched, name
+        assert spec.prior is not None and spec.lo <= spec.prior[0] < spec.prior[1] <= spec.hi, name
+        assert spec.lo <= getattr(default, name)[0] <= spec.hi
+    for kind in core.KINDS:
+        assert getattr(default, core.amplitude_name(kind)) == (0.0, 0.0)
+    assert not variation.VariationSettings.of(lambda n: getattr(default, n)).active
+    # the JSON form carries them; the paper's interchange string does not (reading one gives none)
+    varied = default.replace(width_variation=(0.1, 0.2), slub_variation_length=(3.0, 5.0))
+    assert FabricParams.from_dict(varied.to_dict()) == varied
+    assert FabricParams.from_interchange(varied.to_interchange()).width_variation == (0.0, 0.0)
+
+
+def test_sqrt6_is_the_unit_variance_scale():
+    assert core.GAUSS_SCALE == pytest.approx(math.sqrt(1.0 / (2.0 / 12.0)))
