@@ -9,10 +9,20 @@ import random
 import numpy as np
 import pytest
 import torch
+from oracles import reference
+from test_render import OPTIMISED, random_params
 
 from backend.core import variation as core
+from backend.core.options import RenderOptions
 from backend.core.params import SPECS, FabricParams
+from backend.core.rig import DEFAULT_RIG
 from backend.model import variation
+from backend.model.bsdf import eval_pair
+from backend.model.camera import CameraSamples
+from backend.model.geometry import GeometryKey, sample_geometry
+from backend.model.layers import WeaveLookup
+from backend.model.param_tensors import ParamTensors
+from backend.model.render import Renderer, render_pair
 
 
 def _plain_permute(x: int) -> int:
@@ -124,3 +134,75 @@ def test_variation_parameters_are_declared_with_ranges_priors_and_no_variation_b
 
 def test_sqrt6_is_the_unit_variance_scale():
     assert core.GAUSS_SCALE == pytest.approx(math.sqrt(1.0 / (2.0 / 12.0)))
+
+
+# -- renders -------------------------------------------------------------------------------------
+VARIED = dict(width_variation=(0.25, 0.2), width_variation_length=(1.0, 3.0), thickness_variation=(0.3, 0.2),
+              thickness_variation_length=(2.0, 1.0), spacing_variation=(0.15, 0.2), brightness_variation=(0.3, 0.25),
+              brightness_variation_length=(1.0, 4.0), slub_variation=(0.2, 0.3), slub_variation_length=(2.0, 1.5))
+
+
+def _points(params: FabricParams, xs, ys, options, tensors):
+    """The fast path's radiance at world points, its geometry state with the params' variation."""
+    camera = CameraSamples(DEFAULT_RIG, 512, 1, dtype=torch.float64)
+    chunk = camera.at_points(torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64))
+    settings = variation.VariationSettings.of(lambda n: getattr(params, n))
+    key = GeometryKey(params.pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, options.tension,
+                      options.layers, settings)
+    geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), DEFAULT_RIG, key,
+                               torch.float64)
+    r, t = eval_pair(chunk, geometry, tensors, options)
+    return r.radiance(), t.radiance(), geometry.no_yarn
+
+
+@pytest.mark.parametrize("pattern,layers", [("plain", 2), ("twill0", 2), ("satin0", 2), ("satin1", 1)])
+def test_varied_fast_path_matches_the_literal_reference_values_and_gradients(pattern, layers):
+    rng = random.Random(f"variation/{pattern}")
+    options = RenderOptions(layers=layers)
+    params = random_params(rng, pattern).replace(gap_scale=(rng.uniform(0.6, 0.95), rng.uniform(0.6, 0.95)),
+                                                 tiles=(rng.uniform(15, 40), rng.uniform(15, 40)), **VARIED)
+    V = DEFAULT_RIG.view_size
+    xs = [rng.uniform(0, V) for _ in range(300)]
+    ys = [rng.uniform(-V, 0) for _ in range(300)]
+    fast = ParamTensors.from_params(params, dtype=torch.float64, requires_grad=OPTIMISED)
+    ref = {n: fast.values[n].detach().clone().requires_grad_(True) for n in OPTIMISED}
+    r_fast, t_fast, no_yarn = _points(params, xs, ys, options, fast)
+    r_ref, t_ref, ref_no_yarn = reference.render_points(params, xs, ys, DEFAULT_RIG, options, tensors=ref)
+    assert torch.equal(no_yarn > 0, ref_no_yarn)
+    torch.testing.assert_close(r_fast, r_ref, rtol=1e-5, atol=1e-8)
+    torch.testing.assert_close(t_fast, t_ref, rtol=1e-5, atol=1e-8)
+    weights = torch.rand(r_ref.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    ((r_fast + 0.5 * t_fast) * weights).sum().backward()
+    ((r_ref + 0.5 * t_ref) * weights).sum().backward()
+    for name in OPTIMISED:
+        torch.testing.assert_close(fast.values[name].grad, ref[name].grad, rtol=1e-4, atol=1e-7, msg=name)
+    # the variation shows: the same points without it differ
+    plain = params.replace(**{n: getattr(FabricParams(), n) for n in VARIED})
+    assert (reference.render_points(plain, xs, ys, DEFAULT_RIG, options)[0] - r_ref).abs().max() > 1e-3
+
+
+def test_no_variation_renders_exactly_as_without_the_variation_parameters():
+    """Every amplitude 0 (the default): the geometry state has no variation and the render is bit-identical
+    whatever the correlation lengths, so every render of an unvaried fabric is the same as before them."""
+    params = FabricParams(pattern="twill1", tiles=(60.0, 90.0))
+    lengths = params.replace(width_variation_length=(5.0, 7.0), slub_variation_length=(9.0, 2.0))
+    renderer = Renderer(size=32, spp=4)
+    assert renderer.geometry_key(ParamTensors.from_params(lengths)).variation is None
+    a, b = render_pair(params, size=32, spp=4), render_pair(lengths, size=32, spp=4)
+    assert torch.equal(a.reflection, b.reflection) and torch.equal(a.transmission, b.transmission)
+    varied = render_pair(params.replace(**VARIED), size=32, spp=4)
+    assert (varied.reflection - a.reflection).abs().max() > 0.01
+
+
+def test_varied_render_gradcheck_in_float64():
+    """The optimised parameters' gradients with a yarn variation on (its amplitudes are geometry, not optimised)."""
+    params = FabricParams(pattern="satin0", tiles=(30.0, 45.0), gap_scale=(0.85, 0.8), **VARIED)
+    renderer = Renderer(size=5, spp=1, dtype=torch.float64)
+    base = ParamTensors.from_params(params, dtype=torch.float64)
+    names = ("roughness", "thickness", "specular_albedo", "diffuse_reflection", "height_scale")
+
+    def radiance(*tensors):
+        return renderer.radiance(base.with_values(**dict(zip(names, tensors))))
+
+    inputs = tuple(base.values[n].detach().clone().requires_grad_(True) for n in names)
+    assert torch.autograd.gradcheck(radiance, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
