@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 import random
+import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -206,3 +208,74 @@ def test_varied_render_gradcheck_in_float64():
 
     inputs = tuple(base.values[n].detach().clone().requires_grad_(True) for n in names)
     assert torch.autograd.gradcheck(radiance, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+# -- the OSL shader and the fallback -------------------------------------------------------------
+OSL_SOURCE = Path(__file__).resolve().parent.parent / "shaders" / "woven_fabric.osl"
+OSL_BEGIN, OSL_END = "/* Yarn variation (backend/core/variation.py", "/* Segment coordinates of one yarn"
+
+
+def test_osl_variation_constants_are_the_backends():
+    source = OSL_SOURCE.read_text()
+    assert f"#define WF_HASH_MODULUS {core.HASH_MODULUS:.1f}" in source
+    assert f"#define WF_HASH_OFFSET {core.HASH_OFFSET:.1f}" in source
+    assert f"#define WF_GAUSS_SCALE {core.GAUSS_SCALE!r}" in source
+    assert f"#define WF_XI_MIN {core.XI_MIN!r}" in source
+    for kind in core.KINDS:  # the streams wf_variation passes: 2 kind + family
+        assert f"wf_smooth({core.stream(kind, 0)} + family" in source, kind
+
+
+@pytest.mark.blender
+def test_osl_variation_values_are_the_backends_bits(tmp_path):
+    """The OSL shader's hash and smooth values (its own functions, compiled by Cycles into a probe shader that
+    emits them) are the backend's: the hash bit for bit, the smooth values to float32 rounding."""
+    from addon_support import run_blender
+
+    source = OSL_SOURCE.read_text()
+    helpers = source[source.index(OSL_BEGIN):source.index(OSL_END)]
+    probe = helpers + textwrap.dedent("""
+        shader wf_probe(point UV = point(0, 0, 0), output closure color Emit = 0)
+        {
+            float k = floor(UV[0] * 16.0) * 1237.0 - 9000.0;
+            float j = floor(UV[1] * 16.0) * 523.0 - 4000.0;
+            float h = wf_hash_key(wf_hash_key(wf_permute(wf_permute(9.0) + 1.0), k), j);
+            Emit = emission() * color(k, j, h) + emission() * color(0, 0, 0);
+            if (UV[0] > 0.0 && fmod(floor(UV[1] * 16.0), 2.0) > 0.5)
+                Emit = emission() * color(k, j + 0.25, wf_smooth(3.0, k * 0.37 + j * 0.001, 2.5, 0.0, 0));
+        }
+    """)
+    (tmp_path / "probe.osl").write_text(probe)
+    result = run_blender(f"""
+        import numpy as np
+        from blender_addon.scene import cycles_osl
+        mat = bpy.data.materials.new("probe")
+        tree = mat.node_tree
+        text = bpy.data.texts.new("probe.osl")
+        text.from_string(open({str(tmp_path / 'probe.osl')!r}).read())
+        script = tree.nodes.new("ShaderNodeScript")
+        script.mode = "INTERNAL"
+        script.script = text
+        error = cycles_osl.compile_script(script)
+        uv = tree.nodes.new("ShaderNodeUVMap")
+        tree.links.new(uv.outputs["UV"], script.inputs["UV"])
+        out = tree.nodes.get("Material Output") or tree.nodes.new("ShaderNodeOutputMaterial")
+        tree.links.new(script.outputs["Emit"], out.inputs["Surface"])
+        scene = rig_scene.build_scene(mat, size=48, samples=1, osl=True, scene=bpy.context.scene, threads=1)
+        scene.cycles.filter_width = 0.01
+        scene.render.image_settings.file_format = "OPEN_EXR"
+        scene.render.image_settings.color_depth = "32"
+        img = rig_scene.render_linear(scene, "front")[..., :3]
+        emit({{"error": error, "pixels": img.reshape(-1, 3).tolist()}})
+    """, tmp_path)
+    assert not result["error"]
+    pixels = np.array(result["pixels"], dtype=np.float64)
+    keys = pixels[:, :2]
+    hashed = pixels[np.all(keys == np.round(keys), axis=1)]
+    smoothed = pixels[keys[:, 1] - np.floor(keys[:, 1]) == 0.25]
+    assert len(hashed) > 100 and len(smoothed) > 100
+    k, j = torch.tensor(hashed[:, 0]).long(), torch.tensor(hashed[:, 1]).long()
+    assert torch.equal(variation.hash_keys(9, 1, k, j), torch.tensor(hashed[:, 2]).long())
+    k, j = torch.tensor(smoothed[:, 0]), torch.tensor(np.floor(smoothed[:, 1]))
+    expected = variation.smooth(3, k * 0.37 + j * 0.001, 2.5)
+    # x near 4000 in float32 is within 2.4e-4 (its ulp) of float64's: g moves by at most a few times that
+    torch.testing.assert_close(torch.tensor(smoothed[:, 2]), expected, rtol=0, atol=1e-3)
