@@ -9,8 +9,11 @@ the interlacing matrix and the backend's interval tables (read from the float at
 nodes, ``pick``), gap scaling, the tension mu of each yarn (linear between segment centres), and
 the bent-cylinder normal and twisted fiber direction of the warp and of the weft at the point,
 height-scaled. Layer 0 (front) and layer 1 (back) take the yarn the weave puts there (seen from
-behind the two swap and z is mirrored, as in the OSL shader). It skips the noise (spec 4.6) and the
-flat segments (none in the presets).
+behind the two swap and z is mirrored, as in the OSL shader). It skips the noise (spec 4.6), the
+flat segments (none in the presets) and the yarn variation (the backend's core/variation.py): its hash
+is exact in Math nodes (floored modulo, every product below 2^24), but the five variations of both
+yarn families would add about 900 nodes that every fallback evaluates, variation or not; the fallback
+shows the cloth without it.
 
 Shading (spec section 4, the OSL shader's approximation in standard closures). Everything that
 depends on the view direction wi (the Geometry node's Incoming) is computed exactly per layer k;
