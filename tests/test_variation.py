@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import random
+import sys
 import textwrap
 from pathlib import Path
 
@@ -279,3 +280,114 @@ def test_osl_variation_values_are_the_backends_bits(tmp_path):
     expected = variation.smooth(3, k * 0.37 + j * 0.001, 2.5)
     # x near 4000 in float32 is within 2.4e-4 (its ulp) of float64's: g moves by at most a few times that
     torch.testing.assert_close(torch.tensor(smoothed[:, 2]), expected, rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("pattern", ["plain", "twill1", "satin0"])
+def test_fallback_variation_matches_the_backend(pattern):
+    """The standard-node fallback's variation lines (evaluated with numpy; not in the built group:
+    shader_fallback.FALLBACK_VARIATION) give the backend's varied layers, thicknesses and brightness."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+    from fallback_numpy import NumpyBuilder, fallback_env, rig_points
+
+    from blender_addon.core import shader_fallback
+
+    rng = np.random.default_rng(3)
+    params = FabricParams(pattern=pattern, tiles=(23.0, 31.0), gap_scale=(0.85, 0.8), thickness=(1.2, 2.5),
+                          **VARIED)
+    x, y, wi = rig_points(rng, 3000)
+    out = shader_fallback.run(NumpyBuilder(), fallback_env(params.to_dict(), x, y, wi), variation=True)
+    camera = CameraSamples(DEFAULT_RIG, 512, 1, dtype=torch.float64)
+    chunk = camera.at_points(torch.tensor(x), torch.tensor(y))
+    key = GeometryKey(pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, True, 2,
+                      variation.VariationSettings.of(lambda n: getattr(params, n)))
+    geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), DEFAULT_RIG, key,
+                               torch.float64)
+    for k, layer in enumerate(geometry.layers):
+        yarn = np.where(layer.warp.numpy() > 0, 0, np.where(layer.weft.numpy() > 0, 1, 2))
+        mine = np.where(out[f"y{k}w"] > 0.5, 0, np.where(out[f"y{k}f"] > 0.5, 1, 2))
+        assert (yarn == mine).mean() > 0.998, k
+        same = (yarn == mine) & (yarn != 2)
+        thickness = np.where(yarn == 0, 1.2, 2.5) * layer.thickness_scale.numpy()
+        assert np.abs(out[f"T{k}"] - thickness)[same].max() < 1e-4, k
+        bright = np.where(yarn == 0, out["w_bright"], out["f_bright"])
+        assert np.abs(bright - layer.albedo_scale.numpy())[same].max() < 1e-6, k
+    seen = 1 - geometry.no_yarn.numpy() > 0
+    assert np.abs(out["seen_bright"] - geometry.diffuse_scale.numpy())[seen].max() < 1e-6
+    assert np.ptp(out["w_bright"]) > 0.3 and np.ptp(out["f_xi"]) > 0.1  # it varies
+
+
+@pytest.mark.blender
+def test_osl_shader_shows_the_backends_varied_gaps(tmp_path):
+    """The whole OSL shader with a yarn variation (its lobes off: black where a yarn is, transparent where
+    both layers are gaps) covers the pixels the backend's varied geometry covers: the yarn indices, positions
+    and the varied widths and slides reach its layer lookup as they reach the renderer's."""
+    from addon_support import run_blender
+
+    size = 64
+    params = FabricParams(pattern="plain", tiles=(3.0, 4.0), gap_scale=(0.75, 0.7), width_variation=(0.3, 0.3),
+                          spacing_variation=(0.2, 0.2), slub_variation=(0.25, 0.25), slub_variation_length=(1.5, 1.5),
+                          diffuse_normal_weight=0.0)
+    bright = params.replace(brightness_variation=(0.3, 0.4), brightness_variation_length=(1.0, 2.0))
+    result = run_blender(f"""
+        import numpy as np
+        from blender_addon.core import shader_params
+        from blender_addon.scene import cycles_osl
+        from blender_addon.scene.group_interface import socket_by_identifier
+        mat = bpy.data.materials.new("varied")  # the shader alone: no node group (its fallback takes a while)
+        tree = mat.node_tree
+        text = bpy.data.texts.new("woven_fabric.osl")
+        text.from_string(open({str(OSL_SOURCE)!r}).read())
+        script = tree.nodes.new("ShaderNodeScript")
+        script.mode = "INTERNAL"
+        script.script = text
+        error = cycles_osl.compile_script(script)
+        def set_inputs(params, lobes):
+            for name, value in shader_params.socket_values(params).items():
+                if not isinstance(value, tuple):
+                    socket_by_identifier(script.inputs, shader_params.osl_name(name)).default_value = value
+            socket_by_identifier(script.inputs, "lobes").default_value = lobes
+        set_inputs({params.to_dict()!r}, 0)
+        uv, tangent = tree.nodes.new("ShaderNodeUVMap"), tree.nodes.new("ShaderNodeTangent")
+        tangent.direction_type = "UV_MAP"
+        tree.links.new(uv.outputs["UV"], socket_by_identifier(script.inputs, "UV"))
+        tree.links.new(tangent.outputs["Tangent"], socket_by_identifier(script.inputs, "Tangent"))
+        out = tree.nodes.get("Material Output") or tree.nodes.new("ShaderNodeOutputMaterial")
+        tree.links.new(socket_by_identifier(script.outputs, "BSDF"), out.inputs["Surface"])
+        scene = rig_scene.build_scene(mat, size={size}, samples=1, osl=True, scene=bpy.context.scene, threads=1)
+        scene.cycles.filter_width = 0.01
+        alpha = rig_scene.render_linear(scene, "front")[..., 3]
+        set_inputs({params.to_dict()!r}, 16)  # the diffuse reflection alone
+        plain = rig_scene.render_linear(scene, "front")[..., 1]
+        set_inputs({bright.to_dict()!r}, 16)
+        varied = rig_scene.render_linear(scene, "front")[..., 1]
+        emit({{"error": error, "alpha": alpha.tolist(), "ratio": (varied / np.maximum(plain, 1e-12)).tolist()}})
+    """, tmp_path)
+    assert not result["error"]
+    covered = np.array(result["alpha"]) > 0.5
+    V = DEFAULT_RIG.view_size
+    centres = (torch.arange(size, dtype=torch.float64) + 0.5) * V / size
+    x, y = centres[None, :].expand(size, size).reshape(-1), -centres[:, None].expand(size, size).reshape(-1)
+    chunk = CameraSamples(DEFAULT_RIG, 512, 1, dtype=torch.float64).at_points(x, y)
+
+    def yarn_at_centres(fabric):
+        key = GeometryKey("plain", fabric.tiles, fabric.gap_scale, fabric.twist_deg, 0.0, True, 2,
+                          variation.VariationSettings.of(lambda n: getattr(fabric, n)))
+        lookup = WeaveLookup(fabric.resolved_weave, dtype=torch.float64)
+        no_yarn = sample_geometry(chunk, lookup, DEFAULT_RIG, key, torch.float64).no_yarn
+        return (no_yarn == 0).numpy().reshape(size, size)
+
+    varied, unvaried = yarn_at_centres(params), yarn_at_centres(params.replace(**{n: getattr(FabricParams(), n)
+                                                                                  for n in VARIED}))
+    # a pixel's one sample lies anywhere in it: pixels at an edge may go either way (measured: none did)
+    assert (covered == varied).mean() > 0.98
+    assert (covered == varied).mean() > (covered == unvaried).mean() + 0.05
+    # the brightness of the yarn seen scales its diffuse reflection by the backend's factor
+    key = GeometryKey("plain", bright.tiles, bright.gap_scale, bright.twist_deg, 0.0, True, 2,
+                      variation.VariationSettings.of(lambda n: getattr(bright, n)))
+    geometry = sample_geometry(chunk, WeaveLookup(bright.resolved_weave, dtype=torch.float64), DEFAULT_RIG, key,
+                               torch.float64)
+    factor = geometry.diffuse_scale.numpy().reshape(size, size)
+    ratio = np.array(result["ratio"])
+    seen = covered & varied
+    assert np.ptp(factor[seen]) > 0.3
+    assert np.mean(np.abs(ratio - factor)[seen] < 1e-3) > 0.98

@@ -31,9 +31,14 @@ def parameters() -> tuple:
     return backend_module("core.params").PARAMETERS
 
 
+def variation():
+    """The backend's ``core.variation`` module: the yarn variations' kinds, parameter names and hash."""
+    return backend_module("core.variation")
+
+
 def variation_parameters() -> tuple[str, ...]:
     """The yarn variations' parameter names (``core.variation.PARAMETER_NAMES``)."""
-    return backend_module("core.variation").PARAMETER_NAMES
+    return variation().PARAMETER_NAMES
 
 
 def check_params(data) -> None:
