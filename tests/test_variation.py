@@ -391,3 +391,21 @@ def test_osl_shader_shows_the_backends_varied_gaps(tmp_path):
     seen = covered & varied
     assert np.ptp(factor[seen]) > 0.3
     assert np.mean(np.abs(ratio - factor)[seen] < 1e-3) > 0.98
+
+
+def test_the_renderers_kept_geometry_follows_the_variation_and_its_twist_steps():
+    """The renderer keeps geometry per state: a variation is part of the state, and a twist step on a varied
+    state (only the fiber directions computed again) gives a fresh render's numbers."""
+    params = FabricParams(pattern="twill0", tiles=(40.0, 55.0), twist_deg=(-20.0, -20.0))
+    varied = params.replace(**VARIED)
+    renderer = Renderer(size=24, spp=1)
+    with torch.no_grad():
+        first = renderer.render(params).reflection
+        with_variation = renderer.render(varied).reflection
+        assert (with_variation - first).abs().max() > 0.01
+        assert torch.equal(renderer.render(params).reflection, first)
+        turned = varied.replace(twist_deg=(-25.0, -15.0))
+        stepped = renderer.render(turned)
+        fresh = Renderer(size=24, spp=1).render(turned)
+    torch.testing.assert_close(stepped.reflection, fresh.reflection, rtol=0, atol=1e-6)
+    torch.testing.assert_close(stepped.transmission, fresh.transmission, rtol=0, atol=1e-6)

@@ -20,8 +20,9 @@ sliding, ..."). Each yarn family (warp, weft) can carry five random variations, 
 
 Each ``<name>`` has its correlation length ``<name>_length`` (per yarn family): across yarns in
 yarns (1: every yarn independent; 8: neighbouring yarns drift together over about 8), along a
-yarn in crossings (pitches of the yarns it crosses). Gap variation is width variation: the
-model's gap scale is the yarn's width as a fraction of its band (spec 3.1).
+yarn in crossings (pitches of the yarns it crosses). Ranges (backend/core/params.py, with the priors
+a generator draws from): amplitudes 0 to 0.5, lengths 1 to 64 yarns, the slub's 0.5 to 64 crossings.
+Gap variation is width variation: the model's gap scale is the yarn's width as a fraction of its band (spec 3.1).
 
 Indexing. Warp k counts columns of bands to the right, weft k rows down the image, over the whole
 plane (tile index times the tile's yarns plus the band's index in the tile); p is the position
@@ -38,8 +39,9 @@ unit variance at every x, and G(j) = (u_0(j) + u_1(j) - 1) sqrt(6), the sum of t
 (zero mean, unit variance, bounded by sqrt(6)). With L = 1 on yarn indices g(k) = G(k): independent
 yarns.
 
-The hash (the one definition; the renderer, the slow reference, the OSL shader and the fallback nodes
-compute the same numbers). Integers only, every intermediate below 2^24, so float32 arithmetic
+The hash (the one definition: the renderer, the slow reference and the OSL shader compute the same
+numbers; the standard-node fallback's program has it too, but its built node group leaves it out:
+blender_addon/core/shader_fallback.py). Integers only, every intermediate below 2^24, so float32 arithmetic
 (OSL, Blender's Math nodes) is exact and gives the same bits as int64 (torch) and Python::
 
     R(x)       = y^3 mod 4091,  y = (x + 1013) mod 4091   (cubing permutes 0..4090: 4091 is a prime
