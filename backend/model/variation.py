@@ -93,12 +93,13 @@ def yarn_positions(weave: Weave, X, Y, tile_u, tile_v, col, row) -> tuple[tuple[
     and the along-yarn position in crossings (float64), from tile units (X, Y), tile indices and the
     band's column / row in the tile (``WeaveLookup.bands``)."""
     X, Y = X.to(torch.float64), Y.to(torch.float64)
-    across_x = X + tile_u.to(torch.float64) * weave.tile_width      # to the right, over the plane
-    down_y = Y - tile_v.to(torch.float64) * weave.tile_height       # down the image, over the plane
-    warp_tile = torch.floor((across_x - weave.warp_offset) / weave.tile_width).to(torch.int64)
-    weft_tile = torch.floor((down_y - weave.weft_offset) / weave.tile_height).to(torch.int64)
-    warp = (warp_tile * weave.cols + col.to(torch.int64), down_y / weave.weft_pitch)
-    weft = (weft_tile * weave.rows + row.to(torch.int64), across_x / weave.warp_pitch)
+    right = X + tile_u.to(torch.float64) * weave.tile_width      # to the right, over the plane
+    down = Y - tile_v.to(torch.float64) * weave.tile_height      # down the image, over the plane
+    # the tile of the band: the lookup's own wrap (remainder(X - offset, tile width)), so k agrees with col
+    warp_tile = torch.floor((X - weave.warp_offset) / weave.tile_width).to(torch.int64) + tile_u
+    weft_tile = torch.floor((Y - weave.weft_offset) / weave.tile_height).to(torch.int64) - tile_v
+    warp = (warp_tile * weave.cols + col.to(torch.int64), down / weave.weft_pitch)
+    weft = (weft_tile * weave.rows + row.to(torch.int64), right / weave.warp_pitch)
     return warp, weft
 
 

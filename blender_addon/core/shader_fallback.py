@@ -343,8 +343,8 @@ def variation_text() -> str:
     v = declarations.variation()
     text = """v_right = X + floor(su) * tile_w
 v_down = Y - floor(sv) * tile_h
-k_warp = floor((v_right - warp_off) / tile_w) * cols + col
-k_weft = floor((v_down - weft_off) / tile_h) * rows + row
+k_warp = (floor(su) + floor((X - warp_off) / tile_w)) * cols + col
+k_weft = (floor((Y - weft_off) / tile_h) - floor(sv)) * rows + row
 p_warp = v_down / weft_p
 p_weft = v_right / warp_p
 """
