@@ -11,6 +11,7 @@ import torch
 from oracles import reference
 
 from backend.app.environment import renderer_compiles
+from backend.core import variation as yarn_variation
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
@@ -34,7 +35,7 @@ def random_params(rng: random.Random, pattern: str, extreme: bool = False) -> Fa
     """Parameters drawn over the whole declared box (or at its edges when extreme)."""
     values = {}
     for spec in PARAMETERS:
-        if spec.name == "noise":
+        if spec.name == "noise" or spec.name in yarn_variation.PARAMETER_NAMES:  # none (tests/test_variation.py)
             continue
         lo, hi = spec.lo, spec.hi
         if spec.name == "tiles":

@@ -129,7 +129,9 @@ def test_sockets_have_readable_labels_in_panels():
             s = by_name[name]
             assert s.label.startswith(spec.label) and "_" not in s.label, s
             assert spec.doc.split(" ", 1)[1] in s.description and f"params.json: {spec.name}" in s.description
-            if spec.per_yarn and spec.name != "tiles":
+            if spec.name in declarations.variation_parameters():
+                assert s.panel == ("Warp variation", "Weft variation")[yarn]
+            elif spec.per_yarn and spec.name != "tiles":
                 assert s.panel == ("Warp", "Weft")[yarn]
     assert by_name["roughness warp"].label == by_name["roughness weft"].label == "Roughness"
     assert {by_name[n].panel for n in ("pattern", "tiles warp", "tiles weft", "uv scale")} == {"Weave"}

@@ -11,6 +11,10 @@ Interchange string (spec section 2)::
 
     <pattern>_R_<a,a>_S_<beta,beta>_T_<T,T>_N_<N>_UV_<tu,tv>_Kd_<r,g,b,r,g,b>_G_<xi,xi>
     _Rm_<a,a>_Tm_<T,T>_W_<w,w_m>_Ks_<r,g,b,r,g,b>_Psi_<psi,psi>
+
+The yarn variations (``width_variation`` ... ``slub_variation_length``, :mod:`backend.core.variation`)
+are beyond the paper: the interchange string does not carry them (reading one gives none), the JSON
+form does. They are neither optimised nor searched: a fit keeps them at none.
 """
 from __future__ import annotations
 
@@ -36,6 +40,9 @@ class ParamSpec:
     name: JSON and Python name. lo, hi: inclusive range of every component.
     per_yarn: value is a (warp, weft) pair. rgb: value (per yarn) is an RGB triple.
     optimised: fitted by gradient descent; searched: fitted by the discrete search.
+    prior: (lo, hi) of the uniform draw a realistic fabric takes where a generator draws this
+    parameter (the yarn variations, :mod:`backend.core.variation`); None: drawn by core/priors.py's
+    per-pattern rules, or not drawn.
     """
 
     name: str
@@ -48,6 +55,7 @@ class ParamSpec:
     unit: str = ""
     optimised: bool = False
     searched: bool = False
+    prior: tuple[float, float] | None = None
 
     @property
     def size(self) -> int:
@@ -84,6 +92,27 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "blend of yarn-normal (1) and flat (0) Lambert in the diffuse term", optimised=True),
     ParamSpec("noise", 0.0, 10.0, False, False, "Noise",
               "yarn randomness level; 0 while fitting, about 1 for final renders"),
+    # Yarn variation (backend/core/variation.py): an amplitude (0: none) and a correlation length each.
+    ParamSpec("width_variation", 0.0, 0.5, True, False, "Width variation",
+              "relative spread of each yarn's width (opens and closes gaps)", prior=(0.0, 0.1)),
+    ParamSpec("width_variation_length", 1.0, 64.0, True, False, "Width correlation",
+              "yarns over which the width drifts (1: every yarn on its own)", "yarns", prior=(1.0, 8.0)),
+    ParamSpec("thickness_variation", 0.0, 0.5, True, False, "Thickness variation",
+              "relative spread of each yarn's optical thickness", prior=(0.0, 0.15)),
+    ParamSpec("thickness_variation_length", 1.0, 64.0, True, False, "Thickness correlation",
+              "yarns over which the thickness drifts (1: every yarn on its own)", "yarns", prior=(1.0, 8.0)),
+    ParamSpec("spacing_variation", 0.0, 0.5, True, False, "Spacing variation",
+              "spread of each yarn's sideways slide, in yarn widths", prior=(0.0, 0.1)),
+    ParamSpec("spacing_variation_length", 1.0, 64.0, True, False, "Spacing correlation",
+              "yarns over which the slide drifts (1: every yarn on its own)", "yarns", prior=(1.0, 8.0)),
+    ParamSpec("brightness_variation", 0.0, 0.5, True, False, "Brightness variation",
+              "relative spread of each yarn's albedo", prior=(0.0, 0.1)),
+    ParamSpec("brightness_variation_length", 1.0, 64.0, True, False, "Brightness correlation",
+              "yarns over which the albedo drifts (1: every yarn on its own)", "yarns", prior=(1.0, 8.0)),
+    ParamSpec("slub_variation", 0.0, 0.5, True, False, "Slub variation",
+              "relative spread of width and thickness along each yarn (slubs)", prior=(0.0, 0.15)),
+    ParamSpec("slub_variation_length", 0.5, 64.0, True, False, "Slub length",
+              "crossings over which a yarn thickens or thins", "crossings", prior=(2.0, 12.0)),
 )
 
 SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
@@ -185,6 +214,16 @@ class FabricParams:
     diffuse_transmission: tuple[float, float, float] = (0.3, 0.3, 0.3)
     diffuse_normal_weight: float = 0.5
     noise: float = 0.0
+    width_variation: tuple[float, float] = (0.0, 0.0)
+    width_variation_length: tuple[float, float] = (1.0, 1.0)
+    thickness_variation: tuple[float, float] = (0.0, 0.0)
+    thickness_variation_length: tuple[float, float] = (1.0, 1.0)
+    spacing_variation: tuple[float, float] = (0.0, 0.0)
+    spacing_variation_length: tuple[float, float] = (1.0, 1.0)
+    brightness_variation: tuple[float, float] = (0.0, 0.0)
+    brightness_variation_length: tuple[float, float] = (1.0, 1.0)
+    slub_variation: tuple[float, float] = (0.0, 0.0)
+    slub_variation_length: tuple[float, float] = (4.0, 4.0)
     weave: Weave | None = None
 
     def __post_init__(self):

@@ -18,6 +18,11 @@ rotation +- skew / 2) is looked up at the fabric point
 R(theta_2) x; with no skew this is c + R(-theta)(p - c)), and the yarn normals and fiber directions of
 a warp are turned by R(theta_1) about z, those of a weft by R(theta_2).
 Tension (spec 3.4): thickness *= S_min + (1 - mu)(1 - S_min).
+Yarn variation (:mod:`backend.core.variation`, beyond the spec; none by default): each yarn's width,
+sideways slide, thickness factor and brightness factor from the hash of its plane-wide index and
+along-yarn position (:mod:`backend.model.variation`); the width and the slide act in the layer lookup,
+the thickness on the tension factor, the brightness on the albedo factor and, for the yarn seen, on the
+diffuse term (``SampleGeometry.diffuse_scale``).
 Noise (spec 4.6, N > 0): for non-plain weaves the albedos are scaled by min(-ln xi, 10) per cell of
 a grid of spacing 1 / (11 - N) tile units; for plain the height scale of each yarn segment moves by
 -0.1 N + 0.15 N r. xi and r are hashes of the cell or segment (a free choice of the spec).
@@ -31,6 +36,7 @@ import torch
 
 from ..core.rig import CaptureRig
 from . import rng
+from . import variation as yarn_variation
 from .camera import SampleChunk
 from .layers import GAP, WARP, WEFT, Bands, Layer, WeaveLookup
 from .yarn import fiber_direction, local_frame
@@ -55,6 +61,7 @@ class LayerGeometry:
 class SampleGeometry:
     layers: list[LayerGeometry]   # front, then back (one layer in the single-layer variant)
     no_yarn: torch.Tensor         # (S,) 1 where every layer is a gap (the glow shows through)
+    diffuse_scale: torch.Tensor | None = None  # (S,) brightness of the yarn seen (yarn variation), on k_d
 
 
 @dataclass(frozen=True)
@@ -68,6 +75,11 @@ class GeometryKey:
     noise: float
     tension: bool
     layers: int
+    variation: yarn_variation.VariationSettings | None = None  # the yarn variations (None: none)
+
+    @property
+    def varied(self) -> bool:
+        return self.variation is not None and self.variation.active
 
 
 def fabric_point(x: torch.Tensor, y: torch.Tensor, rig: CaptureRig) -> tuple[torch.Tensor, torch.Tensor]:
@@ -133,6 +145,7 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
     s_min = lookup.weave.s_min if key.tension else 1.0
     twist = _twist_rad(key)
     out = []
+    brightness = []
     for index, layer in enumerate(_layers(lookup, key, found)):
         n, o = local_frame(layer, twist)
         is_warp = layer.yarn == WARP
@@ -143,11 +156,18 @@ def sample_geometry(chunk: SampleChunk, lookup: WeaveLookup, rig: CaptureRig, ke
         albedo_scale = height_offset = None
         if key.noise > 0:
             albedo_scale, height_offset = _noise(layer, index, X, Y, tile_u, tile_v, lookup, key, dtype)
+        if key.varied:
+            thickness_scale = thickness_scale * layer.ids("thickness")
+            brightness.append(layer.ids("brightness"))
+            albedo_scale = brightness[-1] if albedo_scale is None else albedo_scale * brightness[-1]
         out.append(LayerGeometry(warp, weft, n.to(dtype), o.to(dtype), thickness_scale, albedo_scale, height_offset))
     no_yarn = torch.ones_like(out[0].warp)
     for layer in out:
         no_yarn = no_yarn * (1.0 - layer.is_yarn)
-    return SampleGeometry(out, no_yarn)
+    diffuse_scale = None
+    if brightness:  # the yarn seen: the front one, else the back one through a gap in front
+        diffuse_scale = brightness[0] if len(out) == 1 else torch.where(out[0].is_yarn > 0, *brightness)
+    return SampleGeometry(out, no_yarn, diffuse_scale)
 
 
 def twisted_fibers(lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey, dtype, bands: TileBands
@@ -163,7 +183,12 @@ def twisted_fibers(lookup: WeaveLookup, rig: CaptureRig, key: GeometryKey, dtype
 
 
 def _layers(lookup: WeaveLookup, key: GeometryKey, bands: TileBands) -> list[Layer]:
-    front, back = lookup.layers_of(bands.bands, key.gap_scale)
+    varied = None
+    if key.varied:
+        found = bands.bands
+        varied = yarn_variation.factors(key.variation, lookup.weave, key.gap_scale, bands.X, bands.Y, bands.tile_u,
+                                        bands.tile_v, found.warp["index"], found.weft["index"], lookup.dtype)
+    front, back = lookup.layers_of(bands.bands, key.gap_scale, varied)
     return [front, back][: key.layers]
 
 

@@ -120,10 +120,16 @@ class WeaveLookup:
         weft = self._yarn(WEFT, row, col, in_warp, xr, y_in - w.weft_width / 2, w.tile_width)
         return Bands(warp, weft, in_warp, in_weft, warp_over)
 
-    def layers_of(self, bands: Bands, gap_scale: tuple[float, float]) -> tuple[Layer, Layer]:
-        """:meth:`layers` from the :meth:`bands` at the same points: v and the gap test, per spec 3.1-3.2."""
-        warp, weft = (self._across(yarn, found, gap_scale[yarn]) for yarn, found in ((WARP, bands.warp),
-                                                                                      (WEFT, bands.weft)))
+    def layers_of(self, bands: Bands, gap_scale: tuple[float, float], varied: tuple[dict, dict] | None = None
+                  ) -> tuple[Layer, Layer]:
+        """:meth:`layers` from the :meth:`bands` at the same points: v and the gap test, per spec 3.1-3.2.
+
+        ``varied``: the warp's and the weft's yarn variation at the points
+        (:func:`backend.model.variation.factors`: the varied gap scale ``xi``, the sideways ``shift``, and
+        the ``thickness`` and ``brightness`` factors, which the layers then carry: ``Layer.ids``)."""
+        varied = varied or ({}, {})
+        warp, weft = (self._across(yarn, found, gap_scale[yarn], varied[yarn])
+                      for yarn, found in ((WARP, bands.warp), (WEFT, bands.weft)))
         in_warp, in_weft, warp_over = bands.in_warp, bands.in_weft, bands.warp_over
         crossing = in_warp & in_weft
         front_is_warp = in_warp & (~in_weft | warp_over)
@@ -157,11 +163,16 @@ class WeaveLookup:
         return dict(u=u, across=across, mu=mu, flat=column("flat") > 0, segment=column("segment").long(),
                     index=index)
 
-    def _across(self, yarn: int, found: dict, xi: float) -> dict:
-        """:meth:`_yarn`'s coordinates with v and the gap test at gap scale ``xi``."""
+    def _across(self, yarn: int, found: dict, xi: float, varied: dict) -> dict:
+        """:meth:`_yarn`'s coordinates with v and the gap test at gap scale ``xi`` (per point, and the
+        centre line moved across, where ``varied`` holds a yarn variation)."""
         width = self.weave.band(yarn)[0]
         across = found["across"]
-        return {**found, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
+        if not varied:
+            return {**found, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
+        across = across - varied["shift"]
+        xi = varied["xi"]
+        return {**found, **varied, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
 
     @staticmethod
     def _compose(warp: dict, weft: dict, is_warp, is_weft) -> Layer:

@@ -75,8 +75,9 @@ class LightFactors:
 
     inv_wo_z: torch.Tensor          # 1 / wo_z (signed; a zero cosine counts as 1, spec 4.2)
     irradiance: torch.Tensor        # intensity / distance^2
-    diffuse_flat: torch.Tensor      # |wo_z| irradiance / pi where some layer is a yarn, else 0
-    diffuse_normal: torch.Tensor    # irradiance / pi where some layer is a yarn, else 0
+    diffuse_flat: torch.Tensor      # |wo_z| irradiance / pi where some layer is a yarn, else 0 (times the
+                                    # brightness of the yarn seen, with a yarn variation)
+    diffuse_normal: torch.Tensor    # irradiance / pi where some layer is a yarn, else 0 (the same)
 
 
 @dataclass
@@ -162,6 +163,8 @@ def project(chunk: SampleChunk, geometry: SampleGeometry) -> SampleProjections:
         raise ValueError("the camera and the front light must be above the fabric, the back light below it")
     dtype = chunk.wi.dtype
     any_yarn = 1.0 - geometry.no_yarn
+    if geometry.diffuse_scale is not None:  # the yarn variation's brightness of the yarn seen
+        any_yarn = any_yarn * geometry.diffuse_scale
     directions = _directions(chunk)
     return SampleProjections(layers=[_layer(geo, directions, dtype) for geo in geometry.layers],
                              inv_wi_z=1.0 / chunk.wi[2], front=_light(chunk.front, any_yarn),

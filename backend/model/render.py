@@ -25,7 +25,8 @@ bounded at any resolution and sample count; when gradients are needed over sever
 chunk is checkpointed (recomputed in the backward pass) instead of keeping its intermediates.
 
 For optimisation, a :class:`Renderer` keeps its camera samples (the fixed jitter) and the
-geometry of the last few discrete states (pattern, tiles, gap scale, twist), so an iteration
+geometry of the last few discrete states (pattern, tiles, gap scale, twist, and the yarn variation,
+:mod:`backend.core.variation`, which a fit never changes), so an iteration
 only evaluates the differentiable BSDF. With ``compile=True`` that evaluation is fused by
 ``torch.compile`` when gradients are wanted (several times faster on the CPU once the compile is
 paid; the kernels are cached on disk, :mod:`.compile_cache`), and any compile failure falls back to
@@ -83,6 +84,7 @@ from .param_tensors import ParamTensors, as_float
 from .photo_light import PhotoLight
 from .projections import SampleProjections, project, retwisted
 from .spacing_warp import SpacingWarp
+from .variation import VariationSettings
 
 
 @dataclass
@@ -199,7 +201,8 @@ class Renderer:
         return GeometryKey(pattern=fabric.pattern if fabric.weave is None else f"custom:{fabric.weave}",
                            tiles=fabric.scalar("tiles"), gap_scale=fabric.scalar("gap_scale"),
                            twist_deg=fabric.scalar("twist_deg"), noise=fabric.scalar("noise"),
-                           tension=self.options.tension, layers=self.options.layers)
+                           tension=self.options.tension, layers=self.options.layers,
+                           variation=_variation(fabric))
 
     def _geometry_for(self, key: GeometryKey, lookup: WeaveLookup, rows, chunk) -> SampleProjections:
         """The chunk's projections in the state ``key``, kept for the last few states rendered; a new
@@ -404,6 +407,12 @@ class Renderer:
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(reflection, g, c, self.vignette),
                             display_transform(transmission, g, c, self.vignette), reflection, transmission)
+
+
+def _variation(fabric: ParamTensors) -> VariationSettings | None:
+    """The state's yarn variation (None where every amplitude is 0: the geometry is the unvaried one)."""
+    settings = VariationSettings.of(fabric.scalar)
+    return settings if settings.active else None
 
 
 class _Recomputed(torch.autograd.Function):

@@ -4,7 +4,8 @@ Each is declared once, in ``backend/core/``, and read here (through :func:`paths
 without torch), so the panel, the batch, the node group and the shader cannot drift from the fit:
 
 - the fabric parameters (``core.params``: names, ranges, labels, defaults): the node group's
-  sockets and the OSL inputs;
+  sockets and the OSL inputs; which of them are yarn variations and the variation's hash constants
+  (``core.variation``);
 - the preset weaves (``core.weave.PRESETS``; their order is the shader's ``pattern`` index), which
   of them mirror which (``core.weave.MIRRORED_OF``) and the
   patterns the fit command accepts (``core.priors.FIT_PATTERNS``, with ``auto`` first);
@@ -28,6 +29,16 @@ AUTO_PATTERN = "auto"  # the fit command's "let the fit choose the weave"
 def parameters() -> tuple:
     """The backend's ``PARAMETERS`` tuple of ParamSpec (name, lo, hi, per_yarn, rgb, label, doc, unit)."""
     return backend_module("core.params").PARAMETERS
+
+
+def variation():
+    """The backend's ``core.variation`` module: the yarn variations' kinds, parameter names and hash."""
+    return backend_module("core.variation")
+
+
+def variation_parameters() -> tuple[str, ...]:
+    """The yarn variations' parameter names (``core.variation.PARAMETER_NAMES``)."""
+    return variation().PARAMETER_NAMES
 
 
 def check_params(data) -> None:

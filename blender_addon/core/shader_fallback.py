@@ -12,6 +12,13 @@ height-scaled. Layer 0 (front) and layer 1 (back) take the yarn the weave puts t
 behind the two swap and z is mirrored, as in the OSL shader). It skips the noise (spec 4.6) and the
 flat segments (none in the presets).
 
+Yarn variation (the backend's core/variation.py, :func:`variation_text`): written here with the same
+hash and factors as the backend and the OSL shader (each yarn's plane-wide index and along-yarn
+position from UV; the hash is integers below 2^24, so Blender's float32 Math nodes, floored modulo,
+compute it exactly: tests/test_variation.py evaluates it against the backend), but left out of the
+built node group (:data:`FALLBACK_VARIATION`): it is about 1,060 more nodes, 2,470 instead of 1,410,
+and building the group took 72 s instead of 18 s. So EEVEE and GPU Cycles show no yarn variation.
+
 Shading (spec section 4, the OSL shader's approximation in standard closures). Everything that
 depends on the view direction wi (the Geometry node's Incoming) is computed exactly per layer k;
 the dependence on the light direction wo is left to the closures:
@@ -45,7 +52,7 @@ from __future__ import annotations
 
 import math
 
-from . import shader_dye, shader_eevee, shader_program, shader_weave
+from . import declarations, shader_dye, shader_eevee, shader_program, shader_weave
 
 LAYERS = (0, 1)
 
@@ -61,6 +68,9 @@ LAYERS = (0, 1)
 # wo = -wi. So the lobe is the hair cone, weight TT_CONE times its peak, blended into a translucent closure
 # of that straight-through value as alpha_m goes from TT_GLOW[0] to TT_GLOW[1]. Fitted to the exact lobe of
 # one flat fibre in the capture rig, not to any parameter set the validation uses.
+# Whether the built node group shows the yarn variation (module docstring): off, its nodes made building
+# the group four times slower; program(variation=True) is what it would build.
+FALLBACK_VARIATION = False
 TT_SINGLE = (0.3, 0.7)
 TT_CONE = 1.25
 TT_GLOW = (0.25, 0.95)
@@ -77,6 +87,7 @@ col = min(floor(xr / warp_p), cols - 1)
 row = min(floor(yr / weft_p), rows - 1)
 x_in = xr - col * warp_p
 y_in = yr - row * weft_p
+{variation}
 in_warp = lt(x_in, warp_w)
 in_weft = lt(y_in, weft_w)
 over = x(lookup("matrix", (col + 0.5) / {A_matrix_w}, (mrow0 + row + 0.5) / {A_matrix_h}))
@@ -113,11 +124,11 @@ _YARN = """
 {p}mu_there = {p}before * y({p}et) + (1 - {p}before) * z({p}et)
 {p}dist = {p}before * x({p}ed) + (1 - {p}before) * y({p}ed)
 {p}mu = x({p}et) + ({p}mu_there - x({p}et)) * abs({p}off) / {p}dist
-{p}tension = s_min + (1 - {p}mu) * (1 - s_min)
+{p}tension = (s_min + (1 - {p}mu) * (1 - s_min)){thick}
 {p}u = {p}off / (y({p}e) / 2) * {umax} * ({sign} - 2 * {sign} * z({p}e))
-{p}a = {across} - {width} / 2
-{p}v = {p}a * {pi} / ({width} * gap_scale_{name})
-{p}ok = lt(abs({p}a), {width} * gap_scale_{name} / 2)
+{p}a = {across} - {width} / 2{shift}
+{p}v = {p}a * {pi} / ({width} * {xi})
+{p}ok = lt(abs({p}a), {width} * {xi} / 2)
 {p}su = sin({p}u)
 {p}cu = cos({p}u)
 {p}sv = sin({p}v)
@@ -258,11 +269,18 @@ a{k} = y{k}w * roughness_warp + y{k}f * roughness_weft + 1 - y{k}
 am{k} = y{k}w * roughness_multiple_warp + y{k}f * roughness_multiple_weft + 1 - y{k}
 T{k} = y{k}w * thickness_warp * w_tension + y{k}f * thickness_weft * f_tension
 Tm{k} = y{k}w * thickness_multiple_warp * w_tension + y{k}f * thickness_multiple_weft * f_tension
-ks{k} = vadd(scale(ks_warp, y{k}w), scale(ks_weft, y{k}f))
-km{k} = vadd(scale(km_warp, y{k}w), scale(km_weft, y{k}f))
+ks{k} = vadd(scale(ks_warp, y{k}w{w_bright}), scale(ks_weft, y{k}f{f_bright}))
+km{k} = vadd(scale(km_warp, y{k}w{w_bright}), scale(km_weft, y{k}f{f_bright}))
 ci{k} = dot(wi, vec(x(o{k}t), y(o{k}t), z(o{k}t) * mirror))
 Ai{k} = {sigma} / wiz
 att{k} = exp(0 - T{k} * Ai{k})
+"""
+
+# The yarn variation's brightness of the yarn seen, on the diffuse albedos (after shader_dye.DIFFUSE).
+_SEEN_BRIGHTNESS = """
+seen_bright = front_warp_share * w_bright + front_weft_share * f_bright + 1 - front_warp_share - front_weft_share
+kd_r = scale(kd_r, seen_bright)
+kd_t = scale(kd_t, seen_bright)
 """
 
 _DIFFUSE = """
@@ -278,29 +296,105 @@ translucent = vadd(translucent_diffuse, vadd(scale(km0, glow_m0), scale(km1, glo
 """
 
 
+def _permute(name: str, x: str) -> str:
+    """Lines giving ``name`` = R(x) of core/variation.py: ((x + offset) mod p)^3 mod p."""
+    v = declarations.variation()
+    m = repr(float(v.HASH_MODULUS))
+    return (f"{name}_y = mod({x} + {float(v.HASH_OFFSET)!r}, {m})\n"
+            f"{name} = mod(mod({name}_y * {name}_y, {m}) * {name}_y, {m})\n")
+
+
+def _hash_key(name: str, h: str, key: str) -> str:
+    """Lines giving ``name`` = R(R(h + lo(key)) + hi(key)) (the key split, ``key_lo``/``key_hi``, given)."""
+    return _permute(f"{name}_a", f"{h} + {key}_lo") + _permute(name, f"{name}_a + {key}_hi")
+
+
+def _split(key: str, value: str) -> str:
+    """Lines giving ``key_lo`` = value mod p and ``key_hi`` = ((value - lo) / p) mod p."""
+    m = repr(float(declarations.variation().HASH_MODULUS))
+    return f"{key}_lo = mod({value}, {m})\n{key}_hi = mod(({value} - {key}_lo) / {m}, {m})\n"
+
+
+def _smooth(name: str, stream: int, x: str, length: str, yarn: str | None) -> str:
+    """Lines giving ``name`` = g(x) of core/variation.py at knots every ``length`` (keys: ``yarn``, the knot)."""
+    v = declarations.variation()
+    m = float(v.HASH_MODULUS)
+    text = f"{name}_t = {x} / {length}\n{name}_j0 = floor({name}_t)\n{name}_f = {name}_t - {name}_j0\n"
+    text += f"{name}_w = {name}_f * {name}_f * (3 - 2 * {name}_f)\n{name}_j1 = {name}_j0 + 1\n"
+    starts = [repr(float(v.start(stream, c))) for c in (0, 1)]
+    if yarn is not None:  # the yarn's key first: shared by both knots
+        text += _split(f"{name}_k", yarn)
+        for c in (0, 1):
+            text += _hash_key(f"{name}_p{c}", starts[c], f"{name}_k")
+        starts = [f"{name}_p{c}" for c in (0, 1)]
+    for knot in ("j0", "j1"):
+        text += _split(f"{name}_{knot}", f"{name}_{knot}")
+        for c in (0, 1):
+            text += _hash_key(f"{name}_{knot}h{c}", starts[c], f"{name}_{knot}")
+        text += (f"{name}_{knot}g = (({name}_{knot}h0 + {name}_{knot}h1 + 1) / {m!r} - 1) * {v.GAUSS_SCALE!r}\n")
+    return text + (f"{name} = ((1 - {name}_w) * {name}_j0g + {name}_w * {name}_j1g) / "
+                   f"sqrt((1 - {name}_w) * (1 - {name}_w) + {name}_w * {name}_w)\n")
+
+
+def variation_text() -> str:
+    """The yarn variation's lines (core/variation.py): per yarn family (``w_``, ``f_``) the varied gap scale
+    ``xi``, the slide ``shift`` (tile units), and the ``thick`` and ``bright`` factors, from the yarn's
+    index ``k_warp`` / ``k_weft`` and position ``p_warp`` / ``p_weft``."""
+    v = declarations.variation()
+    text = """v_right = X + floor(su) * tile_w
+v_down = Y - floor(sv) * tile_h
+k_warp = (floor(su) + floor((X - warp_off) / tile_w)) * cols + col
+k_weft = (floor((Y - weft_off) / tile_h) - floor(sv)) * rows + row
+p_warp = v_down / weft_p
+p_weft = v_right / warp_p
+"""
+    for family, (name, p, width) in enumerate((("warp", "w_", "warp_w"), ("weft", "f_", "weft_w"))):
+        g = {}
+        for kind in v.KINDS:
+            amplitude, length = f"{v.amplitude_name(kind)}_{name}", f"{v.length_name(kind)}_{name}"
+            along = kind not in v.ACROSS_YARNS
+            text += _smooth(f"{p}g_{kind}", v.stream(kind, family), f"p_{name}" if along else f"k_{name}", length,
+                            f"k_{name}" if along else None)
+            g[kind] = f"{amplitude} * {p}g_{kind}"
+        text += (f"{p}xi = max(gap_scale_{name} * (1 + {g['width']} + {g['slub']}), {v.XI_MIN!r})\n"
+                 f"{p}shift = {g['spacing']} * {width}\n"
+                 f"{p}thick = max(1 + {g['thickness']} + {g['slub']}, 0)\n"
+                 f"{p}bright = max(1 + {g['brightness']}, 0)\n")
+    return text
+
+
 # Names the program gives the header values (shader_weave.FALLBACK_HEADER).
 _HEADER_NAMES = {"warp_width": "warp_w", "warp_pitch": "warp_p", "warp_offset": "warp_off", "weft_width": "weft_w",
                  "weft_pitch": "weft_p", "weft_offset": "weft_off", "tile_width": "tile_w", "tile_height": "tile_h",
                  "matrix_row0": "mrow0", "warp_row0": "wrow0", "weft_row0": "frow0"}
 
 
-def program() -> list[tuple[str, str]]:
-    """The fallback program: (name, expression) assignments, tables filled in."""
+def program(variation: bool = FALLBACK_VARIATION) -> list[tuple[str, str]]:
+    """The fallback program: (name, expression) assignments, tables filled in; ``variation``: with the
+    yarn variation's lines (:func:`variation_text`)."""
     atlases = shader_weave.fallback_atlases()
     sizes = {f"A_{name}_w": w for name, (w, h, _) in atlases.items()}
     sizes.update({f"A_{name}_h": h for name, (w, h, _) in atlases.items()})
     header = "\n".join(f"{_HEADER_NAMES.get(name, name)} = pick(pattern, {', '.join(repr(v) for v in values)})"
                         for name, values in shader_weave.fallback_header().items())
+    def varied(name: str, p: str) -> dict:  # the yarn variation's factors in a yarn's lines, or none
+        if not variation:
+            return dict(xi=f"gap_scale_{name}", shift="", thick="")
+        return dict(xi=f"{p}xi", shift=f" - {p}shift", thick=f" * {p}thick")
+
     yarns = {name: _YARN.format(name=name, pi=repr(math.pi), deg=repr(math.pi / 180.0), A_w=sizes[f"A_{name}_w"],
-                                A_h=sizes[f"A_{name}_h"], **fields) for name, fields in _YARNS.items()}
-    text = _GEOMETRY.format(header=header, **yarns, **sizes) + shader_dye.program_text()
-    text += _PARAMS.format(pi=repr(math.pi))
-    text += "".join(_LAYER_PARAMS.format(k=k, sigma=_sigma(f"ci{k}", f"a{k}")) for k in LAYERS)
+                                A_h=sizes[f"A_{name}_h"], **fields, **varied(name, fields["p"]))
+             for name, fields in _YARNS.items()}
+    text = _GEOMETRY.format(header=header, variation=variation_text() if variation else "", **yarns, **sizes)
+    text += shader_dye.program_text() + _PARAMS.format(pi=repr(math.pi))
+    bright = dict(w_bright=" * w_bright", f_bright=" * f_bright") if variation else dict(w_bright="", f_bright="")
+    text += "".join(_LAYER_PARAMS.format(k=k, sigma=_sigma(f"ci{k}", f"a{k}"), **bright) for k in LAYERS)
     text += "".join(_layer(k) + shader_eevee.layer_text(k, TT_CONE) for k in LAYERS)
-    text += shader_dye.DIFFUSE + _DIFFUSE.format(n_main=_world("nm")) + shader_eevee.closures_text()
+    text += shader_dye.DIFFUSE + (_SEEN_BRIGHTNESS if variation else "")
+    text += _DIFFUSE.format(n_main=_world("nm")) + shader_eevee.closures_text()
     return shader_program.parse(text)
 
 
-def run(builder, env: dict) -> dict:
+def run(builder, env: dict, variation: bool = FALLBACK_VARIATION) -> dict:
     """The fallback program evaluated with ``builder`` from the inputs ``env`` (shader_program.run)."""
-    return shader_program.run(builder, env, program())
+    return shader_program.run(builder, env, program(variation))

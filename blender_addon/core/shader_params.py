@@ -21,6 +21,8 @@ of the node's :data:`PANELS`:
   ``recolour saturation`` and ``recolour value`` (factors);
 - Warp stripes / Weft stripes: the yarn-dyed sett (core/sett.py), ``warp stripe 1 colour``,
   ``warp stripe 1 threads``, ... (no threads: no pattern);
+- Warp variation / Weft variation: the yarn variations (the backend's ``core/variation.py``: each an
+  amplitude, 0 by default, and a correlation length), ``width_variation warp``, ...;
 - Advanced: the remaining scalars.
 
 The OSL parameter of a socket is its name with spaces replaced by underscores
@@ -53,8 +55,9 @@ COLOUR_MAP = "colour map"
 MAP_REPLACE = "colour map replace"
 RECOLOUR = ("recolour hue", "recolour saturation", "recolour value")
 STRIPE_PANELS = {"warp": "Warp stripes", "weft": "Weft stripes"}
-PANELS = ("Weave", "Warp", "Weft", "Colour", *STRIPE_PANELS.values(), "Advanced")
-CLOSED_PANELS = ("Advanced", *STRIPE_PANELS.values())  # panels the node shows folded
+VARIATION_PANELS = {"warp": "Warp variation", "weft": "Weft variation"}
+PANELS = ("Weave", "Warp", "Weft", "Colour", *STRIPE_PANELS.values(), *VARIATION_PANELS.values(), "Advanced")
+CLOSED_PANELS = ("Advanced", *STRIPE_PANELS.values(), *VARIATION_PANELS.values())  # panels the node shows folded
 # OSL parameters renamed from their socket names: a parameter named after an OSL function hides it
 # (the compiler warns '"noise" already declared in this scope').
 OSL_RENAMED = {"noise": "noise_amount"}
@@ -120,12 +123,14 @@ def _panel(spec) -> str:
 
 
 def _yarn_sockets(spec, kind: str, value, doc: str) -> list[SocketSpec]:
-    """A per-yarn parameter's two inputs: in the Weave panel by axis, else in each yarn's panel."""
+    """A per-yarn parameter's two inputs: in the Weave panel by axis, the variations in each yarn's
+    variation panel, the others in each yarn's panel."""
     sockets = []
+    varied = spec.name in declarations.variation_parameters()
     for yarn, yarn_name in enumerate(YARNS):
         weave = spec.name in _WEAVE_PARAMS
         label = f"{spec.label} {_AXES[yarn]}" if weave else spec.label
-        panel = "Weave" if weave else yarn_name.capitalize()
+        panel = "Weave" if weave else VARIATION_PANELS[yarn_name] if varied else yarn_name.capitalize()
         sockets.append(SocketSpec(
             f"{spec.name} {yarn_name}", kind, tuple(value[yarn]) if spec.rgb else value[yarn], spec.lo,
             spec.hi, spec.name, yarn,

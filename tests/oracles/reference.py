@@ -6,7 +6,9 @@ Every formula is written the way the spec states it, without the fast path's rew
 - directions are expressed in the fiber frame (n, b = o x n, o) and sigma, D use all three
   components; G uses E1/E0 and "divide by 1 if the sum is 0"; ASGGX builds theta_i, theta_o with
   atan2 and the half vector h' explicitly;
-- height scaling keeps o perpendicular with the literal k = -(n_z o_z) / (n_x o_x + n_y o_y).
+- height scaling keeps o perpendicular with the literal k = -(n_z o_z) / (n_x o_x + n_y o_y);
+- yarn variation (backend/core/variation.py): the yarn's plane-wide index straight from its band's
+  position over the plane, the plain-Python hash, and each factor written where the spec's quantity is.
 
 Geometry is plain Python per point; the BSDF is float64 torch, vectorised over points, so that
 values *and* gradients can be compared with :mod:`backend.model.bsdf`.
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 
+from backend.core import variation as yarn_variation
 from backend.core.options import RenderOptions
 from backend.core.params import FabricParams
 from backend.core.weave import BACK, FRONT, WARP, WEFT, Weave
@@ -32,6 +35,8 @@ class PointLayer:
     v: float = 0.0
     mu: float = 0.0
     flat: bool = False
+    thickness: float = 1.0     # yarn variation: factor on T and T_m
+    brightness: float = 1.0    # yarn variation: factor on the albedos
 
 
 # -- weave geometry --------------------------------------------------------------------------
@@ -71,7 +76,7 @@ def _wrap(x: float, period: float) -> float:
     return (x + period / 2) % period - period / 2
 
 
-def _yarn_point(weave: Weave, yarn: int, index: int, along: float, across: float, xi: float):
+def _yarn_point(weave: Weave, yarn: int, index: int, along: float, across: float, xi: float, varied=None):
     segments, period = _all_segments(weave, yarn, index)
     longest = max(length for _, length, _ in segments)
     tension = [0.0 if length >= longest - 1e-9 else 1.0 for _, length, _ in segments]
@@ -93,21 +98,52 @@ def _yarn_point(weave: Weave, yarn: int, index: int, along: float, across: float
     u = (along / (length / 2)) * umax
     if layer == BACK:
         u = -u
+    thickness = brightness = 1.0
+    if varied is not None:  # the yarn's varied width, its centre line moved across
+        xi, shift, thickness, brightness = varied
+        across = across - shift
     v = across * math.pi / (width * xi)
     gap = abs(across) >= width * xi / 2
-    return PointLayer(yarn, u, v, mu, width * math.sin(umax) >= length), gap
+    return PointLayer(yarn, u, v, mu, width * math.sin(umax) >= length, thickness, brightness), gap
 
 
-def point_layers(weave: Weave, X: float, Y: float, gap_scale) -> tuple[PointLayer, PointLayer]:
-    """Front and back layer at tile coordinates (X, Y) (tile units)."""
+def yarn_factors(params: FabricParams, family: int, k: int, p: float):
+    """(xi, shift, thickness, brightness) of yarn k of a family at along-position p (crossings)."""
+    def amplitude(kind):
+        return getattr(params, yarn_variation.amplitude_name(kind))[family]
+
+    def value(kind, x, *keys):
+        if amplitude(kind) <= 0:
+            return 0.0
+        length = getattr(params, yarn_variation.length_name(kind))[family]
+        return amplitude(kind) * yarn_variation.smooth(yarn_variation.stream(kind, family), x, length, *keys)
+
+    slub = value("slub", p, k)
+    xi = max(params.gap_scale[family] * (1.0 + value("width", k) + slub), yarn_variation.XI_MIN)
+    shift = value("spacing", k) * params.resolved_weave.band(family)[0]
+    return xi, shift, max(1.0 + value("thickness", k) + slub, 0.0), max(1.0 + value("brightness", k), 0.0)
+
+
+def point_layers(weave: Weave, X: float, Y: float, gap_scale, params: FabricParams | None = None,
+                 tile=(0, 0)) -> tuple[PointLayer, PointLayer]:
+    """Front and back layer at tile coordinates (X, Y) (tile units); with ``params``, their yarn
+    variation in tile ``tile`` = (floor(u tu), floor(v tv))."""
     xr = (X - weave.warp_offset) % weave.tile_width
     yr = (Y - weave.weft_offset) % weave.tile_height
     col = min(int(xr // weave.warp_pitch), weave.cols - 1)
     row = min(int(yr // weave.weft_pitch), weave.rows - 1)
     x_in, y_in = xr - col * weave.warp_pitch, yr - row * weave.weft_pitch
     in_warp, in_weft = x_in < weave.warp_width, y_in < weave.weft_width
-    warp, warp_gap = _yarn_point(weave, WARP, col, yr, x_in - weave.warp_width / 2, gap_scale[0])
-    weft, weft_gap = _yarn_point(weave, WEFT, row, xr, y_in - weave.weft_width / 2, gap_scale[1])
+    varied = [None, None]
+    if params is not None:
+        right = X + tile[0] * weave.tile_width   # over the plane: to the right
+        down = Y - tile[1] * weave.tile_height   # down the image
+        varied = [yarn_factors(params, WARP, math.floor((right - weave.warp_offset) / weave.warp_pitch),
+                               down / weave.weft_pitch),
+                  yarn_factors(params, WEFT, math.floor((down - weave.weft_offset) / weave.weft_pitch),
+                               right / weave.warp_pitch)]
+    warp, warp_gap = _yarn_point(weave, WARP, col, yr, x_in - weave.warp_width / 2, gap_scale[0], varied[0])
+    weft, weft_gap = _yarn_point(weave, WEFT, row, xr, y_in - weave.weft_width / 2, gap_scale[1], varied[1])
     gap = PointLayer(GAP)
     if in_warp and in_weft:
         warp_over = weave.matrix[row][col]
@@ -228,14 +264,19 @@ def radiance(params: dict, weave: Weave, layers: list[list[PointLayer]], wi, lig
         def per_yarn(name, fill):
             return torch.where(is_yarn, params[name][idx], torch.full_like(params[name][idx], fill))
 
-        tension = torch.tensor([s_min + (1 - p.mu) * (1 - s_min) for p in pts], dtype=torch.float64)
+        tension = torch.tensor([(s_min + (1 - p.mu) * (1 - s_min)) * p.thickness for p in pts], dtype=torch.float64)
+        bright = torch.tensor([p.brightness for p in pts], dtype=torch.float64)[None]
+        none = torch.zeros(3, len(pts), dtype=torch.float64)
         beta = per_yarn("height_scale", 1.0)
         n, o = height_scaled(n, o, beta)
         lobe_args = dict(alpha=per_yarn("roughness", 1.0), T=per_yarn("thickness", 0.0) * tension,
                          alpha_m=per_yarn("roughness_multiple", 1.0), T_m=per_yarn("thickness_multiple", 0.0) * tension,
-                         ks=torch.where(is_yarn[None], ks_all[idx].T, torch.zeros(3, len(pts), dtype=torch.float64)),
-                         km=torch.where(is_yarn[None], km_all[idx].T, torch.zeros(3, len(pts), dtype=torch.float64)))
+                         ks=torch.where(is_yarn[None], ks_all[idx].T * bright, none),
+                         km=torch.where(is_yarn[None], km_all[idx].T * bright, none))
         per_layer.append((n, o, is_yarn, lobe_args))
+    # the diffuse term's brightness: the yarn seen (front, else back through a gap in front)
+    seen = [next((layer[k].brightness for k in range(count) if layer[k].yarn != GAP), 1.0) for layer in layers]
+    seen = torch.tensor(seen, dtype=torch.float64)[None]
     no_yarn = torch.ones(len(layers), dtype=torch.bool)
     for _, _, is_yarn, _ in per_layer:
         no_yarn &= ~is_yarn
@@ -262,7 +303,7 @@ def radiance(params: dict, weave: Weave, layers: list[list[PointLayer]], wi, lig
                     c = c * torch.where(is_yarn, (-cos_n).clamp_min(0), torch.ones_like(cos_n))
                 kd = params["diffuse_transmission"]
             w = params["diffuse_normal_weight"]
-            diffuse = kd[:, None] * (((1 - w) * wo[2].abs() + w * c) / math.pi)[None]
+            diffuse = kd[:, None] * (((1 - w) * wo[2].abs() + w * c) / math.pi)[None] * seen
             value = value + torch.where(no_yarn[None], torch.zeros_like(diffuse), diffuse)
         out.append(value * irradiance[None])
     return out, no_yarn
@@ -295,7 +336,8 @@ def render_points(params: FabricParams | dict, x, y, rig, options: RenderOptions
         u, v = (cx + fx) / rig.plane_size, (cy + fy) / rig.plane_size + 1
         s = (u * params.tiles[0]) % 1.0
         t = 1.0 - (v * params.tiles[1]) % 1.0
-        layers.append(point_layers(weave, s * weave.tile_width, t * weave.tile_height, params.gap_scale))
+        tile = (math.floor(u * params.tiles[0]), math.floor(v * params.tiles[1]))
+        layers.append(point_layers(weave, s * weave.tile_width, t * weave.tile_height, params.gap_scale, params, tile))
     p = torch.tensor([list(x), list(y), [0.0] * len(x)], dtype=torch.float64)
     cam = torch.tensor(rig.camera_position(), dtype=torch.float64)[:, None]
     rotate_back = torch.tensor([[math.cos(theta), math.sin(theta), 0.0], [-math.sin(theta), math.cos(theta), 0.0],
