@@ -68,12 +68,20 @@ def test_fast_path_matches_the_literal_reference(pattern, variant):
     rng = random.Random(zlib.crc32(f"{pattern}/{variant}".encode()))  # the same draw in every process
     options = RenderOptions.from_flags(VARIANTS[variant])
     params = random_params(rng, pattern).replace(gap_scale=(rng.uniform(0.6, 1.0), rng.uniform(0.6, 1.0)))
+    assert_fast_path_matches_reference(params, options, rng, 150)
+
+
+def assert_fast_path_matches_reference(params: FabricParams, options: RenderOptions, rng: random.Random, count: int,
+                                       points=fast_points) -> tuple[list[float], list[float], torch.Tensor]:
+    """The fast path (``points``) and the literal reference agree at ``count`` random world points, in
+    values and in the gradients of every optimised parameter; returns the points and the reference's
+    reflection there."""
     V = DEFAULT_RIG.view_size
-    xs = [rng.uniform(0, V) for _ in range(150)]
-    ys = [rng.uniform(-V, 0) for _ in range(150)]
+    xs = [rng.uniform(0, V) for _ in range(count)]
+    ys = [rng.uniform(-V, 0) for _ in range(count)]
     fast = ParamTensors.from_params(params, dtype=torch.float64, requires_grad=OPTIMISED)
     ref = {n: fast.values[n].detach().clone().requires_grad_(True) for n in OPTIMISED}
-    r_fast, t_fast, no_yarn = fast_points(params, xs, ys, options, fast)
+    r_fast, t_fast, no_yarn = points(params, xs, ys, options, fast)
     r_ref, t_ref, ref_no_yarn = reference.render_points(params, xs, ys, DEFAULT_RIG, options, tensors=ref)
     assert torch.equal(no_yarn > 0, ref_no_yarn)
     torch.testing.assert_close(r_fast, r_ref, rtol=1e-5, atol=1e-8)
@@ -83,6 +91,7 @@ def test_fast_path_matches_the_literal_reference(pattern, variant):
     ((r_ref + 0.5 * t_ref) * weights).sum().backward()
     for name in OPTIMISED:
         torch.testing.assert_close(fast.values[name].grad, ref[name].grad, rtol=1e-4, atol=1e-7, msg=name)
+    return xs, ys, r_ref.detach()
 
 
 @pytest.mark.parametrize("pattern,degrees", [("twill0", 4.0), ("satin1", -7.5), ("plain", 30.0)])

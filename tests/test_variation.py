@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 from oracles import reference
-from test_render import OPTIMISED, random_params
+from test_render import assert_fast_path_matches_reference, random_params
 
 from backend.core import variation as core
 from backend.core.options import RenderOptions
@@ -164,21 +164,7 @@ def test_varied_fast_path_matches_the_literal_reference_values_and_gradients(pat
     options = RenderOptions(layers=layers)
     params = random_params(rng, pattern).replace(gap_scale=(rng.uniform(0.6, 0.95), rng.uniform(0.6, 0.95)),
                                                  tiles=(rng.uniform(15, 40), rng.uniform(15, 40)), **VARIED)
-    V = DEFAULT_RIG.view_size
-    xs = [rng.uniform(0, V) for _ in range(300)]
-    ys = [rng.uniform(-V, 0) for _ in range(300)]
-    fast = ParamTensors.from_params(params, dtype=torch.float64, requires_grad=OPTIMISED)
-    ref = {n: fast.values[n].detach().clone().requires_grad_(True) for n in OPTIMISED}
-    r_fast, t_fast, no_yarn = _points(params, xs, ys, options, fast)
-    r_ref, t_ref, ref_no_yarn = reference.render_points(params, xs, ys, DEFAULT_RIG, options, tensors=ref)
-    assert torch.equal(no_yarn > 0, ref_no_yarn)
-    torch.testing.assert_close(r_fast, r_ref, rtol=1e-5, atol=1e-8)
-    torch.testing.assert_close(t_fast, t_ref, rtol=1e-5, atol=1e-8)
-    weights = torch.rand(r_ref.shape, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
-    ((r_fast + 0.5 * t_fast) * weights).sum().backward()
-    ((r_ref + 0.5 * t_ref) * weights).sum().backward()
-    for name in OPTIMISED:
-        torch.testing.assert_close(fast.values[name].grad, ref[name].grad, rtol=1e-4, atol=1e-7, msg=name)
+    xs, ys, r_ref = assert_fast_path_matches_reference(params, options, rng, 300, points=_points)
     # the variation shows: the same points without it differ
     plain = params.replace(**{n: getattr(FabricParams(), n) for n in VARIED})
     assert (reference.render_points(plain, xs, ys, DEFAULT_RIG, options)[0] - r_ref).abs().max() > 1e-3
