@@ -169,7 +169,7 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     assert optimise(unwarped, dataclasses.replace(settings, spacing_warp=False)) == 58 and unwarped.warp_reads == []
     assert reports[-1][:3] == ("optimise", 100, 100)  # the progress bar completes
     # each report says how long the best has held and the patience: the whole-fit bar's time left reads them
-    assert reports[-1][-1] == {"since_best": 20, "patience": 20, "sparse_steps": 0}  # no sparse objectives: none
+    assert reports[-1][-1] == {"since_best": 20, "patience": 20}
     assert [r[-1]["since_best"] for r in reports[36:40]] == [0, 0, 1, 2]
     # before the search: a plateau of 30 steps does not end it; the search's gain starts a new count
     gained = ScriptedRun([10.0 - 0.1 * min(i, 9) for i in range(100)], search_gain=0.5)
@@ -181,78 +181,6 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0)) == 100
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, first_search=50, patience=20)) == 21
-
-
-class SparseScriptedRun(ScriptedRun):
-    """A :class:`ScriptedRun` that records the objective of each step and when its best is scored again."""
-
-    def __init__(self, best_after_step, objective="full"):
-        super().__init__(best_after_step)
-        self.objective, self.used, self.events, self.history = objective, [], [], []
-
-    def use_objective(self, objective):
-        self.objective = objective
-
-    def rescore_best(self):
-        self.events.append(("rescored", self.steps, self.objective))
-        self.best_loss -= 1.0  # scored again on the full samples: lower than any step to come
-
-    def end_warp_trial(self):
-        self.events.append(("warp trial ended", self.steps))
-
-    def step(self):
-        self.used.append(self.objective)
-        return super().step()
-
-
-def test_the_first_steps_render_sparse_samples_in_turn_and_the_run_converges_only_on_the_full_ones():
-    from backend.fit.pipeline import _optimise
-    settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=10, sparse_fraction=0.6)
-    flat = SparseScriptedRun([5.0] * 100)  # nothing ever improves: only the full steps' patience ends it
-    steps = _optimise(flat, settings, lambda run: None, lambda *report, **fields: None, sparse=["a", "b", "c", "d"])
-    assert flat.used[:60] == ["a", "b", "c", "d"] * 15 and set(flat.used[60:]) == {"full"}
-    assert ("rescored", 60, "full") in flat.events and flat.events.index(("warp trial ended", 60)) < \
-        flat.events.index(("rescored", 60, "full"))
-    assert steps == 70  # the best, scored again at the switch, is never beaten: 10 full steps of patience
-    # the duel's steps count: the sparse steps start after them; none where the duel passed the fraction
-    after_duel = SparseScriptedRun([5.0] * 100)
-    after_duel.history = [(i, 5.0) for i in range(10)]
-    _optimise(after_duel, settings, lambda run: None, lambda *report, **fields: None, done=10, sparse=["a", "b"])
-    assert after_duel.used[:50] == ["a", "b"] * 25 and after_duel.used[50] == "full"
-    late = SparseScriptedRun([5.0] * 100)
-    late.history = [(i, 5.0) for i in range(10)]
-    _optimise(late, dataclasses.replace(settings, sparse_fraction=0.05), lambda run: None, lambda *r, **fields: None,
-              done=10, sparse=["a"])
-    assert set(late.used) == {"full"} and not any(e[0] == "rescored" for e in late.events)
-    # without sparse objectives (or at a fraction of 0) every step renders every sample
-    plain = SparseScriptedRun([5.0] * 100)
-    _optimise(plain, settings, lambda run: None, lambda *report, **fields: None)
-    assert set(plain.used) == {"full"}
-
-
-def test_a_run_goes_on_under_another_objective_with_its_warp_and_its_best_scored_there(twill_pair):
-    from backend.model.spacing_warp import SpacingWarp
-    settings = FitSettings(size=32, spp=4, compile=False)
-    full = _objective(*twill_pair, DEFAULT_RIG, settings)
-    sparse = _objective(*twill_pair, DEFAULT_RIG, dataclasses.replace(settings, spp=1, seed=1))
-    run = Run(TWILL, sparse, settings, total=10, camera_blur_px=1.0)
-    run.step()
-    warp = SpacingWarp.from_grids(np.full((4, 4), 0.5), np.zeros((4, 4)))
-    sparse.renderer.set_warp(warp)
-    sparse_best = run.best_loss
-    run.use_objective(full)
-    assert run.objective is full and full.renderer.warp is warp  # the photos' spacing read so far carries over
-    run.rescore_best()
-    assert run.best_loss == pytest.approx(full.value(run.best, run.best_blur)) != sparse_best
-    assert run.best_terms["loss"] == run.best_loss and set(run.best_terms) >= {"colour_R", "prior"}
-
-
-def test_the_time_left_weighs_sparse_and_full_steps_by_their_own_pace():
-    from backend.fit.pipeline import SPARSE_STEP_COST, time_left
-    assert time_left([1.0, 3.0], [], 10, 5) == pytest.approx(10 * 2.0 + 5 * 2.0 * SPARSE_STEP_COST)
-    assert time_left([1.0], [4.0, 6.0], 0, 5) == pytest.approx(25.0)  # once timed, the full steps' own pace
-    assert time_left([], [5.0], 3, 2) == pytest.approx(3 * 5.0 / SPARSE_STEP_COST + 10.0)
-    assert time_left([], [], 4, 4) == 0.0  # nothing timed yet: no estimate beyond zero
 
 
 def test_discrete_searches_come_after_the_first_search_then_every_search_every():
@@ -491,9 +419,7 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
                  pattern_probabilities=rated)
-    assert {(size, spp) for size, spp, _ in seen} == {(32, 4), (32, 1)}  # the sparse steps: a quarter of the samples
-    # two trials' step each, then the first sparse_fraction of the winner's 3 steps sparse
-    assert [spp for _, spp, grad in seen if grad] == [4, 4, 1, 1, 4]
+    assert {(size, spp) for size, spp, _ in seen} == {(32, 4)}
     assert not any("fine_trial_loss" in c for c in result.candidates)
 
 

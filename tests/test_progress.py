@@ -284,23 +284,3 @@ def test_an_early_stop_brings_the_time_left_close_and_never_below_zero():
         settled = fit.phase is OPTIMISER and (fit.current.since_best or 0) >= OPTIMISER.patience / 2
         if settled or fit.phase is not None and fit.phase.fixed and fit.phase.name != "load" and now > wall / 2:
             assert abs(left - (wall - now)) <= progress.ETA_CHECK * (wall - now), now
-
-
-def test_the_optimisers_sparse_steps_weigh_their_share_of_a_full_step():
-    """The optimiser's first ``sparse_steps`` steps (and a discrete search after one of them) take
-    1 / SPARSE_STEP_COST of a full step's time: at 30 of them done, one a second, the work left is
-    30 more of them and the 40 full steps, each search counted at the kind of step it follows."""
-    cost, pause = progress.SPARSE_STEP_COST, OPTIMISER.pause_counts
-    fit = follow([(0.0, "load", 0, 1), (1.0, "load", 1, 1), (1.0, "search", 0, 1), (10.0, "search", 1, 1),
-                  (20.0, "search", 1, 1)])
-    for step in range(1, 31):
-        fit.update({**progress_event("optimise", step, 100), "since_best": 0, "patience": 20, "sparse_steps": 60},
-                   20.0 + step)
-    sparse_left, full_left = 30 + pause * 1, 40 + pause * 1   # the searches after steps 50 (sparse) and 75 (full)
-    assert fit.work_left() == pytest.approx(sparse_left / cost + full_left)
-    # at one second a sparse step (a search after step 25 among them), the time left is that work at that pace
-    per_sparse_step = 29.0 / (29 + pause)   # steps 2..30 took 29 s, the search after 25 among them
-    assert fit._remainder(1.0, 50.0) == pytest.approx(per_sparse_step * cost * fit.work_left())
-    # a fit that does not say has every step full
-    plain = optimiser_after([0] * 30, patience=20)
-    assert plain.work_left() == pytest.approx(70 + 2 * pause)

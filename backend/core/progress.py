@@ -71,10 +71,6 @@ class Phase:
     pause_counts: float = 0.0
 
 
-# A full step of the optimiser takes as long as this many of its sparse steps (backend.fit.pipeline._optimise:
-# a quarter of the samples per pixel; render and gradient scale with the samples, the loss with the pixels;
-# measured at 512 px): its counts up to ``sparse_steps`` weigh 1 / SPARSE_STEP_COST, as do its pauses there.
-SPARSE_STEP_COST = 2.75
 # A discrete search of the optimiser (20 loss evaluations) takes as long as this many of its steps
 # (measured by tools/fit_timeline.py replay on the fits it tunes on).
 SEARCH_COUNTS = 21.3
@@ -115,7 +111,6 @@ class _Current:
     best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
     since_best: int | None = None   # counts since its best loss last moved (the fit's, else read from its losses)
     patience: int | None = None     # counts without a new best after which it ends (the fit's, else its Phase's)
-    sparse_steps: int = 0           # its first counts, up to this one, are sparse steps (SPARSE_STEP_COST)
 
 
 @dataclass
@@ -153,8 +148,6 @@ class FitProgress:
         since_best, patience = event.get("since_best"), event.get("patience")
         if isinstance(patience, int):
             current.patience = patience
-        if isinstance(event.get("sparse_steps"), int):
-            current.sparse_steps = event["sparse_steps"]
         if isinstance(since_best, int):
             current.since_best = since_best
         elif current.best is not None:   # a fit that does not say: where its reported loss was lowest
@@ -250,13 +243,9 @@ class FitProgress:
     def _work(self, after: int, to: int) -> float:
         """The current phase's work from its count ``after`` to its count ``to``, in counts: one each,
         and :attr:`Phase.pause_counts` for each of its pauses between (none after its total)."""
-        phase, total, sparse = self.phase, self.current.total, self.current.sparse_steps
-
-        def weight(count: int) -> float:  # a sparse step's work (and a pause after one) in full steps
-            return 1.0 / SPARSE_STEP_COST if count <= sparse else 1.0
-
-        counts = (to - after) - (1.0 - 1.0 / SPARSE_STEP_COST) * max(0, min(to, sparse) - after)
-        return counts + phase.pause_counts * sum(weight(k) for k in phase.pauses if after < k <= to and k < total)
+        phase, total = self.phase, self.current.total
+        pauses = sum(after < k <= to and k < total for k in phase.pauses)
+        return (to - after) + phase.pause_counts * pauses
 
     def work_left(self) -> float:
         """The current phase's work to come, in counts (:meth:`_work`): to its total, or, for a phase

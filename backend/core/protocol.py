@@ -5,14 +5,11 @@ With ``--json-progress`` a command writes one JSON object per line on stdout, no
 
 ``start``     {"event": "start", "command": "fit", "version": "0.1.0", "device": "cpu"}
 ``progress``  {"event": "progress", "stage": "optimise", "iteration": 12, "total": 300,
-               "loss": 0.0312, "eta_s": 41.5, "elapsed_s": 7.9, "since_best": 3, "patience": 20,
-               "sparse_steps": 60}
+               "loss": 0.0312, "eta_s": 41.5, "elapsed_s": 7.9, "since_best": 3, "patience": 20}
               stage is one of: load, init, search, optimise, render, report. loss and eta_s may be null.
               since_best and patience, the optimiser's (else null): the steps since its best loss last
               moved, and the steps without a new best after which it ends before its total (0: never);
-              its event of iteration = total says it has ended, early or not. sparse_steps, the
-              optimiser's (else null): its first steps, those up to this count, render a quarter of
-              the samples (each about 1 / SPARSE_STEP_COST of a full step's time, backend.core.progress).
+              its event of iteration = total says it has ended, early or not.
 ``warning``   {"event": "warning", "message": "...", "file": "path or null"} (also a ``warning:`` line on
               the log, stderr, as in the terminal: a caller's log of the run holds it)
 ``result``    {"event": "result", "out_dir": "...", "params": ".../params.json",
@@ -112,8 +109,7 @@ class Reporter:
             self._emit("start", command=command, version=__version__, **fields)
 
     def progress(self, stage: str, iteration: int, total: int, loss: float | None = None,
-                 eta_s: float | None = None, since_best: int | None = None, patience: int | None = None,
-                 sparse_steps: int | None = None):
+                 eta_s: float | None = None, since_best: int | None = None, patience: int | None = None):
         if stage not in STAGES:
             raise ProtocolError(f"unknown stage {stage!r}")
         loss = None if loss is None or loss != loss else float(loss)
@@ -121,8 +117,7 @@ class Reporter:
             self._emit("progress", stage=stage, iteration=int(iteration), total=int(total), loss=loss,
                        eta_s=None if eta_s is None else round(float(eta_s), 2), elapsed_s=round(self.elapsed(), 2),
                        since_best=None if since_best is None else int(since_best),
-                       patience=None if patience is None else int(patience),
-                       sparse_steps=None if sparse_steps is None else int(sparse_steps))
+                       patience=None if patience is None else int(patience))
             return
         text = f"{iteration}/{total}"
         if loss is not None:

@@ -87,23 +87,6 @@ class Run:
         with torch.no_grad():
             self._blur.fill_(value)
 
-    def use_objective(self, objective: Objective) -> None:
-        """Goes on with ``objective`` (another jitter or sample count of the same photos, size and
-        rig): its renders take the photos' spacing warp read so far."""
-        warp = self.objective.renderer.warp
-        if objective.renderer.warp is not warp:
-            objective.renderer.set_warp(warp)
-        self.objective = objective
-
-    def rescore_best(self) -> None:
-        """The best parameters seen, scored again by the current objective: losses under another
-        objective do not compare with its own."""
-        with torch.no_grad():
-            fabric = ParamTensors.from_params(self.best, self.objective.renderer.device)
-            terms = self.objective.terms(fabric, self.best_blur)
-        self.best_terms = _on_host(terms)
-        self.best_loss = self.best_terms["loss"]
-
     @property
     def estimates_blur(self) -> bool:
         return self.blur_floor is not None

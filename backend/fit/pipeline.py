@@ -13,9 +13,8 @@ taking the values the one before returned.
                fine): Adam on the continuous parameters and, where it is estimated, the camera blur;
                after ``first_search`` iterations and then every ``search_every`` the photos' uneven
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
-               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); its first
-               ``sparse_fraction`` of the steps render a quarter of the samples, a new jitter each
-               (:func:`_optimise`); it ends early once the best loss stops moving (:func:`converged`)
+               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); it ends
+               early once the best loss stops moving (:func:`converged`)
     coarse to fine
                with a working size above BASE_SIZE (dense weaves), the search runs at BASE_SIZE with
                the same samples per image, its camera blur on sub-pixels (:func:`_coarse`), and only
@@ -49,7 +48,6 @@ import torch
 
 from ..core import priors
 from ..core.params import FabricParams
-from ..core.progress import SPARSE_STEP_COST
 from ..core.rig import CaptureRig
 from ..model.render import Renderer
 from ..texture.candidates import Candidate
@@ -65,10 +63,6 @@ from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
 
 # The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
 BLUR_DUEL_PX = 0.25
-# Sparse steps (:func:`_optimise`): a step renders this many times fewer samples per pixel than the fit's,
-# from one of SPARSE_JITTERS jitters in turn, so that as many steps in a row see as many samples as one full step.
-SPARSE_SPP_DIVISOR = 4
-SPARSE_JITTERS = 4
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -136,10 +130,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
-    # the compiled renderer takes no sparse steps: their shapes would cost a compile of their own
-    sparse = _sparse_objectives(reflection, transmission, rig, settings) \
-        if settings.sparse_fraction > 0 and not settings.compile else []
-    steps = _optimise(run, settings, check_stop, progress, duel_steps, sparse)
+    steps = _optimise(run, settings, check_stop, progress, duel_steps)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["warp_s"] = run.warp_s  # of optimise_s
     with torch.no_grad():
@@ -158,14 +149,6 @@ def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings)
     gram = GramDescriptor.load(settings.vgg_weights, device) if settings.vgg_weights else None
     return Objective(target, renderer, rig, settings.weights, settings.prior_weight, gram, settings.gram_weight,
                      settings.light_falloff)
-
-
-def _sparse_objectives(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> list[Objective]:
-    """SPARSE_JITTERS objectives of the working size with SPARSE_SPP_DIVISOR times fewer samples per
-    pixel, each its own jitter (seeds after the fit's): the sparse steps of :func:`_optimise`."""
-    spp = max(1, settings.spp // SPARSE_SPP_DIVISOR)
-    return [_objective(reflection, transmission, rig, dataclasses.replace(settings, spp=spp, seed=settings.seed + k))
-            for k in range(1, SPARSE_JITTERS + 1)]
 
 
 def _rated(found: list[Candidate], pattern_probabilities, threshold: float,
@@ -347,22 +330,14 @@ def _coarse(settings: FitSettings) -> FitSettings:
     return dataclasses.replace(settings, size=search.BASE_SIZE, spp=spp, subpixel_blur=True)
 
 
-def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, done: int = 0,
-              sparse: list[Objective] | None = None) -> int:
+def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, done: int = 0) -> int:
     """The winner's run goes on until it has had ``settings.iterations`` steps at the working size, or
     fewer where it has converged (:func:`converged`); returns the steps it had there in all.
 
     ``done``: the steps it has had at the working size already (the duel's, :func:`_finalist`): it
     goes on from them as one run, so a winner that holds its place fits as it would have alone. With
     none (its steps were trial steps at the base size), it goes on from its best parameters so far
-    with a fresh Adam state.
-
-    ``sparse``: objectives of fewer samples per pixel, each its own jitter (:func:`_sparse_objectives`).
-    The steps before ``sparse_fraction`` of the iterations take them in turn (a discrete search
-    renders with the step's): where a weave is still far from the photos, a quarter of the samples
-    points the way as well, at about a third of the cost, and the changing jitter keeps the steps
-    from fitting one jitter's aliases. The steps after it render every sample, starting from the
-    best parameters seen scored again on them; the run converges only there."""
+    with a fresh Adam state."""
     if done == 0:
         run.restart_from_best()
     loop_started = time.perf_counter()
@@ -373,19 +348,7 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
         for step, (_, value) in enumerate(run.history, start=1):
             if value < best:
                 best, improved_at = value, step
-    sparse_until = max(done, min(round(settings.iterations * settings.sparse_fraction), settings.iterations - 1)) \
-        if sparse else done
-    full = run.objective if sparse_until > done else None
-    spent: dict[bool, list[float]] = {True: [], False: []}  # seconds of each sparse (True) and full step
-    step_started = loop_started
     for it in range(done, settings.iterations):
-        if it < sparse_until:
-            run.use_objective(sparse[it % len(sparse)])
-        elif it == sparse_until and full is not None:
-            run.end_warp_trial()
-            run.use_objective(full)
-            run.rescore_best()
-            best, improved_at = run.best_loss, it
         value = run.step()
         check_stop(run)
         done = it + 1
@@ -396,33 +359,16 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             search_round += 1
         if run.best_loss < best:
             best, improved_at = run.best_loss, done
-        if done > sparse_until and converged(settings, done, improved_at, search_round):
+        if converged(settings, done, improved_at, search_round):
             run.end_warp_trial()
             progress("optimise", settings.iterations, settings.iterations, value, 0.0,
-                     since_best=done - improved_at, patience=settings.patience, sparse_steps=sparse_until)
+                     since_best=done - improved_at, patience=settings.patience)
             return done
-        now = time.perf_counter()
-        spent[it < sparse_until].append(now - step_started)
-        step_started = now
-        progress("optimise", done, settings.iterations, value,
-                 time_left(spent[True], spent[False], max(0, sparse_until - done),
-                           settings.iterations - max(done, sparse_until)),
-                 since_best=done - improved_at, patience=settings.patience, sparse_steps=sparse_until)
+        eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
+        progress("optimise", done, settings.iterations, value, eta, since_best=done - improved_at,
+                 patience=settings.patience)
     run.end_warp_trial()
     return done
-
-
-def time_left(sparse_s: list[float], full_s: list[float], sparse_left: int, full_left: int) -> float:
-    """Seconds the optimisation's steps left should take, at the mean pace of its steps so far of each
-    kind (``sparse_s``, ``full_s``: seconds per step, a discrete search's within its step); a full
-    step not yet timed counts as SPARSE_STEP_COST sparse ones."""
-    sparse_pace = sum(sparse_s) / len(sparse_s) if sparse_s else None
-    full_pace = sum(full_s) / len(full_s) if full_s else None
-    if full_pace is None:
-        full_pace = SPARSE_STEP_COST * sparse_pace if sparse_pace is not None else 0.0
-    if sparse_pace is None:
-        sparse_pace = full_pace / SPARSE_STEP_COST
-    return sparse_left * sparse_pace + full_left * full_pace
 
 
 def search_due(settings: FitSettings, done: int) -> bool:

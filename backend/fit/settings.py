@@ -49,9 +49,6 @@ class FitSettings:
                                      # 512 px, 4 spp: the same million samples)
     patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
                                      # a discrete search has had its turn (0: it runs every iteration)
-    sparse_fraction: float = 0.6     # the share of the optimisation's iterations run on SPARSE_SPP_DIVISOR times fewer
-                                     # samples per pixel, a new jitter at each step (backend.fit.pipeline._optimise;
-                                     # eager renders only: the compiled graph's shapes are the full samples)
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
