@@ -168,10 +168,8 @@ class WeaveLookup:
         centre line moved across, where ``varied`` holds a yarn variation)."""
         width = self.weave.band(yarn)[0]
         across = found["across"]
-        if not varied:
-            return {**found, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
-        across = across - varied["shift"]
-        xi = varied["xi"]
+        if varied:
+            across, xi = across - varied["shift"], varied["xi"]
         return {**found, **varied, "v": across * (math.pi / (width * xi)), "gap": across.abs() >= width * xi / 2}
 
     @staticmethod

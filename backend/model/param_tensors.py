@@ -104,10 +104,6 @@ class ParamTensors:
 
 
 def _shaped(flat: list[float], shape: torch.Size):
-    """A flat list of values back in a tensor's shape, as ``tolist()`` gives it (a float for a 0-d one)."""
-    if not shape:
-        return flat[0]
-    if len(shape) == 1:
-        return list(flat)
-    step = len(flat) // shape[0]
-    return [_shaped(flat[i * step:(i + 1) * step], shape[1:]) for i in range(shape[0])]
+    """A flat list of values back in a tensor's shape, as ``tolist()`` gives it (a float for a 0-d one;
+    float64 holds the float32 values exactly)."""
+    return torch.tensor(flat, dtype=torch.float64).reshape(shape).tolist()

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 
 from ..core import variation as declared
-from ..core.variation import ACROSS_YARNS, GAUSS_SCALE, HASH_MODULUS, HASH_OFFSET, KINDS, XI_MIN
+from ..core.variation import GAUSS_SCALE, HASH_MODULUS, HASH_OFFSET, KINDS, XI_MIN
 from ..core.weave import WARP, WEFT, Weave
 
 
@@ -107,29 +107,22 @@ def family_factors(settings: VariationSettings, family: int, weave: Weave, xi: f
                    p: torch.Tensor, dtype) -> dict[str, torch.Tensor]:
     """One family's factors at its yarn (k, p) through each point: ``xi`` (the varied gap scale),
     ``shift`` (tile units), ``thickness`` and ``brightness`` (the module's formulas), in ``dtype``."""
-    def per_yarn(kind: str) -> torch.Tensor | None:
+    zero = torch.zeros_like(p)
+
+    def per_yarn(kind: str) -> torch.Tensor:
         a = settings.amplitude(kind, family)
         if a <= 0:
-            return None
+            return zero
         return a * smooth(declared.stream(kind, family), k.to(torch.float64), settings.length(kind, family))
 
     a_slub = settings.amplitude("slub", family)
     slub = (a_slub * smooth(declared.stream("slub", family), p, settings.length("slub", family), k)
-            if a_slub > 0 else None)
-    terms = {kind: per_yarn(kind) for kind in ACROSS_YARNS}
-    zero = torch.zeros_like(p)
-
-    def total(kind):
-        parts = [t for t in (terms[kind], slub) if t is not None]
-        return sum(parts, zero)
-
+            if a_slub > 0 else zero)
     width = weave.band(family)[0]
-    shift = terms["spacing"] if terms["spacing"] is not None else zero
-    brightness = terms["brightness"] if terms["brightness"] is not None else zero
-    return {"xi": torch.clamp(xi * (1.0 + total("width")), min=XI_MIN).to(dtype),
-            "shift": (shift * width).to(dtype),
-            "thickness": torch.clamp(1.0 + total("thickness"), min=0.0).to(dtype),
-            "brightness": torch.clamp(1.0 + brightness, min=0.0).to(dtype)}
+    return {"xi": torch.clamp(xi * (1.0 + (per_yarn("width") + slub)), min=XI_MIN).to(dtype),
+            "shift": (per_yarn("spacing") * width).to(dtype),
+            "thickness": torch.clamp(1.0 + (per_yarn("thickness") + slub), min=0.0).to(dtype),
+            "brightness": torch.clamp(1.0 + per_yarn("brightness"), min=0.0).to(dtype)}
 
 
 def factors(settings: VariationSettings, weave: Weave, gap_scale, X, Y, tile_u, tile_v, col, row,
