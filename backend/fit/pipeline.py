@@ -15,6 +15,9 @@ taking the values the one before returned.
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
                parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); it ends
                early once the best loss stops moving (:func:`converged`)
+    variation  the yarn variation the photos show, read from the texture power the regular weave
+               leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
+               goes on from it for ``settings.settle_steps`` steps (:func:`_with_variation`)
     coarse to fine
                with a working size above BASE_SIZE (dense weaves), the search runs at BASE_SIZE with
                the same samples per image, its camera blur on sub-pixels (:func:`_coarse`), and only
@@ -22,7 +25,7 @@ taking the values the one before returned.
                fresh camera-blur scan there; its first ``duel_iterations`` steps beside its face
                twin on its lattice, which the trials at BASE_SIZE cannot tell from it
                (:func:`_finalist`)
-    result     the best parameters seen, their loss and terms, the camera blur, the photos' light
+    result     the best parameters seen (with the variation), their loss and terms, the camera blur, the photos' light
                falloff at those parameters and their spacing warp, the candidates compared, the
                loss history and stage timings
 
@@ -49,6 +52,7 @@ import torch
 from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
+from ..core.variation import KINDS
 from ..model.render import Renderer
 from ..texture.candidates import Candidate
 from ..texture.frequencies import lattice_of
@@ -60,9 +64,7 @@ from .gram import GramDescriptor
 from .objective import Objective, Target
 from .optimise import Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
-
-# The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
-BLUR_DUEL_PX = 0.25
+from .variation_estimate import VariationEstimate, estimate_variation
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -133,12 +135,16 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     steps = _optimise(run, settings, check_stop, progress, duel_steps)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["warp_s"] = run.warp_s  # of optimise_s
+    variation_started = time.perf_counter()
+    variation = _with_variation(run, settings, check_stop, progress) if settings.estimate_variation else None
+    timings["variation_s"] = time.perf_counter() - variation_started
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
                      run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
-                     settings.iterations, steps, run.objective.renderer.warp)
+                     settings.iterations, steps, run.objective.renderer.warp,
+                     None if variation is None else variation.to_dict())
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -244,28 +250,16 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     then lower by more than ``duel_margin`` (while both adapt to the photos the lead can swing; the
     margin is twice the swing seen). The steps are the first of the optimisation's ``iterations``,
     so a winner that holds its place ends as it would have alone. Each finalist's summary records its
-    loss there (``fine_trial_loss``).
-
-    Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
-    photos' reading (``blur_floor``), the winner first also runs from its start at the reading for
-    those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
+    loss there (``fine_trial_loss``)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     total = settings.iterations + settings.trial_iterations
     runs = [_fine_run(params, fine, settings, total, blur, blur_floor) for params, _ in finalists]
     steps = min(settings.duel_iterations, settings.iterations)
-    duelling_blur = blur_floor is not None and runs[0].camera_blur_px > blur_floor + BLUR_DUEL_PX
-    if steps == 0 or (len(runs) == 1 and not duelling_blur):
+    if steps == 0 or len(runs) == 1:
         return runs[0], 0
-    scanned_blur = runs[0].camera_blur_px  # where the winner starts: its run moves the blur from there
-    if duelling_blur:  # the winner also from the photos' blur: the scan's choice can be a valley
-        runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_floor, blur_floor))
     _duel_steps(runs, steps, check_stop, progress)
-    if duelling_blur:
-        runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_floor)]
     for (_, summary), run in zip(finalists, runs):
         summary["fine_trial_loss"] = run.best_loss
-    if len(runs) == 1:
-        return runs[0], steps
     held, twin = runs
     return (twin if twin.best_loss < held.best_loss - settings.duel_margin else held), steps
 
@@ -304,14 +298,6 @@ def _duel_steps(runs: list[Run], steps: int, check_stop, progress: Progress) -> 
             run.step()
             check_stop(run)
             progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
-
-
-def _blur_duel(scanned: Run, floored: Run, summary: dict, scanned_blur: float, floor: float) -> Run:
-    """Of the winner's runs from the scan's blur and from the photos' reading (``floor``), the one
-    with the lower best loss; the winner's ``summary`` records both (``blur_duel``)."""
-    summary["blur_duel"] = {"blur_px": scanned_blur, "loss": scanned.best_loss,
-                            "floor_px": floor, "floor_loss": floored.best_loss}
-    return floored if floored.best_loss < scanned.best_loss else scanned
 
 
 def _coarse(settings: FitSettings) -> FitSettings:
@@ -369,6 +355,29 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
                  patience=settings.patience)
     run.end_warp_trial()
     return done
+
+
+def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progress) -> VariationEstimate:
+    """The yarn variation the photos show, read at the run's best parameters and blur
+    (:func:`backend.fit.variation_estimate.estimate_variation`). Where it is kept the run goes on
+    from the varied parameters for ``settings.settle_steps`` steps, its best loss counted afresh:
+    the variation moves the images' means (a yarn's transmission is convex in its thickness and
+    width), which the albedos and thicknesses make up for."""
+    total = len(KINDS) + 2 + settings.settle_steps
+
+    def counted(done: int) -> None:
+        check_stop(run)
+        progress("variation", done, total, run.best_loss, None)
+
+    progress("variation", 0, total, run.best_loss, None)
+    varied, reading = estimate_variation(run.best, run.objective, run.best_blur, settings.seed, counted)
+    if reading.kept:
+        run.start_over_from(varied)
+        for step in range(settings.settle_steps):
+            run.step()
+            counted(len(KINDS) + 3 + step)
+    progress("variation", total, total, run.best_loss, 0.0)
+    return reading
 
 
 def search_due(settings: FitSettings, done: int) -> bool:
