@@ -34,7 +34,7 @@ from backend.fit.search import (
 )
 from backend.fit.settings import FitSettings
 from backend.image import metrics
-from backend.image.camera_blur import BLUR_ABOVE_READING_PX
+from backend.image.camera_blur import blur_range
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
@@ -267,9 +267,10 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     for _ in range(8):
         run.step()
         blurs.append(run.camera_blur_px)
-    lr = settings.lr * BLUR_ABOVE_READING_PX
+    floor, ceiling = blur_range(2.0)
+    lr = settings.lr * (ceiling - floor)
     assert all(abs(b - a) <= 1.01 * lr for a, b in zip(blurs, blurs[1:]))
-    assert blurs[-1] > 2.0 + 3 * lr and max(blurs) <= 2.0 + BLUR_ABOVE_READING_PX + 1e-9
+    assert blurs[-1] > 2.0 + 3 * lr and max(blurs) <= ceiling
     # a restart from the best parameters takes their blur (the last step moved it on)
     assert run.best_blur in blurs[:-1] and run.best_blur != run.camera_blur_px
     run.restart_from_best()

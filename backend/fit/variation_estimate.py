@@ -73,12 +73,14 @@ class VariationEstimate:
     gap_before_db: float
     gap_after_db: float
     kept: bool
-    band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # after - photo, per photo
+    band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # kept render - photo, per photo
 
     def to_dict(self) -> dict:
         return {"amplitudes": {k: round(v, 4) for k, v in self.amplitudes.items()},
                 "gap_before_db": round(self.gap_before_db, 2), "gap_after_db": round(self.gap_after_db, 2),
-                "kept": self.kept, "band_gaps_db": {k: [round(x, 2) for x in v] for k, v in self.band_gaps_db.items()}}
+                "kept": self.kept,
+                "band_gaps_db": {k: [round(x, 2) if np.isfinite(x) else None for x in v]  # None: past Nyquist
+                                 for k, v in self.band_gaps_db.items()}}
 
 
 def with_amplitudes(params: FabricParams, amplitudes: dict[str, float]) -> FabricParams:
@@ -134,7 +136,7 @@ def _gap_db(power: np.ndarray, photo: np.ndarray) -> float:
     """The texture gap (dB) of a render's noise-free power against the photos', a band where the
     render holds less than GAP_FLOOR of the photo's read at that floor (a cross-power can be 0 or
     less where the render holds nothing)."""
-    return float(np.mean(np.abs(power_db(np.maximum(power, GAP_FLOOR * photo)) - power_db(photo))))
+    return float(np.nanmean(np.abs(power_db(np.maximum(power, GAP_FLOOR * photo)) - power_db(photo))))
 
 
 def estimate_variation(params: FabricParams, objective: Objective, blur: float, seed: int = 0,
@@ -153,10 +155,11 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
         added.append(np.maximum(powers(with_amplitudes(regular, {k: PROBE_AMPLITUDE})) - base, 0.0)
                      / PROBE_AMPLITUDE ** 2)
         progress(1 + len(added))
-    scale = photo.reshape(-1)
-    design = np.stack([v.reshape(-1) for v in added], axis=1) / scale[:, None]
+    seen = np.isfinite(photo.reshape(-1))   # the bands below the readings' Nyquist corner
+    scale = photo.reshape(-1)[seen]
+    design = np.stack([v.reshape(-1)[seen] for v in added], axis=1) / scale[:, None]
     upper = np.array([SPECS[amplitude_name(k)].hi ** 2 for k in KINDS])
-    squares = bounded_least_squares(design, 1.0 - base.reshape(-1) / scale, upper)
+    squares = bounded_least_squares(design, 1.0 - base.reshape(-1)[seen] / scale, upper)
     amplitudes = {k: float(np.sqrt(x)) for k, x in zip(KINDS, squares)}
     varied = with_amplitudes(regular, amplitudes)
     after = powers(varied) if squares.any() else base

@@ -31,7 +31,7 @@ The estimate is model-free, which is the point: the fit's loss also rewards blur
 yarns disagree with the photo's (a softer render hides the disagreement, and a real fabric's
 irregular yarns never line up with a regular render's), so the loss alone cannot tell a soft camera
 from a wrong parameter; this estimate can, and decides whether the fit may estimate a blur at all
-(:data:`SOFT_PHOTO_PX`) and its range: from the reading to :data:`BLUR_ABOVE_READING_PX` above it
+(:data:`SOFT_PHOTO_PX`) and its range: from the reading to :data:`BLUR_OVER_READING` times it
 (:func:`blur_range`). Read on renders and photo-like pairs of known blur it comes within 0.3 px of
 the blur they were made with (``tests/test_camera_blur.py``).
 """
@@ -52,9 +52,10 @@ SIGMA_STEP = 0.02      # px, the grid of the fitted sigma
 MAX_SIGMA_PX = 3.0     # px of the photos read: past it the blurred part is gone by the first ring
 MIN_GAIN = 5.0         # misfit of the flat spectrum / misfit of the best sigma, to read a blur at all
 SOFT_PHOTO_PX = 0.3    # below: as sharp as a render
-# px a fit's camera blur may lie above the photos' reading: the reading's own error on renders of
-# known blur, so a fit cannot blur away the yarn texture the photos hold
-BLUR_ABOVE_READING_PX = 0.3
+# The most a fit's camera blur may be, as a multiple of the photos' reading: beyond it the fit blurs
+# away yarn texture the photos hold (a satin was fitted at four times its reading, its re-render
+# without any), while a tighter bound cost a satin's fit more than its texture gained
+BLUR_OVER_READING = 2.0
 
 
 @dataclass(frozen=True)
@@ -73,7 +74,7 @@ class BlurReading:
 def blur_range(reading_px: float) -> tuple[float, float]:
     """(lowest, highest) camera blur a fit may use for photos that read ``reading_px``, at most
     MAX_CAMERA_BLUR_PX."""
-    return min(reading_px, MAX_CAMERA_BLUR_PX), min(reading_px + BLUR_ABOVE_READING_PX, MAX_CAMERA_BLUR_PX)
+    return min(reading_px, MAX_CAMERA_BLUR_PX), min(reading_px * BLUR_OVER_READING, MAX_CAMERA_BLUR_PX)
 
 
 def ring_medians(image: np.ndarray, gamma: float = GAMMA) -> tuple[np.ndarray, np.ndarray]:

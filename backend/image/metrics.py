@@ -65,7 +65,8 @@ def band_power(image: np.ndarray, other: np.ndarray | None = None) -> np.ndarray
     image's size) of the power spectrum of the high-passed, Hann-windowed luminance (as
     :func:`_log_spectrum` reads it, unblurred). With ``other`` (an image of the same scene with
     independent noise, e.g. a render with other samples) the cross-power Re(F F_other*) instead:
-    the noise of one is uncorrelated with the other's, so its mean is the power without the noise."""
+    the noise of one is uncorrelated with the other's, so its mean is the power without the noise.
+    A band past the image's Nyquist corner (an image under 128 px) is NaN."""
     spectrum = np.fft.fft2(windowed_highpass(image, SPECTRUM_HIGHPASS_PX * image.shape[0] / METRIC_SIZE))
     if other is None:
         power = np.abs(spectrum) ** 2
@@ -75,8 +76,8 @@ def band_power(image: np.ndarray, other: np.ndarray | None = None) -> np.ndarray
     fy = np.fft.fftfreq(power.shape[0])[:, None]
     fx = np.fft.fftfreq(power.shape[1])[None, :]
     radius = np.hypot(fx, fy) * power.shape[0] / METRIC_SIZE   # cycles per pixel of a METRIC_SIZE image
-    return np.array([power[(radius >= lo) & (radius < hi)].mean()
-                     for lo, hi in zip(TEXTURE_BANDS[:-1], TEXTURE_BANDS[1:])])
+    bands = [(radius >= lo) & (radius < hi) for lo, hi in zip(TEXTURE_BANDS[:-1], TEXTURE_BANDS[1:])]
+    return np.array([power[band].mean() if band.any() else np.nan for band in bands])
 
 
 def power_db(power: np.ndarray) -> np.ndarray:
