@@ -18,7 +18,7 @@ from backend.core.fit_options import BLUR_ON
 from backend.core.params import FabricParams
 from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode
-from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.optimise import Run, parabolic_step
@@ -34,8 +34,7 @@ from backend.fit.search import (
 )
 from backend.fit.settings import FitSettings
 from backend.image import metrics
-from backend.image.camera_blur import blur_range
-from backend.model.param_tensors import ParamTensors
+from backend.model.param_tensors import ParamTensors, as_float
 from backend.model.render import Renderer, render_pair
 from backend.texture import candidates as search
 from backend.texture import sieve
@@ -252,33 +251,32 @@ def test_fit_estimates_the_camera_blur(twill_pair):
     assert fixed.camera_blur_px == 1.5
 
 
-def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photos():
+@pytest.mark.parametrize("start", [1.0, 4.0])
+def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photos(start):
     """Photos of TWILL blurred by 2.5 film px (1.25 px at the 256-px working size, where the loss at the
     truth is lowest near 2.75: the fit's 4 samples a pixel against the photos' 8); a run from the true
-    fabric at a reading of 2.0: Adam moves the blur up toward the photos', in steps no longer than its
-    learning rate (its range times lr), and never above the range's ceiling. A fixed blur (no floor)
-    stays; a blur whose loss is lower below the floor stays at the floor."""
+    fabric at another blur: Adam moves the blur toward the photos' from either side, in steps no longer
+    than its learning rate, and never below the floor. A fixed blur (no floor) stays."""
     rig = CaptureRig(camera_blur_px=2.5)
     photos = render_pair(TWILL, rig, size=256, spp=8, seed=3)
     settings = FitSettings(pattern="twill1", size=256, spp=4, compile=False)
     objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
-    run = Run(TWILL, objective, settings, 8, 2.0, blur_floor=2.0)
+    run = Run(TWILL, objective, settings, 8, start, blur_floor=0.5)
     blurs = [run.camera_blur_px]
     for _ in range(8):
         run.step()
         blurs.append(run.camera_blur_px)
-    floor, ceiling = blur_range(2.0)
-    lr = settings.lr * (ceiling - floor)
+    lr = settings.lr * (MAX_CAMERA_BLUR_PX - 0.5)
     assert all(abs(b - a) <= 1.01 * lr for a, b in zip(blurs, blurs[1:]))
-    assert blurs[-1] > 2.0 + 3 * lr and max(blurs) <= ceiling
+    assert abs(blurs[-1] - 2.5) < abs(start - 2.5) - 3 * lr
     # a restart from the best parameters takes their blur (the last step moved it on)
     assert run.best_blur in blurs[:-1] and run.best_blur != run.camera_blur_px
     run.restart_from_best()
     assert run.camera_blur_px == run.best_blur
-    fixed = Run(TWILL, objective, settings, 3, 2.0)
+    fixed = Run(TWILL, objective, settings, 3, start)
     for _ in range(3):
         fixed.step()
-    assert fixed.camera_blur_px == 2.0
+    assert fixed.camera_blur_px == start
     floored = Run(TWILL, objective, settings, 3, 3.51, blur_floor=3.5)  # the loss is lower below the floor
     for _ in range(3):
         floored.step()
@@ -424,6 +422,50 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
                  pattern_probabilities=rated)
     assert {(size, spp) for size, spp, _ in seen} == {(32, 4)}
     assert not any("fine_trial_loss" in c for c in result.candidates)
+
+
+def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well_above_it(twill_pair, monkeypatch):
+    """Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
+    photos' reading, the winner also runs from its start at the reading for ``duel_iterations``
+    steps, before its face twin; the lower loss goes on (no margin), and the winner's summary says
+    which blurs duelled with which losses. Here the photos read 0.5 px and the scan says 1.5."""
+    import backend.fit.pipeline as pipeline
+    monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
+    monkeypatch.setattr(pipeline.search, "photo_blur_px", lambda *_: 0.5)
+    monkeypatch.setattr(pipeline.search, "best_blur", lambda *_, **__: 1.5)
+    stepped = []  # (size, camera blur) of each Adam step
+    terms = Objective.terms
+
+    def recording(self, fabric, camera_blur_px=None):
+        if torch.is_grad_enabled():
+            stepped.append((self.target.size, as_float(camera_blur_px)))
+        return terms(self, fabric, camera_blur_px)
+
+    monkeypatch.setattr(Objective, "terms", recording)
+    settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=1e9, trials=1, size=64,
+                           spp=2, search_every=0, compile=False, sample_rotation=0.0, estimate_variation=False)
+    result = fit(*twill_pair, settings=settings,
+                 pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
+    [winner] = [c for c in result.candidates if "blur_duel" in c]
+    duel = winner["blur_duel"]
+    assert (duel["blur_px"], duel["floor_px"]) == (1.5, 0.5)
+    fine = [blur for size, blur in stepped if size == 64]
+    # two steps from the scan's blur, two from the reading's, two of the twin's (from the scan's), then
+    # the last step where the duel's choice left it (Adam moves the blur at most its learning rate a step)
+    assert len(fine) == 7 and (fine[0], fine[2], fine[4]) == (1.5, 0.5, 1.5)
+    lr = settings.lr * (MAX_CAMERA_BLUR_PX - 0.5)
+    assert all(abs(fine[k + 1] - fine[k]) <= 1.01 * lr for k in (0, 2, 4))
+    from_reading = duel["floor_loss"] < duel["loss"]
+    assert abs(fine[6] - (fine[3] if from_reading else fine[1])) <= 1.01 * lr
+    assert result.params.pattern == winner["pattern"]  # the margin keeps the twin out
+    assert winner["fine_trial_loss"] == min(duel["loss"], duel["floor_loss"])
+    # a scan within BLUR_DUEL_PX of the reading: no blur duel
+    stepped.clear()
+    monkeypatch.setattr(pipeline.search, "best_blur", lambda *_, **__: 0.5 + pipeline.BLUR_DUEL_PX)
+    near = fit(*twill_pair, settings=settings,
+               pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
+    assert not any("blur_duel" in c for c in near.candidates)
+    assert len([s for s in stepped if s[0] == 64]) == 5
 
 
 def test_default_iterations_follow_the_working_size():

@@ -1,20 +1,16 @@
 """The yarn variation read from the texture power a regular weave leaves unexplained
-(backend.fit.variation_estimate), the noise-free cross-power it reads renders by, and the camera
-blur's range from the photos' reading (backend.image.camera_blur.blur_range)."""
+(backend.fit.variation_estimate), and the noise-free cross-power it reads renders by."""
 import itertools
 
 import numpy as np
 import pytest
 
 from backend.core.params import FabricParams
-from backend.core.rig import DEFAULT_RIG, CaptureRig
+from backend.core.rig import DEFAULT_RIG
 from backend.core.variation import KINDS, amplitude_name
-from backend.fit.optimise import Run
 from backend.fit.pipeline import _objective
-from backend.fit.search import blur_scan
 from backend.fit.settings import FitSettings
 from backend.fit.variation_estimate import MIN_GAIN_DB, bounded_least_squares, estimate_variation, with_amplitudes
-from backend.image.camera_blur import BLUR_OVER_READING, blur_range
 from backend.image.metrics import band_power, power_db, texture_gap_db
 from backend.model.render import render_pair
 
@@ -104,28 +100,3 @@ def test_the_estimate_reports_each_reading(objective_for):
     seen = []
     estimate_variation(TWILL, objective_for(TWILL), blur=0.0, progress=seen.append)
     assert seen == list(range(1, len(KINDS) + 3))
-
-
-def test_the_blur_range_runs_from_the_reading_to_a_multiple_of_it():
-    assert blur_range(0.6) == (0.6, pytest.approx(0.6 * BLUR_OVER_READING))
-    assert blur_range(5.0) == (4.0, 4.0)  # MAX_CAMERA_BLUR_PX
-    scan = blur_scan(0.6)
-    assert scan[0] == 0.6 and max(scan) == pytest.approx(0.6 * BLUR_OVER_READING)
-    assert all(0.6 <= b <= 0.6 * BLUR_OVER_READING + 1e-12 for b in scan)
-
-
-def test_a_run_keeps_the_blur_within_the_photos_range(objective_for):
-    """Photos blurred by 2 px read at 0.5: Adam and the discrete search would go above the
-    reading, and stop at its ceiling; Adam's learning rate spans the range."""
-    floor, ceiling = blur_range(0.5)
-    photos = render_pair(TWILL, CaptureRig(camera_blur_px=2.0), size=SIZE, spp=16, seed=3)
-    settings = FitSettings(pattern="twill1", size=SIZE, spp=4, compile=False)
-    objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
-    run = Run(TWILL, objective, settings, 20, 0.7, blur_floor=0.5)
-    assert run.optimiser.param_groups[-1]["lr"] == pytest.approx(settings.lr * (ceiling - floor))
-    for _ in range(6):
-        run.step()
-        assert floor <= run.camera_blur_px <= ceiling + 1e-9
-    run.discrete_search(0)
-    assert run.camera_blur_px == pytest.approx(ceiling)
-    assert run.best_blur <= ceiling + 1e-9

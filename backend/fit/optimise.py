@@ -22,7 +22,7 @@ from typing import Callable
 import torch
 
 from ..core.params import SPECS, FabricParams
-from ..image.camera_blur import blur_range
+from ..core.rig import MAX_CAMERA_BLUR_PX
 from ..model.param_tensors import ParamTensors, as_float
 from ..model.spacing_warp import SpacingWarp
 from .objective import Objective
@@ -51,9 +51,9 @@ class Run:
 
     ``camera_blur_px`` is the camera blur the run renders with. With a ``blur_floor`` it is estimated:
     Adam moves it with the continuous parameters (learning rate ``lr`` times its range, from the floor
-    to its ceiling, :func:`backend.image.camera_blur.blur_range`, on the same schedule), and the
-    discrete search by parabolic steps, never out of the range; with None it stays fixed. ``total``
-    is the number of Adam steps the learning-rate schedule spans.
+    to MAX_CAMERA_BLUR_PX, on the same schedule), and the discrete search by parabolic steps, never
+    below the floor; with None it stays fixed. ``total`` is the number of Adam steps the
+    learning-rate schedule spans.
 
     Why by gradient: the blur and the fabric trade off along a valley (a softer camera and sharper
     highlights, or the reverse), which steps on the blur alone, each at the parameters fitted to the
@@ -64,12 +64,11 @@ class Run:
                  camera_blur_px: float, blur_floor: float | None = None):
         self.objective, self.settings, self.total = objective, settings, total
         self.blur_floor = blur_floor
-        self.blur_ceiling = None if blur_floor is None else blur_range(blur_floor)[1]
         # float64: a fixed blur reads back as the number given; the renders take it as their sigma
         self._blur = torch.tensor(float(camera_blur_px), dtype=torch.float64, device=objective.renderer.device)
         self.base_lr = [settings.lr * (SPECS[n].hi - SPECS[n].lo) for n in OPTIMISED]
         if blur_floor is not None:
-            self.base_lr.append(settings.lr * (self.blur_ceiling - blur_floor))
+            self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_floor))
         self.step_count = 0
         self.best_loss = math.inf
         self.best, self.best_blur = params, camera_blur_px
@@ -137,7 +136,7 @@ class Run:
         self.fabric.clamp_()
         if self.estimates_blur:
             with torch.no_grad():
-                self._blur.clamp_(self.blur_floor, self.blur_ceiling)
+                self._blur.clamp_(self.blur_floor, MAX_CAMERA_BLUR_PX)
         self.history.append((self.step_count, value))
         self.step_count += 1
         if self._warp_trial is not None:
@@ -250,7 +249,7 @@ class Run:
     def _blur_step(self, current: float, span: float) -> float:
         """The parabolic step of the discrete parameters, on the camera blur."""
         def clamped(blur):
-            return min(self.blur_ceiling, max(self.blur_floor, blur))
+            return min(MAX_CAMERA_BLUR_PX, max(self.blur_floor, blur))
 
         def loss_at(blur):
             return self.objective.value(self.fabric, blur)

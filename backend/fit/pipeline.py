@@ -66,6 +66,9 @@ from .optimise import Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
 from .variation_estimate import VariationEstimate, estimate_variation
 
+# The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
+BLUR_DUEL_PX = 0.25
+
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
         settings: FitSettings = FitSettings(), progress: Progress | None = None,
@@ -250,16 +253,28 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     then lower by more than ``duel_margin`` (while both adapt to the photos the lead can swing; the
     margin is twice the swing seen). The steps are the first of the optimisation's ``iterations``,
     so a winner that holds its place ends as it would have alone. Each finalist's summary records its
-    loss there (``fine_trial_loss``)."""
+    loss there (``fine_trial_loss``).
+
+    Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
+    photos' reading (``blur_floor``), the winner first also runs from its start at the reading for
+    those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     total = settings.iterations + settings.trial_iterations
     runs = [_fine_run(params, fine, settings, total, blur, blur_floor) for params, _ in finalists]
     steps = min(settings.duel_iterations, settings.iterations)
-    if steps == 0 or len(runs) == 1:
+    duelling_blur = blur_floor is not None and runs[0].camera_blur_px > blur_floor + BLUR_DUEL_PX
+    if steps == 0 or (len(runs) == 1 and not duelling_blur):
         return runs[0], 0
+    scanned_blur = runs[0].camera_blur_px  # where the winner starts: its run moves the blur from there
+    if duelling_blur:  # the winner also from the photos' blur: the scan's choice can be a valley
+        runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_floor, blur_floor))
     _duel_steps(runs, steps, check_stop, progress)
+    if duelling_blur:
+        runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_floor)]
     for (_, summary), run in zip(finalists, runs):
         summary["fine_trial_loss"] = run.best_loss
+    if len(runs) == 1:
+        return runs[0], steps
     held, twin = runs
     return (twin if twin.best_loss < held.best_loss - settings.duel_margin else held), steps
 
@@ -298,6 +313,14 @@ def _duel_steps(runs: list[Run], steps: int, check_stop, progress: Progress) -> 
             run.step()
             check_stop(run)
             progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
+
+
+def _blur_duel(scanned: Run, floored: Run, summary: dict, scanned_blur: float, floor: float) -> Run:
+    """Of the winner's runs from the scan's blur and from the photos' reading (``floor``), the one
+    with the lower best loss; the winner's ``summary`` records both (``blur_duel``)."""
+    summary["blur_duel"] = {"blur_px": scanned_blur, "loss": scanned.best_loss,
+                            "floor_px": floor, "floor_loss": floored.best_loss}
+    return floored if floored.best_loss < scanned.best_loss else scanned
 
 
 def _coarse(settings: FitSettings) -> FitSettings:

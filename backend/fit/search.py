@@ -14,8 +14,8 @@ the trials, and hands the numbers to these functions, which never call back.
    scales (:func:`gap_variants`, :func:`lowest`); ranked by loss (:func:`ranked`).
 3. Camera blur: fixed when given; none for photos whose noise is as white as a render's
    (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`blur_scan`,
-   :func:`best_blur`) within the range the photos' noise shows (:func:`blur_floor`,
-   :func:`backend.image.camera_blur.blur_range`), which also bounds the optimiser's.
+   :func:`best_blur`), never below the blur the photos' noise shows (:func:`blur_floor`), which also
+   becomes the optimiser's lower bound.
 4. Trials: the best ``trials`` starts get a short fit each (:func:`trial_plan`); the pattern is the
    one whose trial ends lowest in
 
@@ -37,7 +37,7 @@ import numpy as np
 from ..core import priors, weave
 from ..core.params import PARAMETERS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX, CaptureRig
-from ..image.camera_blur import SOFT_PHOTO_PX, blur_range, photo_blur_px
+from ..image.camera_blur import SOFT_PHOTO_PX, photo_blur_px
 from ..texture.candidates import Candidate, tile_range
 from ..texture.frequencies import yarns_in_view
 from .settings import FitSettings
@@ -211,12 +211,13 @@ def reranked(starts: list[Start], losses: list[float]) -> list[Start]:
 def blur_floor(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int
                ) -> float | None:
     """The lower bound of the camera blur the fit estimates: the blur the photos' noise shows (at
-    most MAX_CAMERA_BLUR_PX; its ceiling: :func:`backend.image.camera_blur.blur_range`); None where
-    the blur stays fixed (:func:`fixed_blur`).
+    most MAX_CAMERA_BLUR_PX); None where the blur stays fixed (:func:`fixed_blur`).
 
     The fit starts from the loss's choice at the best starting parameters (:func:`best_blur`), and
     the runs move it from there, by gradient and by the discrete searches' parabolic steps
-    (:class:`backend.fit.optimise.Run`), within the range."""
+    (:class:`backend.fit.optimise.Run`); where the start is far from the photos that choice can be
+    a valley the fit stays in, hence a duel from the floor at the working size
+    (:func:`backend.fit.pipeline._finalist`)."""
     if settings.camera_blur is not None:
         return None
     photo_blur = photo_blur_px(reflection, transmission, film_size)
@@ -231,10 +232,8 @@ def fixed_blur(settings: FitSettings) -> float:
 
 
 def blur_scan(floor: float, also: float | None = None) -> tuple[float, ...]:
-    """The camera blurs to compare: ``floor``, the BLUR_SCAN values between it and its ceiling
-    (:func:`backend.image.camera_blur.blur_range`), the ceiling (and ``also``)."""
-    ceiling = blur_range(floor)[1]
-    scan = (floor,) + tuple(b for b in BLUR_SCAN if floor < b < ceiling) + ((ceiling,) if ceiling > floor else ())
+    """The camera blurs to compare: ``floor``, the BLUR_SCAN values above it (and ``also``)."""
+    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
     return scan + ((also,) if also is not None and also not in scan else ())
 
 

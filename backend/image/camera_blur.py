@@ -28,12 +28,9 @@ photos well over it (``tests/test_camera_blur.py``). A render whose black gaps h
 glow behind them) has a falling spectrum of its own and can read soft.
 
 The estimate is model-free, which is the point: the fit's loss also rewards blur wherever the render's
-yarns disagree with the photo's (a softer render hides the disagreement, and a real fabric's
-irregular yarns never line up with a regular render's), so the loss alone cannot tell a soft camera
-from a wrong parameter; this estimate can, and decides whether the fit may estimate a blur at all
-(:data:`SOFT_PHOTO_PX`) and its range: from the reading to :data:`BLUR_OVER_READING` times it
-(:func:`blur_range`). Read on renders and photo-like pairs of known blur it comes within 0.3 px of
-the blur they were made with (``tests/test_camera_blur.py``).
+yarns disagree with the photo's (a softer render hides the disagreement), so the loss alone cannot
+tell a soft camera from a wrong parameter; this estimate can, and decides whether the fit may
+estimate a blur at all (:data:`SOFT_PHOTO_PX`) and its lower bound.
 """
 from __future__ import annotations
 
@@ -42,7 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.rig import MAX_CAMERA_BLUR_PX
 from .spectrum import power_spectrum, windowed_highpass
 from .tone import GAMMA
 
@@ -52,10 +48,6 @@ SIGMA_STEP = 0.02      # px, the grid of the fitted sigma
 MAX_SIGMA_PX = 3.0     # px of the photos read: past it the blurred part is gone by the first ring
 MIN_GAIN = 5.0         # misfit of the flat spectrum / misfit of the best sigma, to read a blur at all
 SOFT_PHOTO_PX = 0.3    # below: as sharp as a render
-# The most a fit's camera blur may be, as a multiple of the photos' reading: beyond it the fit blurs
-# away yarn texture the photos hold (a satin was fitted at four times its reading, its re-render
-# without any), while a tighter bound cost a satin's fit more than its texture gained
-BLUR_OVER_READING = 2.0
 
 
 @dataclass(frozen=True)
@@ -69,12 +61,6 @@ class BlurReading:
     @property
     def blurred(self) -> bool:
         return self.gain >= MIN_GAIN
-
-
-def blur_range(reading_px: float) -> tuple[float, float]:
-    """(lowest, highest) camera blur a fit may use for photos that read ``reading_px``, at most
-    MAX_CAMERA_BLUR_PX."""
-    return min(reading_px, MAX_CAMERA_BLUR_PX), min(reading_px * BLUR_OVER_READING, MAX_CAMERA_BLUR_PX)
 
 
 def ring_medians(image: np.ndarray, gamma: float = GAMMA) -> tuple[np.ndarray, np.ndarray]:

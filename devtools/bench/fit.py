@@ -34,11 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
+from backend.core import variation
 from backend.core.pairs import find_pairs
 from backend.core.params import FabricParams
 from backend.core.priors import family
 from backend.core.rig import DEFAULT_RIG, CaptureRig
-from backend.core import variation
 from backend.model.spacing_warp import SpacingWarp, grid_centres, non_affine, rms
 from backend.texture.frequencies import yarns_in_view
 

@@ -22,8 +22,8 @@ def add_parser(sub) -> None:
                    help="the phone moves between the shots: the reflection photo shows the lattice 1-1.1 times as "
                         "dense and turned by up to 2 degrees (the transmission photos and the truth as without)")
     p.add_argument("--varied", action="store_true",
-                   help="the samples' yarns vary (width, thickness, spacing, brightness, slubs, drawn from the declared "
-                        "priors; the other draws as without)")
+                   help="the samples' yarns vary (width, thickness, spacing, brightness, slubs, drawn from the "
+                        "declared priors; the other draws as without)")
     p.add_argument("--without", nargs="+", choices=EFFECTS, default=[], metavar="EFFECT",
                    help=f"a phone without these effects ({', '.join(EFFECTS)}): the same set otherwise, so that "
                         "a fit benchmark of both tells what they cost")
