@@ -70,6 +70,12 @@ from .variation_estimate import VariationEstimate, estimate_variation
 BLUR_DUEL_PX = 0.25
 
 
+# The settling steps' learning rates, on the schedule's (Run.start_over_from): the last part's of a
+# whole run, small steps that move the means back, where a run that stopped early would still take
+# steps that search anew (and worsen the loss).
+SETTLE_LR_FACTOR = 0.125
+
+
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
         settings: FitSettings = FitSettings(), progress: Progress | None = None,
         initial_for: Callable[[Candidate], FabricParams | None] | None = None,
@@ -383,9 +389,10 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
 def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progress) -> VariationEstimate:
     """The yarn variation the photos show, read at the run's best parameters and blur
     (:func:`backend.fit.variation_estimate.estimate_variation`). Where it is kept the run goes on
-    from the varied parameters for ``settings.settle_steps`` steps, its best loss counted afresh:
-    the variation moves the images' means (a yarn's transmission is convex in its thickness and
-    width), which the albedos and thicknesses make up for."""
+    from the varied parameters for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the
+    schedule's learning rates, its best loss counted afresh: the variation moves the images' means (a
+    yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
+    make up for."""
     total = len(KINDS) + 2 + settings.settle_steps
 
     def counted(done: int) -> None:
@@ -395,7 +402,7 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     progress("variation", 0, total, run.best_loss, None)
     varied, reading = estimate_variation(run.best, run.objective, run.best_blur, settings.seed, counted)
     if reading.kept:
-        run.start_over_from(varied)
+        run.start_over_from(varied, SETTLE_LR_FACTOR)
         for step in range(settings.settle_steps):
             run.step()
             counted(len(KINDS) + 3 + step)
