@@ -62,7 +62,7 @@ from ..texture.spectra import Spectra
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
-from .optimise import Run
+from .optimise import LR_MILESTONES, Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
 from .variation_estimate import VariationEstimate, estimate_variation
 
@@ -70,10 +70,10 @@ from .variation_estimate import VariationEstimate, estimate_variation
 BLUR_DUEL_PX = 0.25
 
 
-# The settling steps' learning rates, on the schedule's (Run.start_over_from): the last part's of a
-# whole run, small steps that move the means back, where a run that stopped early would still take
-# steps that search anew (and worsen the loss).
-SETTLE_LR_FACTOR = 0.125
+# The settling steps' learning rates as a part of the base rates (Run.start_over_from): the schedule's
+# last, small steps that move the means back, where a run that stopped early would still take steps
+# that search anew (and worsen the loss).
+SETTLE_LR_FACTOR = 0.5 ** len(LR_MILESTONES)
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -389,8 +389,8 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
 def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progress) -> VariationEstimate:
     """The yarn variation the photos show, read at the run's best parameters and blur
     (:func:`backend.fit.variation_estimate.estimate_variation`). Where it is kept the run goes on
-    from the varied parameters for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the
-    schedule's learning rates, its best loss counted afresh: the variation moves the images' means (a
+    from the varied parameters for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the base
+    learning rates, its best loss counted afresh: the variation moves the images' means (a
     yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
     make up for."""
     total = len(KINDS) + 2 + settings.settle_steps
