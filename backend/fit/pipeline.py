@@ -25,9 +25,9 @@ taking the values the one before returned.
                fresh camera-blur scan there; its first ``duel_iterations`` steps beside its face
                twin on its lattice, which the trials at BASE_SIZE cannot tell from it
                (:func:`_finalist`)
-    result     the best parameters seen (with the variation), their loss and terms, the camera blur, the photos' light
-               falloff at those parameters and their spacing warp, the candidates compared, the
-               loss history and stage timings
+    result     the best parameters seen (with the variation), their loss and terms, the camera blur,
+               the photos' light falloff at those parameters and their spacing warp, the candidates
+               compared, the variation reading, the loss history and stage timings
 
 Every render compared with the photos is made as they show the fabric: with the camera blur, under
 the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unless
