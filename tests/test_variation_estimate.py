@@ -14,7 +14,6 @@ from backend.fit.variation_estimate import (
     MIN_GAIN_DB,
     bounded_least_squares,
     estimate_variation,
-    log_power_fit,
     with_amplitudes,
 )
 from backend.image.metrics import band_power, power_db, texture_gap_db
@@ -66,23 +65,6 @@ def test_bounded_least_squares_is_the_best_point_of_the_box():
     free = np.linalg.lstsq(a, b, rcond=None)[0]
     if (free >= 0).all() and (free <= upper).all():  # inside the box: the free solution
         assert x == pytest.approx(free)
-
-
-def test_the_log_fit_recovers_an_exact_mixture_and_lowers_the_log_error_of_the_linear_one():
-    """Photos whose power is exactly base + added x (x inside the box): found within 1e-6. Photos
-    the model cannot match: the log fit's squared log error is at most the relative errors' one."""
-    rng = np.random.default_rng(4)
-    base, added, upper = rng.uniform(0.1, 1.0, 8), rng.uniform(0.0, 5.0, (8, 5)), np.full(5, 0.25)
-    truth = np.array([0.1, 0.0, 0.05, 0.2, 0.0])
-    assert log_power_fit(base, added, base + added @ truth, upper) == pytest.approx(truth, abs=1e-6)
-    photo = base * rng.uniform(1.0, 20.0, 8)
-
-    def log_error(x):
-        return np.sum((np.log(base + added @ x) - np.log(photo)) ** 2)
-
-    linear = bounded_least_squares(added / photo[:, None], 1.0 - base / photo, upper)
-    found = log_power_fit(base, added, photo, upper)
-    assert (found >= 0).all() and (found <= upper).all() and log_error(found) <= log_error(linear) + 1e-12
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,14 @@ moderate amplitudes their powers add. Per octave band b of each photo::
     S(a)[b] = S_0[b] + sum_k a_k^2 V_k[b]
 
 with S_0 the regular render's power and V_k what kind k adds per unit amplitude squared (one render
-with that kind alone at PROBE_AMPLITUDE). x_k = a_k^2 in [0, hi_k^2] minimises the texture gap's
-own measure, the squared log errors log S(a)[b] - log P[b] over both photos' bands (P: the photos'
-power), over and under alike (:func:`log_power_fit`: Gauss-Newton steps, each a bounded linear
-least-squares problem, :func:`bounded_least_squares`, from the solution of the relative errors).
+with that kind alone at PROBE_AMPLITUDE). x_k = a_k^2 in [0, hi_k^2] is the bounded least-squares
+solution of the relative errors (S(a)[b] - P[b]) / P[b] over both photos' bands (P: the photos'
+power; :func:`bounded_least_squares`). The relative error weighs too much texture above too
+little (a band short of all its power counts 1, one with twice too much counts 1 already), which is
+the point: a random yarn pattern never lines up with the photo's, so every bit of it it adds is
+pixel error too; where the kinds' band profiles cannot match the photos' (a blurred fit holds no
+power in the top band), it fills what it can without overshooting the rest. (The symmetric
+measure, the squared log errors, was tried and overshot a satin's low bands by 8 dB.)
 A render's power is read without its Monte Carlo noise: as the cross-power of two renders with
 independent samples (:func:`backend.image.metrics.band_power` with ``other``), which at a few
 samples per pixel would otherwise read as texture the render lacks.
@@ -34,7 +38,6 @@ PROBE_AMPLITUDE    0.1      amplitude of the one-kind renders: large enough that
                             stands clear of the cross-power's scatter, small enough to be linear
 MIN_GAIN_DB        0.5      texture gap (dB) the estimate must close to be kept: a smaller gain
                             is within the reading's scatter and not worth a random pattern
-LOG_FIT_STEPS      10       Gauss-Newton steps of the log fit: it settles within a few
 GAP_FLOOR          1e-3     a band where a render holds less than this part of the photo's power
                             counts as 30 dB short (a cross-power can be 0 or negative)
 READ_SIZE          256      px of the readings' renders: a quarter of a 512-px working size's cost,
@@ -61,7 +64,6 @@ from .objective import Objective, Target
 
 PROBE_AMPLITUDE = 0.1
 MIN_GAIN_DB = 0.5
-LOG_FIT_STEPS = 10       # Gauss-Newton steps of the log fit (it settles in a few)
 GAP_FLOOR = 1e-3         # 30 dB: the most a band's gap counts (module docstring, _gap_db)
 READ_SIZE = 256          # px of the readings' renders (the bands scale with the size)
 READ_SPP = 4             # samples per pixel of each of the two renders of a reading
@@ -113,29 +115,6 @@ def bounded_least_squares(a: np.ndarray, b: np.ndarray, upper: np.ndarray) -> np
     return best
 
 
-def log_power_fit(base: np.ndarray, added: np.ndarray, photo: np.ndarray, upper: np.ndarray,
-                  steps: int = LOG_FIT_STEPS) -> np.ndarray:
-    """x in [0, ``upper``] minimising sum (log(base + added x) - log photo)^2 (``base``, ``photo``:
-    (bands,) powers; ``added``: (bands, kinds) power per unit x). Starts from the relative errors'
-    linear solution; each Gauss-Newton step solves the linearised problem within the box, and is
-    halved until the sum falls."""
-    def cost(x):
-        return float(np.sum((np.log(np.maximum(base + added @ x, 1e-30)) - np.log(photo)) ** 2))
-
-    x = bounded_least_squares(added / photo[:, None], 1.0 - base / photo, upper)
-    for _ in range(steps):
-        model = np.maximum(base + added @ x, 1e-30)
-        jacobian = added / model[:, None]
-        target = bounded_least_squares(jacobian, np.log(photo) - np.log(model) + jacobian @ x, upper)
-        step, before = target - x, cost(x)
-        while cost(x + step) >= before and np.abs(step).max() > 1e-9:
-            step = step / 2
-        if cost(x + step) >= before:
-            break
-        x = x + step
-    return x
-
-
 class _Powers:
     """The noise-free band power of a parameter set's renders as the photos show them, at READ_SIZE
     (or the working size where it is smaller): the cross-power of two renders with independent
@@ -183,9 +162,10 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
                      / PROBE_AMPLITUDE ** 2)
         progress(1 + len(added))
     seen = np.isfinite(photo.reshape(-1)) & (photo.reshape(-1) > 0)  # bands below the readings' Nyquist corner
+    scale = photo.reshape(-1)[seen]
+    design = np.stack([v.reshape(-1)[seen] for v in added], axis=1) / scale[:, None]
     upper = np.array([SPECS[amplitude_name(k)].hi ** 2 for k in KINDS])
-    squares = log_power_fit(base.reshape(-1)[seen], np.stack([v.reshape(-1)[seen] for v in added], axis=1),
-                            photo.reshape(-1)[seen], upper)
+    squares = bounded_least_squares(design, 1.0 - base.reshape(-1)[seen] / scale, upper)
     amplitudes = {k: float(np.sqrt(x)) for k, x in zip(KINDS, squares)}
     varied = with_amplitudes(regular, amplitudes)
     after = powers(varied) if squares.any() else base
