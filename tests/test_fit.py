@@ -364,7 +364,8 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
 
     monkeypatch.setattr(Objective, "terms", recording)
     settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=0.0, trials=2, size=64,
-                           spp=4, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0)
+                           spp=4, search_every=0, compile=False, camera_blur=1.0, sample_rotation=0.0,
+                           estimate_variation=False)
     given = {"plain": 0.01, "twill0": 0.5, "twill1": 0.5}  # the others, mirrored ones included: 0
 
     def rated(candidates):  # twill1 on the true lattice only, twill0 on the too-fine one only: their two starts
@@ -442,7 +443,7 @@ def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well
 
     monkeypatch.setattr(Objective, "terms", recording)
     settings = FitSettings(iterations=3, trial_iterations=2, duel_iterations=2, duel_margin=1e9, trials=1, size=64,
-                           spp=2, search_every=0, compile=False, sample_rotation=0.0)
+                           spp=2, search_every=0, compile=False, sample_rotation=0.0, estimate_variation=False)
     result = fit(*twill_pair, settings=settings,
                  pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
     [winner] = [c for c in result.candidates if "blur_duel" in c]
@@ -527,7 +528,7 @@ def test_fit_example_end_to_end(tmp_path):
     # ... and its yarns are evenly spaced (12 steps: no discrete search, where the warp is read)
     assert saved["fit"]["spacing_warp"] is None and metrics["timings"]["warp_s"] == 0.0
     for tag in ("reflection", "transmission"):
-        assert set(metrics["metrics"][tag]) == {"flip", "colour_l1", "spectrum_corr"}
+        assert set(metrics["metrics"][tag]) == {"flip", "colour_l1", "spectrum_corr", "texture_gap_db"}
         assert metrics["metrics"][tag]["colour_l1"] < 0.03
     for name in ("reflection.png", "transmission.png", "report.png"):
         assert (out / name).stat().st_size > 1000

@@ -14,6 +14,8 @@ sys.path.insert(0, str(ROOT))
 from backend.core import progress, protocol  # noqa: E402
 from backend.core.progress import MIN_REMAINDER, PHASES, FitProgress, duration_words, replay  # noqa: E402
 
+VARIATION_COUNTS = 17  # the variation stage's readings and settling steps (backend.fit.pipeline._with_variation)
+
 
 def progress_event(stage: str, iteration: int, total: int) -> dict:
     return {"event": "progress", "stage": stage, "iteration": iteration, "total": total}
@@ -49,8 +51,9 @@ def fit_timeline(wall: float = 100.0, duel: bool = True, stop: int = 100, best_a
     """A fit whose every phase lasts its share of ``wall``, its counts evenly spaced, in the fit's order of
     events: each stage's first event of iteration 0, the search's counter starting again for the
     starting points, the trials and the duel (each with the count its share is for), then the
-    optimiser's steps (the duel's 10 first; :func:`optimiser_events`). An optimiser that stops at
-    step ``stop`` before its 100 keeps the pace of its share for 100: it ends sooner, and the fit."""
+    optimiser's steps (the duel's 10 first; :func:`optimiser_events`), the variation's readings. An
+    optimiser that stops at step ``stop`` before its 100 keeps the pace of its share for 100: it ends
+    sooner, and the fit."""
     shares = {phase.name: phase.share for phase in PHASES}
     if not duel:
         shares["optimise"] += shares.pop("duel")
@@ -72,8 +75,11 @@ def fit_timeline(wall: float = 100.0, duel: bool = True, stop: int = 100, best_a
         events += counts("search", ends["trials"] + step, ends["duel"], n["duel"])
         previous = ends["duel"]
     events += optimiser_events(previous, unit, first, stop, best_at)
-    events += [(ends["optimise"], "render", 0, 1)]
-    events += counts("render", ends["optimise"] + (ends["render"] - ends["optimise"]) / 10, ends["render"], 10)
+    events += [(ends["optimise"], "variation", 0, VARIATION_COUNTS)]
+    events += counts("variation", ends["optimise"] + (ends["variation"] - ends["optimise"]) / VARIATION_COUNTS,
+                     ends["variation"], VARIATION_COUNTS)
+    events += [(ends["variation"], "render", 0, 1)]
+    events += counts("render", ends["variation"] + (ends["render"] - ends["variation"]) / 10, ends["render"], 10)
     events += [(ends["render"], "report", 0, 1), (ends["report"], "report", 1, 1)]
     return events
 
@@ -205,7 +211,8 @@ def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
               (t_starts, "search", 2, 2), ((t_starts + t_trials) / 2, "search", 1, 2), (t_trials, "search", 2, 2)]
     fit = follow(events)
     assert fit.phase.name == "duel"
-    expected = 2 * pace * (shares["duel"] + shares["optimise"]) + pace * (shares["render"] + shares["report"])
+    expected = (2 * pace * (shares["duel"] + shares["optimise"])
+                + pace * (shares["variation"] + shares["render"] + shares["report"]))
     assert fit.seconds_left(t_trials) == pytest.approx(expected)
 
 

@@ -196,6 +196,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds, "light_falloff": result.light.to_dict(),
                      "spacing_warp": None if result.warp is None else result.warp.to_dict(),
+                     "variation": result.variation,
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},
              "photos": photos.info}

@@ -28,7 +28,8 @@ from __future__ import annotations
 import math
 import random
 
-from .params import FabricParams
+from . import variation
+from .params import PARAMETERS, FabricParams
 from .weave import MIRRORED_OF, paper_preset
 
 BASE_TILES = {"plain": (173.0, 173.0), "twill0": (122.0, 80.0), "twill1": (80.0, 122.0),
@@ -107,6 +108,13 @@ def sample(pattern: str, rng: random.Random) -> FabricParams:
         diffuse_reflection=tuple(rng.random() for _ in range(3)),
         diffuse_transmission=tuple(rng.random() for _ in range(3)),
         diffuse_normal_weight=rng.random(), noise=0.0)
+
+
+def sample_variation(rng: random.Random) -> dict[str, tuple[float, float]]:
+    """Yarn variation drawn from the declared priors (each ParamSpec's ``prior``, uniform), warp and
+    weft apart: ``{name: (warp, weft)}`` for every amplitude and correlation length."""
+    return {spec.name: (rng.uniform(*spec.prior), rng.uniform(*spec.prior))
+            for spec in PARAMETERS if spec.name in variation.PARAMETER_NAMES}
 
 
 def typical(pattern: str) -> FabricParams:

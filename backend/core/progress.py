@@ -79,15 +79,16 @@ SEARCH_COUNTS = 21.3
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.0138, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.1152, fixed=True, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.0060, counts=2),
-    Phase("trials", "search", "Comparing weaves", 0.1943, counts=2),
-    Phase("duel", "search", "Checking the weave at full size", 0.1550, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.3802, patience=20, ends_from=25, pauses=(25, 50, 75),
+    Phase("load", "load", "Reading the photos", 0.0127, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.106, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.0055, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.1788, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.1426, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.3497, patience=20, ends_from=25, pauses=(25, 50, 75),
           pause_counts=SEARCH_COUNTS),
-    Phase("render", "render", "Rendering the result", 0.1213, fixed=True),
-    Phase("report", "report", "Writing the report", 0.0142, fixed=True, counted=False),
+    Phase("variation", "variation", "Reading the yarns' irregularity", 0.08, fixed=True, optional=True),
+    Phase("render", "render", "Rendering the result", 0.1116, fixed=True),
+    Phase("report", "report", "Writing the report", 0.0131, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go

@@ -6,7 +6,8 @@ With ``--json-progress`` a command writes one JSON object per line on stdout, no
 ``start``     {"event": "start", "command": "fit", "version": "0.1.0", "device": "cpu"}
 ``progress``  {"event": "progress", "stage": "optimise", "iteration": 12, "total": 300,
                "loss": 0.0312, "eta_s": 41.5, "elapsed_s": 7.9, "since_best": 3, "patience": 20}
-              stage is one of: load, init, search, optimise, render, report. loss and eta_s may be null.
+              stage is one of: load, init, search, optimise, variation, render, report. loss and eta_s may
+              be null.
               since_best and patience, the optimiser's (else null): the steps since its best loss last
               moved, and the steps without a new best after which it ends before its total (0: never);
               its event of iteration = total says it has ended, early or not.
@@ -53,7 +54,7 @@ from typing import IO, Any
 
 from .. import __version__
 
-STAGES = ("load", "init", "search", "optimise", "render", "report")
+STAGES = ("load", "init", "search", "optimise", "variation", "render", "report")
 PAIR_STATUSES = ("started", "done", "kept", "retrying", "failed", "cancelled")
 EXIT_OK, EXIT_INTERNAL, EXIT_INPUT, EXIT_CANCELLED = 0, 1, 2, 130
 STOP_REQUEST = "stop"  # a line on the stdin of ``fit --stop-on-stdin``

@@ -70,6 +70,7 @@ class Run:
         if blur_floor is not None:
             self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_floor))
         self.step_count = 0
+        self.lr_factor: float | None = None  # in place of the schedule's factor (start_over_from)
         self.best_loss = math.inf
         self.best, self.best_blur = params, camera_blur_px
         self.best_terms: dict[str, float] = {}
@@ -106,9 +107,17 @@ class Run:
             self.camera_blur_px = self.best_blur
             self._start_from(self.best)
 
+    def start_over_from(self, params: FabricParams, lr_factor: float | None = None) -> None:
+        """Fresh tensors and Adam state at ``params`` (at the current camera blur), which become the
+        best, their loss counted afresh by the next step; the learning rates from now on are the base
+        rates times ``lr_factor`` (None: the schedule's, which goes on)."""
+        self.best, self.best_loss, self.best_blur, self.best_terms = params, math.inf, self.camera_blur_px, {}
+        self.lr_factor = lr_factor
+        self._start_from(params)
+
     def _schedule(self):
         progress = self.step_count / max(self.total, 1)
-        factor = 0.5 ** sum(progress >= p for p in LR_MILESTONES)
+        factor = 0.5 ** sum(progress >= p for p in LR_MILESTONES) if self.lr_factor is None else self.lr_factor
         for group, lr in zip(self.optimiser.param_groups, self.base_lr):
             group["lr"] = lr * factor
 

@@ -15,6 +15,9 @@ taking the values the one before returned.
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
                parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); it ends
                early once the best loss stops moving (:func:`converged`)
+    variation  the yarn variation the photos show, read from the texture power the regular weave
+               leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
+               goes on from it for ``settings.settle_steps`` steps (:func:`_with_variation`)
     coarse to fine
                with a working size above BASE_SIZE (dense weaves), the search runs at BASE_SIZE with
                the same samples per image, its camera blur on sub-pixels (:func:`_coarse`), and only
@@ -22,9 +25,9 @@ taking the values the one before returned.
                fresh camera-blur scan there; its first ``duel_iterations`` steps beside its face
                twin on its lattice, which the trials at BASE_SIZE cannot tell from it
                (:func:`_finalist`)
-    result     the best parameters seen, their loss and terms, the camera blur, the photos' light
-               falloff at those parameters and their spacing warp, the candidates compared, the
-               loss history and stage timings
+    result     the best parameters seen (with the variation), their loss and terms, the camera blur,
+               the photos' light falloff at those parameters and their spacing warp, the candidates
+               compared, the variation reading, the loss history and stage timings
 
 Every render compared with the photos is made as they show the fabric: with the camera blur, under
 the photos' light falloff solved for it (:mod:`backend.model.photo_light`; unless
@@ -49,6 +52,7 @@ import torch
 from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
+from ..core.variation import KINDS
 from ..model.render import Renderer
 from ..texture.candidates import Candidate
 from ..texture.frequencies import lattice_of
@@ -58,11 +62,18 @@ from ..texture.spectra import Spectra
 from . import search
 from .gram import GramDescriptor
 from .objective import Objective, Target
-from .optimise import Run
+from .optimise import LR_MILESTONES, Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
+from .variation_estimate import VariationEstimate, estimate_variation
 
 # The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
 BLUR_DUEL_PX = 0.25
+
+
+# The settling steps' learning rates as a part of the base rates (Run.start_over_from): the schedule's
+# last, small steps that move the means back, where a run that stopped early would still take steps
+# that search anew (and worsen the loss).
+SETTLE_LR_FACTOR = 0.5 ** len(LR_MILESTONES)
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -133,12 +144,16 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     steps = _optimise(run, settings, check_stop, progress, duel_steps)
     timings["optimise_s"] = time.perf_counter() - loop_started
     timings["warp_s"] = run.warp_s  # of optimise_s
+    variation_started = time.perf_counter()
+    variation = _with_variation(run, settings, check_stop, progress) if settings.estimate_variation else None
+    timings["variation_s"] = time.perf_counter() - variation_started
     with torch.no_grad():
         _, light = run.objective.rendered(run.best, run.best_blur)
     timings["total_s"] = time.perf_counter() - started
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
                      run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
-                     settings.iterations, steps, run.objective.renderer.warp)
+                     settings.iterations, steps, run.objective.renderer.warp,
+                     None if variation is None else variation.to_dict())
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -369,6 +384,30 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
                  patience=settings.patience)
     run.end_warp_trial()
     return done
+
+
+def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progress) -> VariationEstimate:
+    """The yarn variation the photos show, read at the run's best parameters and blur
+    (:func:`backend.fit.variation_estimate.estimate_variation`). Where it is kept the run goes on
+    from the varied parameters for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the base
+    learning rates, its best loss counted afresh: the variation moves the images' means (a
+    yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
+    make up for."""
+    total = len(KINDS) + 2 + settings.settle_steps
+
+    def counted(done: int) -> None:
+        check_stop(run)
+        progress("variation", done, total, run.best_loss, None)
+
+    progress("variation", 0, total, run.best_loss, None)
+    varied, reading = estimate_variation(run.best, run.objective, run.best_blur, settings.seed, counted)
+    if reading.kept:
+        run.start_over_from(varied, SETTLE_LR_FACTOR)
+        for step in range(settings.settle_steps):
+            run.step()
+            counted(len(KINDS) + 3 + step)
+    progress("variation", total, total, run.best_loss, 0.0)
+    return reading
 
 
 def search_due(settings: FitSettings, done: int) -> bool:

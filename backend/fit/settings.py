@@ -64,6 +64,10 @@ class FitSettings:
                                      # (None; backend.model.render)
     spacing_warp: bool = True        # read the photos' uneven yarn spacing at each discrete search (backend.fit.warp)
     warp_trial_steps: int = 5        # steps a warp read is tried for before it is kept or undone (Run.update_warp)
+    estimate_variation: bool = True  # read the yarn variation the photos show after the optimisation
+                                     # (backend.fit.variation_estimate)
+    settle_steps: int = 10           # steps from the varied parameters where a variation is kept: the
+                                     # albedos and thicknesses make up for the means it moves
 
 
 @dataclass
@@ -83,3 +87,4 @@ class FitResult:
     iterations: int = 0
     steps: int = 0                   # of those iterations, the steps it ran (fewer where it converged)
     warp: SpacingWarp | None = None  # the photos' uneven yarn spacing the renders show (None: even)
+    variation: dict | None = None    # the variation reading (VariationEstimate.to_dict; None: not read)

@@ -141,7 +141,8 @@ class Renderer:
         if self.device.type == "cuda":
             full_precision_convolutions()
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
-        self.size, self.spp = size, spp
+        self.size, self.spp, self.seed = size, spp, seed
+        self._subpixel_blur = subpixel_blur
         self.ranges = self.camera.row_chunks(max_chunk_samples)
         self._keep = size * size * spp <= cache_samples
         self._chunks: dict[tuple[int, int], SampleChunk] = {}
@@ -167,6 +168,13 @@ class Renderer:
         self._compiled = torch.compile(self._terms, dynamic=False, options=COMPILE_OPTIONS) if compile else None
         # the parameters the compiled graph differentiates: as declared, else as the last render with gradients had them
         self._grad_names = None if gradient_inputs is None else frozenset(gradient_inputs)
+
+    def like(self, size: int, spp: int, seed: int) -> "Renderer":
+        """A renderer like this one (rig, options, camera blur's mode, spacing warp; eager) at another
+        size, sample count and jitter seed: another seed's Monte Carlo noise is independent of this
+        one's."""
+        return Renderer(self.rig, size, spp, seed, self.options, self.device, self.dtype,
+                        subpixel_blur=self._subpixel_blur, warp=self.warp)
 
     @property
     def warp(self) -> SpacingWarp | None:

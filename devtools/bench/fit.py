@@ -21,6 +21,7 @@ summary per kind of pair with the targets of the fit issue.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import statistics
@@ -33,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from backend.core import variation
 from backend.core.pairs import find_pairs
 from backend.core.params import FabricParams
 from backend.core.priors import family
@@ -130,6 +132,21 @@ def blur_errors(fitted_px: float, phone: PhoneEffects) -> dict:
     return {"phone_blur_px": round(phone.blur_px, 3), "blur_error_px": round(fitted_px - phone.blur_px, 3)}
 
 
+def variation_rms(params: FabricParams) -> float:
+    """The yarn variation's overall amplitude: the root of the summed squared amplitudes of every
+    kind, meaned over warp and weft (the variation reading gives warp and weft alike)."""
+    return math.sqrt(sum(a * a for kind in variation.KINDS
+                         for a in getattr(params, variation.amplitude_name(kind))) / 2)
+
+
+def variation_errors(fitted: FabricParams, truth: FabricParams) -> dict:
+    """The variation's overall amplitude, true and fitted, and the fitted one's relative error
+    (None where the truth has none)."""
+    true, found = variation_rms(truth), variation_rms(fitted)
+    return {"variation_rms_true": round(true, 4), "variation_rms": round(found, 4),
+            "variation_rms_error": round(found / true - 1, 3) if true > 0 else None}
+
+
 def tiles_error_pct(found, truth) -> float:
     """The worst axis's relative error of ``found`` tiles against the ``truth``, in percent."""
     return 100 * max(abs(f / t - 1) for f, t in zip(found, truth))
@@ -145,7 +162,8 @@ def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) ->
             pair = files[case["name"]]
             jobs.append({"kind": "photolike" if "phone" in case else "golden", "name": case["name"],
                          "reflection": pair.reflection, "transmission": pair.transmission,
-                         "truth": FabricParams.from_interchange(case["params"]),
+                         "truth": FabricParams.from_interchange(case["params"]).replace(
+                             **{name: tuple(value) for name, value in case.get("variation", {}).items()}),
                          "rig": CaptureRig.from_dict(case["rig"]) if "rig" in case else DEFAULT_RIG,
                          "phone": PhoneEffects(**case["phone"]) if "phone" in case else None,
                          "move": case.get("move")})
@@ -213,6 +231,7 @@ def truth_errors(job: dict, result: dict, novel_light: bool) -> dict:
     if phone is not None:
         row.update(warp_errors(result["warp"], phone, rig.film_size))
         row.update(blur_errors(rig.camera_blur_px, phone))
+    row.update(variation_errors(fitted, truth))
     if novel_light:
         gains = (phone.gains(0), phone.gains(1)) if phone else None
         errors = novel_light_error(fitted, truth, gains=gains)
@@ -305,7 +324,15 @@ def _truth_figures(rows: list[dict]) -> dict:
             "roughness_mae": _mean(r["roughness_mae"] for r in rows),
             "thickness_mae": _mean(r["thickness_mae"] for r in rows),
             "tiles_error_pct_max": round(max(r["tiles_error_pct"] for r in rows), 3),
-            "tiles_error_pct_mean": _mean(r["tiles_error_pct"] for r in rows)}
+            "tiles_error_pct_mean": _mean(r["tiles_error_pct"] for r in rows),
+            **_optional_mean("blur_abs_error_px", [abs(r["blur_error_px"]) for r in rows if "blur_error_px" in r]),
+            **_optional_mean("variation_rms_abs_error", [abs(r["variation_rms_error"]) for r in rows
+                                                         if r.get("variation_rms_error") is not None])}
+
+
+def _optional_mean(key: str, values: list[float]) -> dict:
+    """{key: the mean of ``values``} where there are any, else nothing."""
+    return {key: _mean(values)} if values else {}
 
 
 def _format_summary(s: dict) -> str:

@@ -1,4 +1,4 @@
-"""``python -m devtools photolike --out DIR --count N [--seed S] [--moved] [--without EFFECT ...]``:
+"""``python -m devtools photolike --out DIR --count N [--seed S] [--moved] [--varied] [--without EFFECT ...]``:
 photo-like synthetic pairs with ground truth for the fit benchmark (:mod:`devtools.bench.photolike`)."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from ..phone import EFFECTS
 
 
 def run_photolike(args) -> int:
-    generate(args.out, args.count, args.seed, moved=args.moved, without=tuple(args.without))
+    generate(args.out, args.count, args.seed, moved=args.moved, without=tuple(args.without), varied=args.varied)
     return 0
 
 
@@ -21,6 +21,9 @@ def add_parser(sub) -> None:
     p.add_argument("--moved", action="store_true",
                    help="the phone moves between the shots: the reflection photo shows the lattice 1-1.1 times as "
                         "dense and turned by up to 2 degrees (the transmission photos and the truth as without)")
+    p.add_argument("--varied", action="store_true",
+                   help="the samples' yarns vary (width, thickness, spacing, brightness, slubs, drawn from the "
+                        "declared priors; the other draws as without)")
     p.add_argument("--without", nargs="+", choices=EFFECTS, default=[], metavar="EFFECT",
                    help=f"a phone without these effects ({', '.join(EFFECTS)}): the same set otherwise, so that "
                         "a fit benchmark of both tells what they cost")

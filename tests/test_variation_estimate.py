@@ -1,0 +1,107 @@
+"""The yarn variation read from the texture power a regular weave leaves unexplained
+(backend.fit.variation_estimate), and the noise-free cross-power it reads renders by."""
+import itertools
+
+import numpy as np
+import pytest
+
+from backend.core.params import FabricParams
+from backend.core.rig import DEFAULT_RIG
+from backend.core.variation import KINDS, amplitude_name
+from backend.fit.pipeline import _objective
+from backend.fit.settings import FitSettings
+from backend.fit.variation_estimate import (
+    MIN_GAIN_DB,
+    bounded_least_squares,
+    estimate_variation,
+    with_amplitudes,
+)
+from backend.image.metrics import band_power, power_db, texture_gap_db
+from backend.model.render import render_pair
+
+TWILL = FabricParams.from_interchange(
+    "twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
+    "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
+SIZE = 128
+
+
+def _texture(seed: int, noise: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 256-px grey image of smooth random texture, and the same with white noise of ``noise``."""
+    rng = np.random.default_rng(seed)
+    field = np.fft.ifft2(np.fft.fft2(rng.normal(size=(256, 256))) / (0.02 + np.hypot(
+        *np.meshgrid(np.fft.fftfreq(256), np.fft.fftfreq(256))))).real
+    clean = 0.5 + 0.05 * field / field.std()
+    noisy = clean + noise * rng.normal(size=clean.shape)
+    return np.repeat(clean[..., None], 3, axis=2), np.repeat(noisy[..., None], 3, axis=2)
+
+
+def test_the_cross_power_of_two_noisy_copies_reads_the_power_without_the_noise():
+    """White noise adds to every band's power; the cross-power of two copies with independent noise
+    does not: within 0.5 dB where the noise adds 3 dB or more."""
+    clean, noisy = _texture(1, 0.04)
+    other = clean + 0.04 * np.random.default_rng(5).normal(size=clean.shape[:2])[..., None]
+    truth, plain, cross = band_power(clean), band_power(noisy), band_power(noisy, other)
+    assert (power_db(plain) - power_db(truth) > 3.0).any()          # the noise shows in the plain power
+    assert np.abs(power_db(cross) - power_db(truth)).max() < 0.5
+
+
+def test_the_texture_gap_is_zero_for_an_image_and_ten_db_for_a_tenth_of_its_power():
+    clean, _ = _texture(2, 0.0)
+    damped = 0.5 + (clean - 0.5) / np.sqrt(10.0)
+    assert texture_gap_db(clean, clean) == 0.0
+    assert texture_gap_db(clean, damped) == pytest.approx(10.0, abs=0.05)
+
+
+def test_bounded_least_squares_is_the_best_point_of_the_box():
+    """Against a dense grid of the box: no grid point has a lower residual, and bounds hold."""
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(8, 3)), rng.normal(size=8) * 3
+    upper = np.array([0.5, 2.0, 1.0])
+    x = bounded_least_squares(a, b, upper)
+    assert (x >= 0).all() and (x <= upper).all()
+    cost = np.sum((a @ x - b) ** 2)
+    grid = itertools.product(*(np.linspace(0, u, 21) for u in upper))
+    assert all(np.sum((a @ np.array(g) - b) ** 2) >= cost - 1e-9 for g in grid)
+    free = np.linalg.lstsq(a, b, rcond=None)[0]
+    if (free >= 0).all() and (free <= upper).all():  # inside the box: the free solution
+        assert x == pytest.approx(free)
+
+
+@pytest.fixture(scope="module")
+def objective_for():
+    def make(params: FabricParams):
+        photos = render_pair(params, size=SIZE, spp=16, seed=3)
+        settings = FitSettings(pattern=params.pattern, size=SIZE, spp=4, compile=False)
+        return _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
+    return make
+
+
+def test_photos_of_a_varied_fabric_read_their_variation_and_the_gap_closes(objective_for):
+    """Photos of TWILL with thickness and brightness variation, read at the regular TWILL: the
+    variation is kept, the gap closes to a third or less, and the power read (the sum of the
+    squared amplitudes) is the power shown within a factor of 1.5. Which kind holds it is not told
+    apart reliably: the kinds' band profiles are alike (the note of issue 88 says so)."""
+    shown = {"thickness": 0.2, "brightness": 0.15}
+    objective = objective_for(with_amplitudes(TWILL, shown))
+    varied, reading = estimate_variation(TWILL, objective, blur=0.0)
+    assert reading.kept and reading.gap_after_db < reading.gap_before_db / 3
+    read = sum(a * a for a in reading.amplitudes.values())
+    assert 1 / 1.5 < read / sum(a * a for a in shown.values()) < 1.5
+    assert all(getattr(varied, amplitude_name(k)) == (a, a) for k, a in reading.amplitudes.items())
+
+
+def test_photos_of_a_regular_fabric_keep_it_regular(objective_for):
+    """Photos of the regular TWILL: nothing to explain, so no variation is kept (the gap at the
+    truth is already within MIN_GAIN_DB of what any variation gives), and the parameters come back
+    regular whatever was read."""
+    objective = objective_for(TWILL)
+    varied, reading = estimate_variation(with_amplitudes(TWILL, {"width": 0.2}), objective, blur=0.0)
+    assert not reading.kept or reading.gap_before_db - reading.gap_after_db >= MIN_GAIN_DB
+    if not reading.kept:
+        assert all(getattr(varied, amplitude_name(k)) == (0.0, 0.0) for k in KINDS)
+
+
+def test_the_estimate_reports_each_reading(objective_for):
+    seen = []
+    estimate_variation(TWILL, objective_for(TWILL), blur=0.0, progress=seen.append)
+    assert seen == list(range(1, len(KINDS) + 3))
