@@ -52,6 +52,15 @@ def test_the_texture_gap_is_zero_for_an_image_and_ten_db_for_a_tenth_of_its_powe
     assert texture_gap_db(clean, damped) == pytest.approx(10.0, abs=0.05)
 
 
+def test_a_small_image_has_a_gap_over_the_bands_it_holds():
+    """A 64-px image holds three of the four bands (the last is past its Nyquist corner): the gap is
+    their mean, a number (metrics.json and the protocol refuse NaN)."""
+    clean, _ = _texture(3, 0.0)
+    small = clean[::4, ::4]
+    assert np.isnan(band_power(small)[-1]) and np.isfinite(band_power(small)[:-1]).all()
+    assert texture_gap_db(small, 0.5 + (small - 0.5) / np.sqrt(10.0)) == pytest.approx(10.0, abs=0.05)
+
+
 def test_bounded_least_squares_is_the_best_point_of_the_box():
     """Against a dense grid of the box: no grid point has a lower residual, and bounds hold."""
     rng = np.random.default_rng(3)
