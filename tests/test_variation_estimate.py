@@ -114,3 +114,29 @@ def test_the_estimate_reports_each_reading(objective_for):
     seen = []
     estimate_variation(TWILL, objective_for(TWILL), blur=0.0, progress=seen.append)
     assert seen == list(range(1, len(KINDS) + 3))
+
+
+@pytest.mark.parametrize("darker", [False, True])
+def test_a_variation_that_costs_the_fabric_its_colour_is_dropped(monkeypatch, darker):
+    """The fit's variation stage with a reading that (darker) halves every albedo: after settling its
+    colour terms stay far above the regular weave's, so the fit keeps the regular weave and says why;
+    a reading that leaves the colour alone is kept."""
+    import backend.fit.pipeline as pipeline
+    from backend.fit.variation_estimate import VariationEstimate
+
+    def reading(params, objective, blur, seed, progress):
+        varied = with_amplitudes(params, {"brightness": 0.05})
+        if darker:
+            varied = varied.replace(specular_albedo=tuple(tuple(c / 2 for c in y) for y in params.specular_albedo),
+                                    diffuse_reflection=tuple(c / 2 for c in params.diffuse_reflection),
+                                    diffuse_transmission=tuple(c / 2 for c in params.diffuse_transmission))
+        return varied, VariationEstimate({k: 0.05 * (k == "brightness") for k in KINDS}, 10.0, 5.0, True)
+
+    monkeypatch.setattr(pipeline, "estimate_variation", reading)
+    photos = render_pair(TWILL, size=64, spp=8, seed=3)
+    settings = FitSettings(pattern="twill1", iterations=2, trial_iterations=1, size=64, spp=4, search_every=0,
+                           compile=False, camera_blur=0.0, sample_rotation=0.0, settle_steps=2)
+    result = pipeline.fit(photos.reflection.numpy(), photos.transmission.numpy(), settings=settings)
+    assert result.variation["kept"] is not darker
+    assert result.variation["dropped"] == ("colour" if darker else None)
+    assert result.params.brightness_variation == pytest.approx((0.0, 0.0) if darker else (0.05, 0.05))

@@ -73,18 +73,20 @@ READ_SEED_OFFSET = 1000  # the readings' jitter seeds are the fit's plus this an
 @dataclass
 class VariationEstimate:
     """The amplitudes read (``amplitudes``: kind -> value, warp and weft alike), the texture gap
-    (dB, both photos' bands) of the regular weave and of the varied one, and whether it was kept."""
+    (dB, both photos' bands) of the regular weave and of the varied one, and whether it was kept
+    (``dropped``: why not, where the fit dropped it after settling)."""
 
     amplitudes: dict[str, float]
     gap_before_db: float
     gap_after_db: float
     kept: bool
-    band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # kept render - photo, per photo
+    band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # varied (if read kept) - photo
+    dropped: str | None = None  # why a variation read was dropped after all (the fit's pipeline: "colour")
 
     def to_dict(self) -> dict:
         return {"amplitudes": {k: round(v, 4) for k, v in self.amplitudes.items()},
                 "gap_before_db": round(self.gap_before_db, 2), "gap_after_db": round(self.gap_after_db, 2),
-                "kept": self.kept,
+                "kept": self.kept, "dropped": self.dropped,
                 "band_gaps_db": {k: [round(x, 2) if np.isfinite(x) else None for x in v]  # None: past Nyquist
                                  for k, v in self.band_gaps_db.items()}}
 
