@@ -396,9 +396,8 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     learning rates, its best loss counted afresh: the variation moves the images' means (a
     yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
     make up for. Where the settled fit's colour terms are still more than COLOUR_TOLERANCE above the
-    regular weave's, the variation is dropped and the regular weave kept (``reading.dropped``).
-    Measured on real twills: a varied transmission's mean moved by up to twice its colour error, and
-    the settling steps did not always bring it back."""
+    regular weave's, the variation is dropped and the regular weave kept (``reading.dropped``): the
+    settling steps do not always bring a varied transmission's mean back."""
     total = len(KINDS) + 2 + settings.settle_steps
 
     def counted(done: int) -> None:

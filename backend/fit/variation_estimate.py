@@ -20,8 +20,8 @@ power; :func:`bounded_least_squares`). The relative error weighs too much textur
 little (a band short of all its power counts 1, one with twice too much counts 1 already), which is
 the point: a random yarn pattern never lines up with the photo's, so every bit of it it adds is
 pixel error too; where the kinds' band profiles cannot match the photos' (a blurred fit holds no
-power in the top band), it fills what it can without overshooting the rest. (The symmetric
-measure, the squared log errors, was tried and overshot a satin's low bands by 8 dB.)
+power in the top band), it fills what it can without overshooting the rest (the symmetric
+measure, the squared log errors, was tried: it overshot where the profiles cannot match).
 A render's power is read without its Monte Carlo noise: as the cross-power of two renders with
 independent samples (:func:`backend.image.metrics.band_power` with ``other``), which at a few
 samples per pixel would otherwise read as texture the render lacks.
