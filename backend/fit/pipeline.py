@@ -52,7 +52,6 @@ import torch
 from ..core import priors
 from ..core.params import FabricParams
 from ..core.rig import CaptureRig
-from ..core.variation import KINDS
 from ..model.render import Renderer
 from ..texture.candidates import Candidate
 from ..texture.frequencies import lattice_of
@@ -64,7 +63,7 @@ from .gram import GramDescriptor
 from .objective import Objective, Target
 from .optimise import LR_MILESTONES, Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
-from .variation_estimate import VariationEstimate, estimate_variation
+from .variation_estimate import READINGS, VariationEstimate, estimate_variation
 
 # The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
 BLUR_DUEL_PX = 0.25
@@ -398,7 +397,7 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     make up for. Where the settled fit's colour terms are still more than COLOUR_TOLERANCE above the
     regular weave's, the variation is dropped and the regular weave kept (``reading.dropped``): the
     settling steps do not always bring a varied transmission's mean back."""
-    total = len(KINDS) + 2 + settings.settle_steps
+    total = READINGS + settings.settle_steps
 
     def counted(done: int) -> None:
         check_stop(run)
@@ -411,7 +410,7 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
         run.start_over_from(varied, SETTLE_LR_FACTOR)
         for step in range(settings.settle_steps):
             run.step()
-            counted(len(KINDS) + 3 + step)
+            counted(READINGS + 1 + step)
         if _colour(run.best_terms) > (1 + COLOUR_TOLERANCE) * _colour(regular[3]):
             run.best_loss, run.best, run.best_blur, run.best_terms = regular
             reading.kept, reading.dropped = False, "colour"

@@ -68,6 +68,7 @@ GAP_FLOOR = 1e-3         # 30 dB: the most a band's gap counts (module docstring
 READ_SIZE = 256          # px of the readings' renders (the bands scale with the size)
 READ_SPP = 4             # samples per pixel of each of the two renders of a reading
 READ_SEED_OFFSET = 1000  # the readings' jitter seeds are the fit's plus this and one more: other samples
+READINGS = len(KINDS) + 2  # the regular weave, each kind alone, the estimate: progress(done) counts them
 
 
 @dataclass
@@ -151,7 +152,7 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
                        progress: Callable[[int], None] | None = None) -> tuple[FabricParams, VariationEstimate]:
     """(``params`` with the variation the photos show, or without any where none is kept; the
     reading) at the camera blur ``blur`` (module docstring). ``progress(done)`` after each of the
-    len(KINDS) + 2 readings."""
+    READINGS readings."""
     progress = progress or (lambda done: None)
     regular = with_amplitudes(params, {k: 0.0 for k in KINDS})
     powers = _Powers(objective, blur, seed + READ_SEED_OFFSET)
@@ -171,7 +172,7 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     amplitudes = {k: float(np.sqrt(x)) for k, x in zip(KINDS, squares)}
     varied = with_amplitudes(regular, amplitudes)
     after = powers(varied) if squares.any() else base
-    progress(len(KINDS) + 2)
+    progress(READINGS)
     before_db, after_db = _gap_db(base, photo), _gap_db(after, photo)
     kept = after_db <= before_db - MIN_GAIN_DB
     shown = after if kept else base

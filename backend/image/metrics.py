@@ -67,12 +67,11 @@ def band_power(image: np.ndarray, other: np.ndarray | None = None) -> np.ndarray
     independent noise, e.g. a render with other samples) the cross-power Re(F F_other*) instead:
     the noise of one is uncorrelated with the other's, so its mean is the power without the noise.
     A band past the image's Nyquist corner (an image under 128 px) is NaN."""
-    spectrum = np.fft.fft2(windowed_highpass(image, SPECTRUM_HIGHPASS_PX * image.shape[0] / METRIC_SIZE))
-    if other is None:
-        power = np.abs(spectrum) ** 2
-    else:
-        scale = other.shape[0] / METRIC_SIZE
-        power = (spectrum * np.conj(np.fft.fft2(windowed_highpass(other, SPECTRUM_HIGHPASS_PX * scale)))).real
+    def transform(img: np.ndarray) -> np.ndarray:  # the high-pass scales with the image's size
+        return np.fft.fft2(windowed_highpass(img, SPECTRUM_HIGHPASS_PX * img.shape[0] / METRIC_SIZE))
+
+    spectrum = transform(image)
+    power = np.abs(spectrum) ** 2 if other is None else (spectrum * np.conj(transform(other))).real
     fy = np.fft.fftfreq(power.shape[0])[:, None]
     fx = np.fft.fftfreq(power.shape[1])[None, :]
     radius = np.hypot(fx, fy) * power.shape[0] / METRIC_SIZE   # cycles per pixel of a METRIC_SIZE image
