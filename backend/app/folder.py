@@ -188,7 +188,7 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
                  should_stop=should_stop)
 
     # the placement the fit read from the photos: the re-renders and params.json's rig use it
-    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4),
+    rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4), glow_strength=result.glow_strength,
                               sample_rotation_deg=round(result.sample_rotation_deg, 4),
                               sample_skew_deg=round(result.sample_skew_deg, 4))
     at_bounds = result.params.at_bounds(FITTED)

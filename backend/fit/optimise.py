@@ -30,6 +30,10 @@ from .settings import OPTIMISED, FitSettings
 from .warp import reread
 
 LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
+# The strengths of the back light's glow through the gaps (the rig's glow_strength; the spec's rig: 8)
+# that Run.scan_glow tries: a real lamp seen through the yarns' gaps is as bright as its diffuser
+# and the camera's focus make it, none where the fabric closes them.
+GLOW_SCAN = (0.0, 2.0, 4.0, 8.0, 16.0)
 
 
 @dataclass
@@ -211,6 +215,37 @@ class Run:
 
     def _loss(self, fabric: ParamTensors) -> float:
         return self.objective.value(fabric, self.camera_blur_px)
+
+    def scan_glow(self) -> bool:
+        """The back light's glow through the gaps as the photos show it: the loss at the current
+        parameters at each strength of :data:`GLOW_SCAN` and the renderer's own, the lowest kept
+        (the renderer's own where it ties). Where it changes, the current parameters become the best,
+        with their loss under it (the best so far was judged under the other glow). Returns whether
+        it changed.
+
+        Why: with the spec's fixed strength a fit whose yarns leave gaps shows a round spot at the
+        back light that a photo through a diffuser does not have; the fabric can only hide it by
+        closing its gaps or blurring."""
+        renderer = self.objective.renderer
+        if not renderer.options.glow:
+            return False
+
+        def terms() -> dict[str, float]:
+            with torch.no_grad():
+                return _on_host(self.objective.terms(self.fabric, self.camera_blur_px))
+
+        before = renderer.rig.glow_strength
+        found = {before: terms()}
+        for strength in GLOW_SCAN:
+            if strength not in found:
+                renderer.set_glow(strength)
+                found[strength] = terms()
+        chosen = min(found, key=lambda strength: found[strength]["loss"])
+        renderer.set_glow(chosen)
+        if chosen == before:
+            return False
+        self._keep_best(found[chosen]["loss"], found[chosen])
+        return True
 
     def discrete_search(self, round_index: int) -> None:
         """A joint coarse step in gap scale, then parabolic steps on gap scale and twist per yarn

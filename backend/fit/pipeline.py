@@ -155,7 +155,7 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
                      run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
                      settings.iterations, steps, run.objective.renderer.warp,
-                     None if variation is None else variation.to_dict())
+                     None if variation is None else variation.to_dict(), run.objective.renderer.rig.glow_strength)
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -370,6 +370,8 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
         check_stop(run)
         done = it + 1
         if search_due(settings, done):
+            if search_round == 0 and settings.estimate_glow and run.scan_glow():
+                best, improved_at = run.best_loss, done   # the losses before were under another glow
             if settings.spacing_warp:
                 run.update_warp()
             run.discrete_search(search_round)

@@ -64,6 +64,8 @@ class FitSettings:
                                      # (None; backend.model.render)
     spacing_warp: bool = True        # read the photos' uneven yarn spacing at each discrete search (backend.fit.warp)
     warp_trial_steps: int = 5        # steps a warp read is tried for before it is kept or undone (Run.update_warp)
+    estimate_glow: bool = True       # the back light's glow through the gaps read at the first discrete search
+                                     # (Run.scan_glow), else the rig's
     estimate_variation: bool = True  # read the yarn variation the photos show after the optimisation
                                      # (backend.fit.variation_estimate)
     settle_steps: int = 10           # steps from the varied parameters where a variation is kept: the
@@ -88,3 +90,4 @@ class FitResult:
     steps: int = 0                   # of those iterations, the steps it ran (fewer where it converged)
     warp: SpacingWarp | None = None  # the photos' uneven yarn spacing the renders show (None: even)
     variation: dict | None = None    # the variation reading (VariationEstimate.to_dict; None: not read)
+    glow_strength: float = 8.0       # the back light's glow through the gaps the renders show (the rig's unless read)

@@ -152,16 +152,11 @@ class Renderer:
         self._lookups: dict = {}
         self._last_radiance: tuple | None = None  # (parameter values, radiance) of the last render without gradients
         self.vignette = self.camera.pixel_falloff(rig.vignette_sigma_px) if options.vignette else None
-        self.glow = (self.camera.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
-                     if options.glow and rig.glow_strength > 0 else None)
         # samples per side of a sub-pixel the camera blur acts on; 0: it acts on the pixel means
         self.subpixel = subpixel_size(spp) if subpixel_blur is not False else 0
         # None: on the sub-pixels only where a blur is too narrow to damp the pixel means' aliases
         self._subpixel_below = AUTO_SUBPIXEL_BELOW_PX if subpixel_blur is None else math.inf
-        self._glow_fine = None
-        if self.glow is not None and self.subpixel:
-            fine = CameraSamples(rig, 2 * size, 1, seed, self.device, dtype)
-            self._glow_fine = fine.pixel_falloff(rig.glow_sigma_px) * rig.glow_strength
+        self.set_glow(rig.glow_strength)
         if compile:
             use_persistent_compile_cache()
             allow_cached_custom_gradients()
@@ -180,6 +175,20 @@ class Renderer:
     def warp(self) -> SpacingWarp | None:
         """The photos' uneven yarn spacing the renders show (:mod:`.spacing_warp`; None: even)."""
         return self.camera.warp
+
+    def set_glow(self, strength: float) -> None:
+        """Renders from now on add the back light's glow through the gaps at ``strength`` (the rig's
+        ``glow_strength``; the rig is replaced by one that says so, which :meth:`like` carries)."""
+        if strength < 0:
+            raise ValueError(f"glow strength must be >= 0, got {strength!r}")
+        self.rig = dataclasses.replace(self.rig, glow_strength=float(strength))
+        on = self.options.glow and strength > 0
+        self.glow = self.camera.pixel_falloff(self.rig.glow_sigma_px) * strength if on else None
+        self._glow_fine = None
+        if on and self.subpixel:
+            fine = CameraSamples(self.rig, 2 * self.size, 1, self.seed, self.device, self.dtype)
+            self._glow_fine = fine.pixel_falloff(self.rig.glow_sigma_px) * strength
+        self._last_radiance = None
 
     def set_warp(self, warp: SpacingWarp | None) -> None:
         """Renders from now on show ``warp``: the camera samples and the geometry are made again (the

@@ -1,0 +1,67 @@
+"""The back light's glow through the gaps, read from the photos (backend.fit.optimise.Run.scan_glow)
+and carried by the renderer (backend.model.render.Renderer.set_glow)."""
+import dataclasses
+
+import pytest
+import torch
+
+from backend.core.params import FabricParams
+from backend.core.rig import DEFAULT_RIG
+from backend.fit.optimise import GLOW_SCAN, Run
+from backend.fit.pipeline import _objective
+from backend.fit.settings import FitSettings
+from backend.model.render import Renderer, render_pair
+
+# A plain weave with open gaps: the back light shows through them.
+OPEN = FabricParams.from_interchange(
+    "plain_R_0.4,0.4_S_1.0,1.0_T_1.5,1.5_N_0.0_UV_60.0,60.0_Kd_0.3,0.3,0.3,0.3,0.3,0.3"
+    "_G_0.6,0.6_Rm_0.4,0.4_Tm_1.5,1.5_W_0.5,0.5_Ks_0.5,0.5,0.5,0.5,0.5,0.5_Psi_0.0,0.0")
+SIZE = 96
+
+
+def _run(glow_shown: float, glow_rendered: float, params: FabricParams = OPEN) -> Run:
+    """A run at ``params`` whose renderer shows ``glow_rendered``, against photos of ``params``
+    with ``glow_shown`` rendered with the run's samples (at the truth, the loss is lowest at the
+    glow shown: with other samples the clamp of a pixel's glow biases a strength beyond the
+    clamp's, where only the spot's width tells strengths apart)."""
+    settings = FitSettings(pattern=params.pattern, size=SIZE, spp=4, compile=False, camera_blur=0.0)
+    photos = render_pair(params, dataclasses.replace(DEFAULT_RIG, glow_strength=glow_shown), size=SIZE,
+                         spp=settings.spp, seed=settings.seed)
+    objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(),
+                           dataclasses.replace(DEFAULT_RIG, glow_strength=glow_rendered), settings)
+    return Run(params, objective, settings, total=10, camera_blur_px=0.0)
+
+
+def test_set_glow_renders_as_a_renderer_made_with_that_glow():
+    """Setting the glow renders what a renderer built with it renders, and the rig it carries (and
+    passes on to :meth:`Renderer.like`) says so."""
+    with torch.no_grad():
+        changed = Renderer(DEFAULT_RIG, 64, 4, 0)
+        changed.render(OPEN)   # a kept radiance must not outlive the glow
+        changed.set_glow(2.0)
+        made = Renderer(dataclasses.replace(DEFAULT_RIG, glow_strength=2.0), 64, 4, 0)
+        assert torch.equal(changed.render(OPEN).transmission, made.render(OPEN).transmission)
+        assert changed.like(32, 4, 1).rig.glow_strength == 2.0
+        none = Renderer(DEFAULT_RIG, 64, 4, 0)
+        none.set_glow(0.0)
+        bright = Renderer(DEFAULT_RIG, 64, 4, 0).render(OPEN).transmission
+        assert none.glow is None and (none.render(OPEN).transmission <= bright).all()
+    with pytest.raises(ValueError, match="glow"):
+        changed.set_glow(-1.0)
+
+
+@pytest.mark.parametrize("shown", [0.0, 2.0, 16.0])
+def test_the_scan_reads_the_glow_the_photos_show(shown):
+    """Photos of the open weave with a glow of the scan's, read at the true parameters from the
+    spec's 8: the scan finds it, the run's best is the current state with its loss under it."""
+    run = _run(shown, 8.0)
+    assert run.scan_glow()
+    assert run.objective.renderer.rig.glow_strength == shown
+    assert run.best_loss == pytest.approx(run.objective.value(run.fabric, 0.0))
+    assert run.best_terms["loss"] == pytest.approx(run.best_loss)
+
+
+def test_the_scan_keeps_the_glow_it_has_where_that_is_the_photos():
+    run = _run(8.0, 8.0)
+    assert 8.0 in GLOW_SCAN and not run.scan_glow()
+    assert run.objective.renderer.rig.glow_strength == 8.0
