@@ -36,6 +36,7 @@ OUTPUT_SPP = 36
 # where the blur is narrow (None; backend.model.render.AUTO_SUBPIXEL_BELOW_PX)
 BLUR_ON = {"pixels": False, "subpixels": True, "auto": None}
 FIT_OR_NONE = {"fit": True, "none": False}
+FIT_OR_RIG = {"fit": True, "rig": False}
 
 
 class FitOptionError(ValueError):
@@ -216,6 +217,12 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
                    "default), or none (the renders' yarns evenly spaced)",
               details="It is read again before each discrete step and kept where it lowers the loss; it is in the "
                       "re-renders and in `params.json` as `fit.spacing_warp`, never in the material."),
+    FitOption("glow", CHOICE, "fit", choices=tuple(FIT_OR_RIG), setting="estimate_glow", setting_of=FIT_OR_RIG,
+              batch=True,
+              help="the back light's glow seen through the yarns' gaps: its strength read from the photos at the "
+                   "first discrete step (fit, default), or the rig's glow_strength (rig)",
+              details="A lamp behind a diffuser shows no round spot through the gaps; the strength read is "
+                      "`glow_strength` in `params.json`'s rig and in the re-renders, never in the material."),
     FitOption("blur_on", CHOICE, "pixels", choices=tuple(BLUR_ON), setting="subpixel_blur", setting_of=BLUR_ON,
               batch=True,
               help="where the camera blur acts in the fit's own renders: on the pixel means (pixels, default), on "
