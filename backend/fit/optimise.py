@@ -9,6 +9,8 @@
   then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, and on the camera
   blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
   than the paper's random +/- steps.
+- :meth:`Run.scan_glow` (at the first discrete search, where the fit reads the glow): the back
+  light's glow through the gaps at each strength of :data:`GLOW_SCAN`, the lowest loss's kept.
 - The best parameters seen (with their loss, loss terms and camera blur) are kept.
 """
 from __future__ import annotations

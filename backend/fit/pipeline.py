@@ -13,7 +13,9 @@ taking the values the one before returned.
                fine): Adam on the continuous parameters and, where it is estimated, the camera blur;
                after ``first_search`` iterations and then every ``search_every`` the photos' uneven
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
-               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`); it ends
+               parabolic step on the discrete parameters (:mod:`backend.fit.optimise`), at the first
+               after the back light's glow through the gaps is read (``settings.estimate_glow``:
+               :meth:`backend.fit.optimise.Run.scan_glow`); it ends
                early once the best loss stops moving (:func:`converged`)
     variation  the yarn variation the photos show, read from the texture power the regular weave
                leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
@@ -25,7 +27,8 @@ taking the values the one before returned.
                fresh camera-blur scan there; its first ``duel_iterations`` steps beside its face
                twin on its lattice, which the trials at BASE_SIZE cannot tell from it
                (:func:`_finalist`)
-    result     the best parameters seen (with the variation), their loss and terms, the camera blur,
+    result     the best parameters seen (with the variation), their loss and terms, the camera blur
+               and glow,
                the photos' light falloff at those parameters and their spacing warp, the candidates
                compared, the variation reading, the loss history and stage timings
 
