@@ -118,7 +118,7 @@ BEFORE = [
     (["--camera-blur", "auto", "--sample-rotation", "auto"], RIG, {"camera_blur": 1.5, "sample_rotation": -4.0}),
     (["--camera-blur", "0.5", "--sample-rotation", "3"], RIG, {"camera_blur": 0.5, "sample_rotation": 3.0}),
     ([], {"camera_blur_px": 0.0, "sample_rotation_deg": 0.0}, {}),
-    (["--glow", "rig"], None, {"estimate_glow": False}),   # declared after the others
+    (["--glow", "fit"], None, {"estimate_glow": True}),   # declared after the others
 ]
 
 

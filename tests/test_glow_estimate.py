@@ -65,3 +65,23 @@ def test_the_scan_keeps_the_glow_it_has_where_that_is_the_photos():
     run = _run(8.0, 8.0)
     assert 8.0 in GLOW_SCAN and not run.scan_glow()
     assert run.objective.renderer.rig.glow_strength == 8.0
+
+
+@pytest.mark.parametrize("estimate", [False, True])
+def test_a_fit_reads_the_glow_only_where_asked(estimate):
+    """A short fit of photos of the open weave without glow (rendered with the fit's own samples):
+    asked (``estimate_glow``), its first discrete search reads a strength of the scan below the rig's
+    and the result says so (the fit at 64 px is far from the truth: not necessarily none); otherwise
+    the result keeps the rig's."""
+    from backend.fit.pipeline import fit
+
+    settings = FitSettings(pattern="plain", size=64, spp=4, iterations=27, trial_iterations=1, compile=False,
+                           camera_blur=0.0, sample_rotation=0.0, estimate_variation=False, spacing_warp=False,
+                           estimate_glow=estimate)
+    photos = render_pair(OPEN, dataclasses.replace(DEFAULT_RIG, glow_strength=0.0), size=64, spp=settings.spp,
+                         seed=settings.seed)
+    result = fit(photos.reflection.numpy(), photos.transmission.numpy(), settings=settings)
+    if estimate:
+        assert result.glow_strength in GLOW_SCAN and result.glow_strength < DEFAULT_RIG.glow_strength
+    else:
+        assert result.glow_strength == DEFAULT_RIG.glow_strength

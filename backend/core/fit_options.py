@@ -217,11 +217,13 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
                    "default), or none (the renders' yarns evenly spaced)",
               details="It is read again before each discrete step and kept where it lowers the loss; it is in the "
                       "re-renders and in `params.json` as `fit.spacing_warp`, never in the material."),
-    FitOption("glow", CHOICE, "fit", choices=tuple(FIT_OR_RIG), setting="estimate_glow", setting_of=FIT_OR_RIG,
+    FitOption("glow", CHOICE, "rig", choices=tuple(FIT_OR_RIG), setting="estimate_glow", setting_of=FIT_OR_RIG,
               batch=True,
-              help="the back light's glow seen through the yarns' gaps: its strength read from the photos at the "
-                   "first discrete step (fit, default), or the rig's glow_strength (rig)",
-              details="A lamp behind a diffuser shows no round spot through the gaps; the strength read is "
+              help="the back light's glow seen through the yarns' gaps: the rig's glow_strength (rig, default), or "
+                   "the strength among a few with the lowest loss at the first discrete step (fit)",
+              details="A lamp behind a diffuser shows no round spot through the gaps. Not the default: the loss's "
+                      "spectrum term prefers a weaker glow than a render shows, so the strength read from renders "
+                      "made with the rig's is low (the benchmark's results say by how much). The strength used is "
                       "`glow_strength` in `params.json`'s rig and in the re-renders, never in the material."),
     FitOption("blur_on", CHOICE, "pixels", choices=tuple(BLUR_ON), setting="subpixel_blur", setting_of=BLUR_ON,
               batch=True,

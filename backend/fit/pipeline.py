@@ -14,7 +14,7 @@ taking the values the one before returned.
                after ``first_search`` iterations and then every ``search_every`` the photos' uneven
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
                parabolic step on the discrete parameters (:mod:`backend.fit.optimise`), at the first
-               after the back light's glow through the gaps is read (``settings.estimate_glow``:
+               after the back light's glow through the gaps is read where asked (``settings.estimate_glow``:
                :meth:`backend.fit.optimise.Run.scan_glow`); it ends
                early once the best loss stops moving (:func:`converged`)
     variation  the yarn variation the photos show, read from the texture power the regular weave

@@ -64,8 +64,8 @@ class FitSettings:
                                      # (None; backend.model.render)
     spacing_warp: bool = True        # read the photos' uneven yarn spacing at each discrete search (backend.fit.warp)
     warp_trial_steps: int = 5        # steps a warp read is tried for before it is kept or undone (Run.update_warp)
-    estimate_glow: bool = True       # the back light's glow through the gaps read at the first discrete search
-                                     # (Run.scan_glow), else the rig's
+    estimate_glow: bool = False      # the back light's glow through the gaps read at the first discrete search
+                                     # (Run.scan_glow; fit option --glow fit), else the rig's
     estimate_variation: bool = True  # read the yarn variation the photos show after the optimisation
                                      # (backend.fit.variation_estimate)
     settle_steps: int = 10           # steps from the varied parameters where a variation is kept: the
