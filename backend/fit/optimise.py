@@ -10,7 +10,8 @@
   blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
   than the paper's random +/- steps.
 - :meth:`Run.scan_glow` (at the first discrete search, where the fit reads the glow): the back
-  light's glow through the gaps at each strength of :data:`GLOW_SCAN`, the lowest loss's kept.
+  light's glow through the gaps at each strength of :data:`GLOW_SCAN`, the one whose transmission's
+  colour term is lowest kept.
 - The best parameters seen (with their loss, loss terms and camera blur) are kept.
 """
 from __future__ import annotations
@@ -36,6 +37,7 @@ LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rate
 # that Run.scan_glow tries: a real lamp seen through the yarns' gaps is as bright as its diffuser
 # and the camera's focus make it, none where the fabric closes them.
 GLOW_SCAN = (0.0, 2.0, 4.0, 8.0, 16.0)
+GLOW_TERM = "colour_T"  # the loss term the glow is read by (Run.scan_glow); the loss where it is not weighed
 
 
 @dataclass
@@ -219,15 +221,18 @@ class Run:
         return self.objective.value(fabric, self.camera_blur_px)
 
     def scan_glow(self) -> bool:
-        """The back light's glow through the gaps as the photos show it: the loss at the current
-        parameters at each strength of :data:`GLOW_SCAN` and the renderer's own, the lowest kept
-        (the renderer's own where it ties). Where it changes, the current parameters become the best,
-        with their loss under it (the best so far was judged under the other glow). Returns whether
-        it changed.
+        """The back light's glow through the gaps as the photos show it: the transmission's colour
+        term (:data:`GLOW_TERM`) at the current parameters at each strength of :data:`GLOW_SCAN` and
+        the renderer's own, the lowest kept (the renderer's own where it ties). Where it changes, the
+        current parameters become the best, with their loss under it (the best so far was judged
+        under the other glow). Returns whether it changed.
 
         Why: with the spec's fixed strength a fit whose yarns leave gaps shows a round spot at the
         back light that a photo through a diffuser does not have; the fabric can only hide it by
-        closing its gaps or blurring."""
+        closing its gaps or blurring. Why the colour term, not the loss: at the fit's few samples per
+        pixel the glow is a speckle (each pixel's share of samples through a gap) whose Monte Carlo
+        noise the loss's spectrum term reads as excess texture, so the loss prefers a weaker glow
+        than the photos show; a block mean has no such noise."""
         renderer = self.objective.renderer
         if not renderer.options.glow:
             return False
@@ -242,7 +247,7 @@ class Run:
             if strength not in found:
                 renderer.set_glow(strength)
                 found[strength] = terms()
-        chosen = min(found, key=lambda strength: found[strength]["loss"])
+        chosen = min(found, key=lambda strength: found[strength].get(GLOW_TERM, found[strength]["loss"]))
         renderer.set_glow(chosen)
         if chosen == before:
             return False
