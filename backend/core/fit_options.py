@@ -220,11 +220,13 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
     FitOption("glow", CHOICE, "rig", choices=tuple(FIT_OR_RIG), setting="estimate_glow", setting_of=FIT_OR_RIG,
               batch=True,
               help="the back light's glow seen through the yarns' gaps: the rig's glow_strength (rig, default), or "
-                   "the strength among a few with the lowest loss at the first discrete step (fit)",
-              details="A lamp behind a diffuser shows no round spot through the gaps. Not the default: the loss's "
-                      "spectrum term prefers a weaker glow than a render shows, so the strength read from renders "
-                      "made with the rig's is low (the benchmark's results say by how much). The strength used is "
-                      "`glow_strength` in `params.json`'s rig and in the re-renders, never in the material."),
+                   "read from the photos at the first discrete step (fit: the strength among a few whose "
+                   "transmission's block colours are closest)",
+              details="A lamp behind a diffuser shows no round spot through the gaps. Not the default: read that "
+                      "early, before the parameters are the photos', it misreads renders made with the rig's glow "
+                      "and moves the rest of the fit, better on some real pairs and worse on others (the "
+                      "benchmark's results). The strength used is `glow_strength` in `params.json`'s rig and in "
+                      "the re-renders, never in the material."),
     FitOption("blur_on", CHOICE, "pixels", choices=tuple(BLUR_ON), setting="subpixel_blur", setting_of=BLUR_ON,
               batch=True,
               help="where the camera blur acts in the fit's own renders: on the pixel means (pixels, default), on "
