@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from backend.core import progress, protocol  # noqa: E402
-from backend.core.progress import MIN_REMAINDER, PHASES, FitProgress, duration_words, replay  # noqa: E402
+from backend.core.progress import MIN_REMAINDER, NAMES, PHASES, FitProgress, duration_words, replay  # noqa: E402
 
 VARIATION_COUNTS = 17  # the variation stage's readings and settling steps (backend.fit.pipeline._with_variation)
 
@@ -146,10 +146,12 @@ def test_the_time_left_is_the_truth_where_the_fit_keeps_its_shares():
 
 
 def test_the_bar_moves_through_a_phase_that_counts_nothing():
-    fit = follow(fit_timeline(), until=10.0)
+    start, length = PHASES[0].share * 100.0, PHASES[1].share * 100.0   # the placement, in fit_timeline's 100 s
+    early, middle, late = (start + part * length for part in (0.25, 0.5, 0.75))
+    fit = follow(fit_timeline(), until=middle)
     assert fit.phase.name == "placement"
-    assert fit.fraction(8.0) < fit.fraction(10.0) < fit.fraction(12.0)
-    assert fit.seconds_left(8.0) > fit.seconds_left(10.0)
+    assert fit.fraction(early) < fit.fraction(middle) < fit.fraction(late)
+    assert fit.seconds_left(early) > fit.seconds_left(middle)
 
 
 def test_a_phase_past_its_expected_length_keeps_a_part_of_it_to_go():
@@ -291,3 +293,17 @@ def test_an_early_stop_brings_the_time_left_close_and_never_below_zero():
         settled = fit.phase is OPTIMISER and (fit.current.since_best or 0) >= OPTIMISER.patience / 2
         if settled or fit.phase is not None and fit.phase.fixed and fit.phase.name != "load" and now > wall / 2:
             assert abs(left - (wall - now)) <= progress.ETA_CHECK * (wall - now), now
+
+
+def test_a_stage_that_says_its_end_twice_leaves_the_next_phase_alone():
+    """The variation stage's last count comes again as its end (backend.fit.pipeline._with_variation,
+    where its variation is kept): read as the re-renders' count it ended them at once, and the bar
+    said "Writing the report" through them."""
+    events = fit_timeline()
+    end = next(k for k, e in enumerate(events) if e[1] == "variation" and e[2] == VARIATION_COUNTS)
+    events.insert(end + 1, events[end])
+    fit = follow(events, until=events[end + 3][0])
+    assert fit.phase.name == "render" and fit.current.last[1] >= 1
+    fit = follow(events)
+    fit.update({"event": "result"}, 100.0)
+    assert fit.durations["render"] == pytest.approx(PHASES[NAMES.index("render")].share * 100.0)

@@ -73,22 +73,22 @@ class Phase:
 
 # A discrete search of the optimiser (20 loss evaluations) takes as long as this many of its steps
 # (measured by tools/fit_timeline.py replay on the fits it tunes on).
-SEARCH_COUNTS = 21.3
+SEARCH_COUNTS = 10.0
 # In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
 # counted phase ends where its count is complete (the next one begins then: the work of its first
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.0127, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.106, fixed=True, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.0055, counts=2),
-    Phase("trials", "search", "Comparing weaves", 0.1788, counts=2),
-    Phase("duel", "search", "Checking the weave at full size", 0.1426, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.3497, patience=20, ends_from=25, pauses=(25, 50, 75),
+    Phase("load", "load", "Reading the photos", 0.0078, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.0483, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.0036, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.2085, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.1694, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.4359, patience=20, ends_from=25, pauses=(25, 50, 75),
           pause_counts=SEARCH_COUNTS),
-    Phase("variation", "variation", "Reading the yarns' irregularity", 0.08, fixed=True, optional=True),
-    Phase("render", "render", "Rendering the result", 0.1116, fixed=True),
-    Phase("report", "report", "Writing the report", 0.0131, fixed=True, counted=False),
+    Phase("variation", "variation", "Reading the yarns' irregularity", 0.0772, fixed=True, optional=True),
+    Phase("render", "render", "Rendering the result", 0.0426, fixed=True),
+    Phase("report", "report", "Writing the report", 0.0067, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
@@ -136,6 +136,8 @@ class FitProgress:
             return
         iteration, total = int(event.get("iteration") or 0), int(event.get("total") or 0)
         index = self._phase_of(str(event.get("stage")), iteration, total)
+        if index is None:
+            return
         if index != self.current.index:
             self._enter(index, now)
         if iteration <= 0 or not PHASES[index].counted:
@@ -156,12 +158,16 @@ class FitProgress:
         if 0 < total <= iteration:   # complete: the next phase's work begins now
             self._enter(index + 1, now)
 
-    def _phase_of(self, stage: str, iteration: int, total: int) -> int:
-        """The phase an event belongs to: the current one while it goes on, else the next of its stage."""
+    def _phase_of(self, stage: str, iteration: int, total: int) -> int | None:
+        """The phase an event belongs to: the current one while it goes on, else the next of its stage;
+        None for a late event of a stage the fit has left (a stage that says its end twice: counted
+        against the phase after it, it would end that one at once)."""
         index, current = self.current.index, self.current
         later = [k for k, p in enumerate(PHASES) if p.stage == stage and k > index]
         if not 0 <= index < len(PHASES) or PHASES[index].stage != stage:
-            return later[0] if later else max(index, 0)
+            if later:
+                return later[0]
+            return None if any(p.stage == stage for p in PHASES[:max(index, 0)]) else max(index, 0)
         phase = PHASES[index]
         if not phase.counted:
             goes_on = iteration <= 0
