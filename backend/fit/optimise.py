@@ -232,7 +232,9 @@ class Run:
         closing its gaps or blurring. Why the colour term, not the loss: at the fit's few samples per
         pixel the glow is a speckle (each pixel's share of samples through a gap) whose Monte Carlo
         noise the loss's spectrum term reads as excess texture, so the loss prefers a weaker glow
-        than the photos show; a block mean has no such noise."""
+        than the photos show; a block mean has no such noise, though it reads a saturated spot high
+        (the clamp of a pixel's few samples through gaps darkens it). Off by default
+        (``FitSettings.estimate_glow``, fit option ``--glow``): the results' history says why."""
         renderer = self.objective.renderer
         if not renderer.options.glow:
             return False
