@@ -156,6 +156,7 @@ class Renderer:
         self.subpixel = subpixel_size(spp) if subpixel_blur is not False else 0
         # None: on the sub-pixels only where a blur is too narrow to damp the pixel means' aliases
         self._subpixel_below = AUTO_SUBPIXEL_BELOW_PX if subpixel_blur is None else math.inf
+        self._glow_shapes: tuple | None = None  # the glow's falloff at strength 1: (pixels, sub-pixels or None)
         self.set_glow(rig.glow_strength)
         if compile:
             use_persistent_compile_cache()
@@ -183,11 +184,14 @@ class Renderer:
             raise ValueError(f"glow strength must be >= 0, got {strength!r}")
         self.rig = dataclasses.replace(self.rig, glow_strength=float(strength))
         on = self.options.glow and strength > 0
-        self.glow = self.camera.pixel_falloff(self.rig.glow_sigma_px) * strength if on else None
-        self._glow_fine = None
-        if on and self.subpixel:
-            fine = CameraSamples(self.rig, 2 * self.size, 1, self.seed, self.device, self.dtype)
-            self._glow_fine = fine.pixel_falloff(self.rig.glow_sigma_px) * strength
+        if on and self._glow_shapes is None:   # made once: a glow scan sets several strengths
+            sigma = self.rig.glow_sigma_px
+            fine = (CameraSamples(self.rig, 2 * self.size, 1, self.seed, self.device, self.dtype)
+                    if self.subpixel else None)
+            self._glow_shapes = (self.camera.pixel_falloff(sigma), None if fine is None else fine.pixel_falloff(sigma))
+        pixels, subpixels = self._glow_shapes if on else (None, None)
+        self.glow = None if pixels is None else pixels * strength
+        self._glow_fine = None if subpixels is None else subpixels * strength
         self._last_radiance = None
 
     def set_warp(self, warp: SpacingWarp | None) -> None:
