@@ -126,14 +126,23 @@ def test_fit_is_deterministic_and_improves_the_loss(twill_pair):
 
 
 class ScriptedRun:
-    """A run whose best loss after each step (and after each discrete search) is given."""
+    """A run whose best loss after each step (and after each discrete search) is given; its rate is at
+    the schedule's last level from step ``last_rate_from`` on (0: always), or after a drop."""
 
-    def __init__(self, best_after_step, search_gain=0.0):
+    def __init__(self, best_after_step, search_gain=0.0, last_rate_from=0):
         self.best_after_step, self.search_gain = list(best_after_step), search_gain
         self.best_loss, self.steps, self.searches, self.warp_reads = float("inf"), 0, [], []
+        self.last_rate_from, self.drops = last_rate_from, []
 
     def restart_from_best(self):
         pass
+
+    def lower_rate(self):
+        self.drops.append(self.steps)
+
+    @property
+    def at_last_rate(self):
+        return self.steps >= self.last_rate_from or bool(self.drops)
 
     def step(self):
         self.best_loss = min(self.best_loss, self.best_after_step[self.steps])
@@ -181,6 +190,33 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0)) == 100
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, first_search=50, patience=20)) == 21
+
+
+def test_a_stall_above_the_last_rate_goes_on_at_the_last_rate_instead_of_ending_the_run():
+    """Where the best loss holds for the patience while the rate is above the schedule's last level,
+    the run goes on from its best at the last rate and its patience counts afresh; it ends by
+    patience only at the last rate, and says its patience is 0 (no end by patience) until then."""
+    from backend.fit.pipeline import _optimise
+    settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=20)
+    reports = []
+
+    def optimise(run):
+        reports.clear()
+        return _optimise(run, settings, lambda run: None,
+                         lambda *report, **optimiser: reports.append((*report, optimiser)))
+
+    # the best at step 27, never beaten; the schedule's last rate from step 85: a drop at 47, the end at 67
+    stalled = ScriptedRun([10.0 - 0.1 * min(i, 26) for i in range(100)], last_rate_from=85)
+    assert optimise(stalled) == 67 and stalled.drops == [47]
+    assert [r[-1]["patience"] for r in reports if r[1] in (46, 47, 48, 66)] == [0, 20, 20, 20]
+    assert [r[-1]["since_best"] for r in reports if r[1] in (46, 47, 48)] == [19, 0, 1]
+    assert reports[-1][:3] == ("optimise", 100, 100)
+    # a stall that begins at the last rate ends the run, as before
+    late = ScriptedRun([10.0 - 0.1 * min(i, 26) for i in range(100)], last_rate_from=30)
+    assert optimise(late) == 47 and late.drops == []
+    # a run that improves to its end never drops its rate
+    improving = ScriptedRun([10.0 - 0.01 * i for i in range(100)], last_rate_from=85)
+    assert optimise(improving) == 100 and improving.drops == []
 
 
 def test_discrete_searches_come_after_the_first_search_then_every_search_every():
@@ -511,7 +547,8 @@ def test_fit_example_end_to_end(tmp_path):
     assert all(set(e) >= {"stage", "iteration", "total", "loss", "eta_s"} for e in events if e["event"] == "progress")
     # the optimiser says how long its best has held and its patience (the whole-fit bar's time left reads them)
     optimiser = [e for e in events if e["event"] == "progress" and e["stage"] == "optimise"]
-    assert optimiser and all(isinstance(e["since_best"], int) and e["patience"] == FitSettings().patience
+    # (its patience 0 while a stall would lower its rate rather than end it)
+    assert optimiser and all(isinstance(e["since_best"], int) and e["patience"] in (0, FitSettings().patience)
                              for e in optimiser)
     assert all(e["since_best"] is None for e in events if e["event"] == "progress" and e["stage"] != "optimise")
     fitted = FabricParams.from_dict(json.loads((out / "params.json").read_text()))
@@ -737,3 +774,33 @@ def test_blur_on_reaches_the_loss_renderer(blur_on):
         pixel_means = Renderer(DEFAULT_RIG, 64, 4).blurred(params, camera_blur_px=blur)[0]
     assert torch.equal(got, expected)
     assert torch.equal(got, pixel_means) == (blur_on == "pixels")
+
+
+def test_lower_rate_goes_on_from_the_best_at_the_schedules_last_rate():
+    """Run.lower_rate: fresh Adam state at the best parameters seen, every rate at the schedule's last
+    level (the base rate halved once per milestone) from then on."""
+    from backend.core.rig import DEFAULT_RIG
+    from backend.fit.optimise import LR_MILESTONES, Run
+    from backend.fit.pipeline import _objective
+    from backend.model.render import render_pair
+
+    truth = FabricParams.from_interchange(
+        "plain_R_0.4,0.4_S_1.0,1.0_T_1.5,1.5_N_0.0_UV_60.0,60.0_Kd_0.3,0.3,0.3,0.3,0.3,0.3"
+        "_G_0.6,0.6_Rm_0.4,0.4_Tm_1.5,1.5_W_0.5,0.5_Ks_0.5,0.5,0.5,0.5,0.5,0.5_Psi_0.0,0.0")
+    settings = FitSettings(pattern="plain", size=48, spp=2, compile=False, camera_blur=0.0)
+    photos = render_pair(truth, DEFAULT_RIG, size=48, spp=2, seed=1)
+    objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
+    run = Run(truth.replace(roughness=(0.6, 0.6)), objective, settings, total=20, camera_blur_px=0.0)
+    for _ in range(3):
+        run.step()
+    base = [group["lr"] for group in run.optimiser.param_groups]
+    assert run.rate_level == 0 and not run.at_last_rate
+    moved = run.fabric.to_params()
+    run.lower_rate()
+    assert run.at_last_rate and run.optimiser.state_dict()["state"] == {}   # fresh Adam state
+    assert run.fabric.to_params() == run.best != moved
+    run.step()
+    assert [group["lr"] for group in run.optimiser.param_groups] == pytest.approx(
+        [lr * 0.5 ** len(LR_MILESTONES) for lr in base])
+    run.step_count = run.total   # past every milestone: still the last level, no lower
+    assert run.rate_level == len(LR_MILESTONES)

@@ -170,9 +170,10 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
     FitOption("iterations", WHOLE, None, lo=1, metavar="N", setting="iterations", batch=True,
               default_text="150 or 100",
               help="Adam steps of the winner's optimisation at most (default: 150 at 256 px, 100 at a larger working "
-                   "size); it ends sooner once its best loss has not moved for 20 steps",
+                   "size); it ends sooner once its best loss has not moved for 20 steps at its last learning rate",
               details="Discrete steps on the gap scale, twist and camera blur come after 25, 50 and 75 iterations; "
-                      "where one falls inside the run, the optimisation does not end before it has had its turn."),
+                      "where one falls inside the run, the optimisation does not end before it has had its turn. "
+                      "A stall at a higher learning rate goes on from the best parameters at the last rate."),
     FitOption("size", WHOLE, None, lo=MIN_WORKING_SIZE, unit="pixels", metavar="N", setting="size", batch=True,
               default_text=f"256 or {_FILM}",
               help=f"working size of the loss in pixels, {MIN_WORKING_SIZE} up to the photos' working size (the rig's "

@@ -2,7 +2,8 @@
 
 - Adam on :data:`backend.fit.settings.OPTIMISED` (roughness, thickness, their multiple-scattering
   twins, height scale, albedos, diffuse weight, multiple weight), each with a learning rate
-  ``lr * (hi - lo)`` of its declared range, halved at 50, 70 and 85 % of the run; every parameter is
+  ``lr * (hi - lo)`` of its declared range, halved at 50, 70 and 85 % of the run, or at
+  once to the last of those rates where the run stalls above it (:meth:`Run.lower_rate`); every parameter is
   clamped into its range after each step; where the camera blur is estimated, Adam moves it too
   (:class:`Run`).
 - :meth:`Run.discrete_search` (:func:`backend.fit.pipeline.search_due`): a joint coarse step on gap scale,
@@ -79,6 +80,7 @@ class Run:
             self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_floor))
         self.step_count = 0
         self.lr_factor: float | None = None  # in place of the schedule's factor (start_over_from)
+        self.rate_drops = 0  # halvings of the rates beyond the schedule's (lower_rate)
         self.best_loss = math.inf
         self.best, self.best_blur = params, camera_blur_px
         self.best_terms: dict[str, float] = {}
@@ -123,9 +125,30 @@ class Run:
         self.lr_factor = lr_factor
         self._start_from(params)
 
+    def lower_rate(self) -> None:
+        """Goes on from the best parameters seen (fresh Adam state) at the schedule's last learning
+        rates from now on.
+
+        Why: a run whose best loss has stalled above the last rate is not converged: its steps
+        overshoot, the loss climbs away from its best and wanders back no lower, and an ending by
+        patience there keeps a best that small steps from it better (one halving at a time stalls
+        again and spends a patience at each level)."""
+        self.rate_drops = len(LR_MILESTONES)
+        self.restart_from_best()
+
+    @property
+    def rate_level(self) -> int:
+        """The halvings of the base rates now: the schedule's milestones passed, or all of them after
+        :meth:`lower_rate`."""
+        passed = sum(self.step_count / max(self.total, 1) >= p for p in LR_MILESTONES)
+        return min(len(LR_MILESTONES), passed + self.rate_drops)
+
+    @property
+    def at_last_rate(self) -> bool:
+        return self.rate_level >= len(LR_MILESTONES)
+
     def _schedule(self):
-        progress = self.step_count / max(self.total, 1)
-        factor = 0.5 ** sum(progress >= p for p in LR_MILESTONES) if self.lr_factor is None else self.lr_factor
+        factor = 0.5 ** self.rate_level if self.lr_factor is None else self.lr_factor
         for group, lr in zip(self.optimiser.param_groups, self.base_lr):
             group["lr"] = lr * factor
 

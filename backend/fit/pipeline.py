@@ -15,8 +15,9 @@ taking the values the one before returned.
                yarn spacing read again against its renders and tried (:mod:`backend.fit.warp`) and a
                parabolic step on the discrete parameters (:mod:`backend.fit.optimise`), at the first
                after the back light's glow through the gaps is read where asked (``settings.estimate_glow``:
-               :meth:`backend.fit.optimise.Run.scan_glow`); it ends
-               early once the best loss stops moving (:func:`converged`)
+               :meth:`backend.fit.optimise.Run.scan_glow`); where the best loss stops moving
+               (:func:`converged`) it ends early, at the schedule's last learning rate, or else
+               goes on from its best at that rate
     variation  the yarn variation the photos show, read from the texture power the regular weave
                leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
                goes on from it for ``settings.settle_steps`` steps (:func:`_with_variation`)
@@ -383,12 +384,17 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             best, improved_at = run.best_loss, done
         if converged(settings, done, improved_at, search_round):
             run.end_warp_trial()
-            progress("optimise", settings.iterations, settings.iterations, value, 0.0,
-                     since_best=done - improved_at, patience=settings.patience)
-            return done
+            if not run.at_last_rate:   # a stall above the last rate: from the best, at the last rate
+                run.lower_rate()
+                improved_at = done
+            else:
+                progress("optimise", settings.iterations, settings.iterations, value, 0.0,
+                         since_best=done - improved_at, patience=settings.patience)
+                return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
+        # patience 0 while a stall would lower the rate, not end the run (the progress bar reads it)
         progress("optimise", done, settings.iterations, value, eta, since_best=done - improved_at,
-                 patience=settings.patience)
+                 patience=settings.patience if run.at_last_rate else 0)
     run.end_warp_trial()
     return done
 
@@ -438,10 +444,11 @@ def search_due(settings: FitSettings, done: int) -> bool:
 
 
 def converged(settings: FitSettings, done: int, improved_at: int, searches: int) -> bool:
-    """Whether the optimisation ends after ``done`` steps: the best loss has not moved for
+    """Whether the optimisation has stalled after ``done`` steps: the best loss has not moved for
     ``settings.patience`` steps (it last moved after step ``improved_at``), and where a discrete
     search is due in the run, at least one (``searches``) has had its turn: a search can move the
-    loss after a stall."""
+    loss after a stall. A stalled run ends at the schedule's last learning rate; above it, it goes
+    on from its best at that rate (:meth:`backend.fit.optimise.Run.lower_rate`)."""
     if not settings.patience or done - improved_at < settings.patience:
         return False
     return searches > 0 or not search_due(settings, settings.first_search)  # none falls inside the run

@@ -48,7 +48,8 @@ class FitSettings:
     max_searches: int = 3            # discrete searches in a run at most (each costs as much at 256 px, 16 spp, as at
                                      # 512 px, 4 spp: the same million samples)
     patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
-                                     # a discrete search has had its turn (0: it runs every iteration)
+                                     # a discrete search has had its turn, at the schedule's last learning rate
+                                     # (above it, it goes on from its best at that rate; 0: it runs every iteration)
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
