@@ -12,7 +12,8 @@ promise: within 25 %); then the shares and the length of the optimiser's discret
 declare, measured on the fits ``--tune`` names (the others held out: their figures are the honest
 ones).
 
-    .venv/bin/python tools/fit_timeline.py record --pairs ../shared/data/real [--names a,b] [-- fit options]
+    .venv/bin/python tools/fit_timeline.py record --pairs ../shared/data/real [--names a,b] [--keep DIR]
+        [-- fit options]
     .venv/bin/python tools/fit_timeline.py replay [--ledger FILE] [--tune satin1,twill1,...]
 
 The machine may be busy: a share (a phase's seconds over the fit's) is what carries over to another
@@ -78,7 +79,9 @@ def record(args) -> None:
         if names is not None and pair.name not in names:
             continue
         with tempfile.TemporaryDirectory() as folder:
-            row = timeline(pair.reflection, pair.transmission, Path(folder) / "fit", args.fit_args)
+            out = Path(args.keep) / pair.name if args.keep else Path(folder) / "fit"
+            overwrite = ["--overwrite"] if args.keep else []
+            row = timeline(pair.reflection, pair.transmission, out, [*args.fit_args, *overwrite])
         ledger.row(row)
         print(f"{row['name']}: {row['wall_s']:.0f} s, exit {row['exit']}, {len(row['events'])} events", flush=True)
 
@@ -158,6 +161,7 @@ def main(argv: list[str] | None = None) -> None:
     rec = sub.add_parser("record", help="fit pairs and record their timelines in the results ledger")
     rec.add_argument("--pairs", required=True, help="folder of <name>_R.* / <name>_T.* photo pairs")
     rec.add_argument("--names", help="only these pairs (comma-separated)")
+    rec.add_argument("--keep", help="keep each fit's folder here (<pair>/: params, metrics, report)")
     rec.add_argument("fit_args", nargs="*", help="fit options after --")
     rep = sub.add_parser("replay", help="run the recorded timelines through the whole-fit progress")
     rep.add_argument("--ledger", default=str(LEDGER))
