@@ -176,8 +176,10 @@ def test_no_estimate_before_a_phase_has_ended():
 
 
 def test_the_words_of_the_bar():
-    fit = follow(fit_timeline(), until=25.0)
-    assert fit.describe(25.0).startswith("Comparing weaves, 1 of 2, about ")
+    shares = {p.name: p.share for p in PHASES}
+    trials = 100.0 * (shares["load"] + shares["placement"] + shares["starts"] + shares["trials"] * 0.75)
+    fit = follow(fit_timeline(), until=trials)
+    assert fit.describe(trials).startswith("Comparing weaves, 1 of 2, about ")
     assert [duration_words(s) for s in (3, 41, 89, 95, 3600 + 5 * 60 + 10)] == \
         ["5 s", "40 s", "90 s", "2 min", "1 h 05 min"]
 
@@ -203,7 +205,8 @@ def test_trials_with_nothing_to_compare_leave_the_shares():
 
 def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
     """Two paces: a search twice as slow as its shares say (a denser weave, a larger working size)
-    makes the optimiser's time left twice as long, not the re-renders'."""
+    makes the time left of the optimiser and of the variation (its readings and steps at the
+    working size) twice as long, not the re-renders'."""
     shares = {p.name: p.share for p in PHASES}
     pace = 100.0  # seconds per share for the photos' phases; twice that for the search's
     t_load, t_place = shares["load"] * pace, (shares["load"] + shares["placement"]) * pace
@@ -213,8 +216,8 @@ def test_the_re_renders_follow_the_photos_pace_and_the_optimiser_the_searchs():
               (t_starts, "search", 2, 2), ((t_starts + t_trials) / 2, "search", 1, 2), (t_trials, "search", 2, 2)]
     fit = follow(events)
     assert fit.phase.name == "duel"
-    expected = (2 * pace * (shares["duel"] + shares["optimise"])
-                + pace * (shares["variation"] + shares["render"] + shares["report"]))
+    expected = (2 * pace * (shares["duel"] + shares["optimise"] + shares["variation"])
+                + pace * (shares["render"] + shares["report"]))
     assert fit.seconds_left(t_trials) == pytest.approx(expected)
 
 

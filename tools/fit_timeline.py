@@ -3,7 +3,7 @@
 ``record`` fits photo pairs with ``python -m backend fit R T --out DIR --json-progress`` (one after
 another, each in a fresh folder) and appends, per fit, every progress event (seconds since the
 process started, stage, iteration, total, the process's CPU seconds, loss, the optimiser's
-since_best: rows recorded before it have none), the wall and CPU time and metrics.json's stage
+since_best and patience: rows recorded before them have none), the wall and CPU time and metrics.json's stage
 timings to the results ledger (``devtools/bench/results/fit-timeline.jsonl``, a row per fit).
 ``replay`` reads those rows back and runs them through the whole-fit progress
 (``backend/core/progress.py``): each phase's share of the wall time, and how far the bar's
@@ -50,7 +50,8 @@ def timeline(reflection: Path, transmission: Path, out: Path, fit_args: list[str
         event = json.loads(line)
         if event["event"] == "progress":
             events.append([round(time.monotonic() - started, 3), event["stage"], event["iteration"], event["total"],
-                           cpu_seconds(process.pid), event.get("loss"), event.get("since_best")])
+                           cpu_seconds(process.pid), event.get("loss"), event.get("since_best"),
+                           event.get("patience")])
     cpu = cpu_seconds(process.pid)
     code = process.wait()
     wall = time.monotonic() - started
@@ -106,8 +107,7 @@ def replay(args) -> None:
     for label, row in zip(labels, rows):
         tuned = label in tune
         for clock, column, total in (("cpu", 4, row["cpu_s"]), ("wall", 0, row["wall_s"])):
-            events = [(event[column], *event[1:4], (event[5:] or [None])[0], (event[6:] or [None])[0])
-                      for event in row["events"]]
+            events = [(event[column], *event[1:4], *(event[5:8] + [None] * 3)[:3]) for event in row["events"]]
             report = progress.replay(events, total)
             shares = ", ".join(f"{name} {share:.3f}" for name, share in report.shares.items())
             if clock == "cpu":

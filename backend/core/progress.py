@@ -79,16 +79,17 @@ SEARCH_COUNTS = 10.0
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.0078, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.0483, fixed=True, counted=False),
-    Phase("starts", "search", "Trying starting points", 0.0036, counts=2),
-    Phase("trials", "search", "Comparing weaves", 0.2085, counts=2),
-    Phase("duel", "search", "Checking the weave at full size", 0.1694, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.4359, patience=20, ends_from=25, pauses=(25, 50, 75),
+    Phase("load", "load", "Reading the photos", 0.0073, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.0449, fixed=True, counted=False),
+    Phase("starts", "search", "Trying starting points", 0.0033, counts=2),
+    Phase("trials", "search", "Comparing weaves", 0.1752, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.1495, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.5077, patience=20, ends_from=25, pauses=(25, 50, 75),
           pause_counts=SEARCH_COUNTS),
-    Phase("variation", "variation", "Reading the yarns' irregularity", 0.0772, fixed=True, optional=True),
-    Phase("render", "render", "Rendering the result", 0.0426, fixed=True),
-    Phase("report", "report", "Writing the report", 0.0067, fixed=True, counted=False),
+    # its counts are not alike (quick readings, then steps at the working size): its share, not its count, paces it
+    Phase("variation", "variation", "Reading the yarns' irregularity", 0.0672, counted=False, optional=True),
+    Phase("render", "render", "Rendering the result", 0.0384, fixed=True),
+    Phase("report", "report", "Writing the report", 0.0065, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
@@ -343,8 +344,8 @@ ETA_CHECK = 0.25  # the promise of the bar's time left, checked by replay: withi
 
 
 def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float = 0.1) -> Replay:
-    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss[, since_best]]) in arrival order,
-    ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
+    """Runs a recorded fit (``events``: (seconds, stage, iteration, total[, loss[, since_best[, patience]]])
+    in arrival order, ``total_s`` when it ended, on the same clock) through :class:`FitProgress`, checking the
     estimate every second and at every event from ``from_fraction`` of the bar on (the bar as an
     artist sees it: it never goes back) until the last ``tail`` of the fit's time, where a few
     seconds are a large part of the truth."""
@@ -354,9 +355,9 @@ def replay(events: list, total_s: float, from_fraction: float = 0.2, tail: float
     for now in sorted({float(t) for t, *_ in events} | {float(s) for s in range(int(total_s))}):
         while pending and pending[0][0] <= now:
             t, stage, iteration, total, *optional = pending.pop(0)
-            loss, since_best = (*optional, None, None)[:2]
+            loss, since_best, patience = (*optional, None, None, None)[:3]
             follow.update({"event": "progress", "stage": stage, "iteration": iteration, "total": total,
-                           "loss": loss, "since_best": since_best}, t)
+                           "loss": loss, "since_best": since_best, "patience": patience}, t)
         left, truth = follow.seconds_left(now), total_s - now
         shown = max(shown, follow.fraction(now))
         if left is not None and shown >= from_fraction and truth >= max(tail * total_s, 1.0):
