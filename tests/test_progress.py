@@ -310,3 +310,20 @@ def test_a_stage_that_says_its_end_twice_leaves_the_next_phase_alone():
     fit = follow(events)
     fit.update({"event": "result"}, 100.0)
     assert fit.durations["render"] == pytest.approx(PHASES[NAMES.index("render")].share * 100.0)
+
+
+def test_the_variation_is_paced_by_its_share_not_by_its_unlike_counts():
+    """The variation stage's first counts are quick readings and its last steps at the working size:
+    counts that come fast do not shorten its time left, which is its share at the search's pace."""
+    shares = {p.name: p.share for p in PHASES}
+    events = [e for e in fit_timeline() if e[1] not in ("variation", "render", "report")]
+    fit = follow(events)
+    start = events[-1][0]
+    fit.update(progress_event("variation", 0, VARIATION_COUNTS), start)
+    before = fit.seconds_left(start + 0.1)
+    for k in range(1, 8):   # the readings: seven counts in a tenth of a second
+        fit.update(progress_event("variation", k, VARIATION_COUNTS), start + k * 0.01)
+    assert fit.phase.name == "variation" and fit.describe(start + 0.1).startswith("Reading the yarns' irregularity")
+    assert fit.seconds_left(start + 0.1) == pytest.approx(before)
+    pace = fit.durations["optimise"] / shares["optimise"]   # the timeline keeps its shares: one pace
+    assert before == pytest.approx(pace * (shares["variation"] + shares["render"] + shares["report"]) - 0.1, rel=0.01)
