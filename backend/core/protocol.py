@@ -9,7 +9,8 @@ With ``--json-progress`` a command writes one JSON object per line on stdout, no
               stage is one of: load, init, search, optimise, variation, render, report. loss and eta_s may
               be null.
               since_best and patience, the optimiser's (else null): the steps since its best loss last
-              moved, and the steps without a new best after which it ends before its total (0: never);
+              moved, and the steps without a new best after which it ends before its total (0: none
+              now: a stall above its last learning rate lowers the rate instead);
               its event of iteration = total says it has ended, early or not.
 ``warning``   {"event": "warning", "message": "...", "file": "path or null"} (also a ``warning:`` line on
               the log, stderr, as in the terminal: a caller's log of the run holds it)
