@@ -80,7 +80,7 @@ class Run:
             self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_floor))
         self.step_count = 0
         self.lr_factor: float | None = None  # in place of the schedule's factor (start_over_from)
-        self.rate_drops = 0  # halvings of the rates beyond the schedule's (lower_rate)
+        self.lowered = False  # at the schedule's last rates from a stall on (lower_rate)
         self.best_loss = math.inf
         self.best, self.best_blur = params, camera_blur_px
         self.best_terms: dict[str, float] = {}
@@ -133,15 +133,16 @@ class Run:
         overshoot, the loss climbs away from its best and wanders back no lower, and an ending by
         patience there keeps a best that small steps from it better (one halving at a time stalls
         again and spends a patience at each level)."""
-        self.rate_drops = len(LR_MILESTONES)
+        self.lowered = True
         self.restart_from_best()
 
     @property
     def rate_level(self) -> int:
         """The halvings of the base rates now: the schedule's milestones passed, or all of them after
         :meth:`lower_rate`."""
-        passed = sum(self.step_count / max(self.total, 1) >= p for p in LR_MILESTONES)
-        return min(len(LR_MILESTONES), passed + self.rate_drops)
+        if self.lowered:
+            return len(LR_MILESTONES)
+        return sum(self.step_count / max(self.total, 1) >= p for p in LR_MILESTONES)
 
     @property
     def at_last_rate(self) -> bool:
