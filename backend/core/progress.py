@@ -110,6 +110,7 @@ class _Current:
     first: tuple[float, int] | None = None
     last: tuple[float, int] | None = None
     total: int = 0
+    heard: bool = False           # an event of its own has come (else the phase before it ended into it)
     best: tuple[float, int] | None = None   # its lowest loss so far, and the count that reached it
     since_best: int | None = None   # counts since its best loss last moved (the fit's, else read from its losses)
     patience: int | None = None     # counts without a new best after which it ends (the fit's, else its Phase's)
@@ -141,6 +142,7 @@ class FitProgress:
             return
         if index != self.current.index:
             self._enter(index, now)
+        self.current.heard = True
         if iteration <= 0 or not PHASES[index].counted:
             return
         current = self.current
@@ -194,10 +196,10 @@ class FitProgress:
         self.current = _Current(index, started)
 
     def _passed_by(self, phase: Phase, now: float) -> bool:
-        """An optional phase left without a count, or a counted one done in less than
-        :data:`PASSED_BY_BELOW` of its expected length."""
+        """An optional phase left without a count (one that counts nothing: without an event of its
+        own), or a counted one done in less than :data:`PASSED_BY_BELOW` of its expected length."""
         if not phase.counted:
-            return False
+            return phase.optional and not self.current.heard
         if self.current.last is None:
             return phase.optional
         pace = self._pace(phase.fixed, with_current=False)
