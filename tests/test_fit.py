@@ -776,30 +776,6 @@ def test_blur_on_reaches_the_loss_renderer(blur_on):
     assert torch.equal(got, pixel_means) == (blur_on == "pixels")
 
 
-def test_a_run_that_restarts_at_the_working_size_reaches_the_schedules_last_rate_within_its_steps():
-    """The winner's run at the working size (pipeline._finalist, then _optimise) has no trial steps:
-    its learning-rate schedule spans its own ``iterations``, so every milestone passes within them
-    and its last steps are at the last rate (the base rate halved once per milestone)."""
-    from backend.fit.optimise import LR_MILESTONES
-    from backend.fit.pipeline import _finalist, _optimise
-    from backend.fit.search import Start
-
-    truth = typical("plain").replace(tiles=(60.0, 60.0))
-    photos = render_pair(truth, DEFAULT_RIG, size=48, spp=2, seed=1)
-    settings = FitSettings(pattern="plain", size=48, spp=2, compile=False, camera_blur=0.0, iterations=8,
-                           trial_iterations=5, duel_iterations=2, search_every=0, patience=50)
-    fine = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
-    start = Start(1.0, 0, search.Candidate("plain", truth.tiles, 1.0), truth.replace(roughness=(0.6, 0.6)))
-    winner = Trial(start, None, {}, 1.0, 0.9)
-    run, done = _finalist(winner, [winner], [], fine, fine, settings, 0.0, None, None, lambda run=None: None,
-                          lambda *a, **k: None)
-    base = list(run.base_lr)
-    assert done == 0 and _optimise(run, settings, lambda run: None, lambda *a, **k: None, done) == 8
-    assert run.at_last_rate
-    assert [group["lr"] for group in run.optimiser.param_groups] == pytest.approx(
-        [lr * 0.5 ** len(LR_MILESTONES) for lr in base])
-
-
 def test_lower_rate_goes_on_from_the_best_at_the_schedules_last_rate():
     """Run.lower_rate: fresh Adam state at the best parameters seen, every rate at the schedule's last
     level (the base rate halved once per milestone) from then on."""

@@ -271,7 +271,10 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     photos' reading (``blur_floor``), the winner first also runs from its start at the reading for
     those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
-    total = settings.iterations  # its steps at the working size, the duel's included (no trial steps)
+    # the schedule of a run at the base size (its trial steps and the optimiser's), though this one has
+    # no trial steps: it ends at a quarter of the base rate, not an eighth (an eighth measured no
+    # better: devtools/bench/results/history/fit.jsonl)
+    total = settings.iterations + settings.trial_iterations
     runs = [_fine_run(params, fine, settings, total, blur, blur_floor) for params, _ in finalists]
     steps = min(settings.duel_iterations, settings.iterations)
     duelling_blur = blur_floor is not None and runs[0].camera_blur_px > blur_floor + BLUR_DUEL_PX
