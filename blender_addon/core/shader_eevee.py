@@ -16,6 +16,16 @@ EEVEE measured with Blender 5.0, material thickness mode "Slab", thickness 0: a 
 colour k lit from behind renders k^2 |cos| / pi (the light crosses the sheet's two faces), and the
 translucent closures of a material are summed before that square; with more than three closures EEVEE
 merges them and the transmission grows further. Hence one Translucent closure of colour sqrt(sum).
+
+What EEVEE does not draw: the fibres' transmission streak through a back light (a cross on a plain
+weave, a band on a satin), the largest part of its difference from the backend. Routes measured and
+left (Blender 5.0, the rig's back light): a Refraction BSDF at IOR 1 is a one-pixel spike whose
+height jumps with its roughness; a Glossy BSDF whose normal lies in the fabric's plane across the
+fibre (its lobe peaks where wi + wo lies along that normal: on the fibre's transmission cone) is lit
+from behind, but the sheet shadows it into speckle, it renders black where the view is square to that
+normal (the streak's middle), and it would be a fourth closure; a Translucent BSDF's normal, which
+could carry the light's direction into nodes through Shader to RGB, is not read there (every normal
+gave the same values, in steps of 1/64).
 """
 from __future__ import annotations
 
