@@ -100,3 +100,50 @@ def test_node_group_sockets_and_material_round_trip(tmp_path):
     w, h, px = shader_weave.fallback_atlases()["warp"]
     assert result["warp_px"][:3] == pytest.approx(px[:3]) and result["warp_px"][4:7] == pytest.approx(px[3:6])
     assert {"Woven Fabric", "Woven Fabric fallback"} <= set(result["groups"])
+
+
+@pytest.mark.blender
+def test_the_fallback_is_built_in_small_parts_that_shade_as_one_tree(tmp_path):
+    """The fallback's program goes into part groups of at most PART_NODES nodes (Blender's build time
+    grows with the square of a tree's nodes); a value one part computes reaches another through their
+    interfaces, so the fallback renders (Cycles without OSL, and EEVEE) exactly as the program built
+    in one tree; a rebuild leaves no part of the earlier build behind."""
+    result = run_blender("""
+        import numpy as np
+        from blender_addon.scene import fallback_group
+        from backend.core.params import FabricParams
+        p = FabricParams(pattern="twill1", tiles=(60.0, 40.0), roughness=(0.3, 0.6), thickness=(1.5, 2.5),
+                         twist_deg=(-20.0, 10.0), diffuse_reflection=(0.2, 0.1, 0.05))
+        mat = node_group.create_material("m", p.to_dict())
+        scene = rig_scene.build_scene(mat, size=16, samples=2, osl=False, threads=1, scene=bpy.context.scene)
+
+        def parts():
+            fallback = bpy.data.node_groups[fallback_group.FALLBACK_GROUP_NAME]
+            used = [n.node_tree.name for n in fallback.nodes if n.type == "GROUP"]
+            marked = [g.name for g in bpy.data.node_groups if g.get(fallback_group.GROUP_MARK) == "fallback part"]
+            return {"fallback_nodes": len(fallback.nodes), "used": sorted(used), "marked": sorted(marked),
+                    "largest": max(len(bpy.data.node_groups[name].nodes) for name in used)}
+
+        def renders():
+            out = []
+            for engine in ("fallback", "eevee"):
+                rig_scene.set_engine(scene, engine, 2)
+                out.append(np.concatenate(rig_scene.render_pair(scene), 1))
+            return out
+
+        in_parts, split = renders(), parts()
+        fallback_group.build_fallback_group(part_nodes=10 ** 6)   # the whole program in one part
+        in_one, whole = renders(), parts()
+        emit({"split": split, "whole": whole,
+              "differences": [float(np.abs(a - b).max()) for a, b in zip(in_parts, in_one)],
+              "mean": float(in_one[0].mean())})
+    """, tmp_path)
+    split, whole = result["split"], result["whole"]
+    from blender_addon.scene.fallback_group import PART_NODES
+    assert len(split["used"]) > 5 and split["used"] == split["marked"]
+    assert split["largest"] <= PART_NODES + 2   # and the part's Group Input and Output nodes
+    assert split["fallback_nodes"] < 60         # the parts, the closures and the geometry nodes
+    assert len(whole["used"]) == 1 and whole["used"] == whole["marked"]   # the earlier parts are gone
+    assert whole["largest"] > 1000
+    assert result["mean"] > 0.05                # a lit cloth, not a black frame
+    assert result["differences"] == [0.0, 0.0]
