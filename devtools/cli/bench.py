@@ -1,10 +1,12 @@
-"""``python -m devtools bench render|fit|placement|fit-speed|batch``: performance figures (never timed tests).
+"""``python -m devtools bench render|fit|placement|fit-speed|addon-fit|batch``: performance figures (never timed tests).
 
     bench render [--json] [--size N] [--spp N] [--runs N] [--device D]
     bench fit [--synthetic DIR ...] [--real DIR ...] [--cases ...] [--iterations N] [--keep DIR] [--json]
         [--no-novel-light] [--device D] [--fit-args "EXTRA FIT ARGUMENTS"]
     bench placement --synthetic DIR ... [--cases ...] [--json]     (the fit's placement and lattice only)
     bench fit-speed [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
+    bench addon-fit [--pair REFLECTION TRANSMISSION] [--rounds N] [--iterations N] [--fit-size N] [--json]
+        (the add-on's Fit against the fit command: needs the bpy module, the blender extra)
     bench batch [--pairs N] [--iterations N] [--size N] [--film N] [--cpus-per-fit C] [--workers W]
         [--sequential-threads T] [--subprocess] [--rounds R] [--json]      (needs Ray, the cluster extra)
 
@@ -21,6 +23,7 @@ from backend.app.batch.scheduler import BatchError
 from backend.app.cli.common import InputError, device, positive_int
 from backend.app.folder import FolderFitOptions
 
+from ..bench.addon_fit import bench_addon_fit
 from ..bench.batch import bench_batch
 from ..bench.fit import bench_fit
 from ..bench.fit_speed import bench_fit_speed
@@ -31,7 +34,7 @@ from ..bench.render import bench_render
 
 def run_bench(args) -> int:
     return {"render": _render, "fit": _fit, "placement": _placement, "fit-speed": _fit_speed,
-            "batch": _batch, "profile": _profile}[args.what](args)
+            "addon-fit": _addon_fit, "batch": _batch, "profile": _profile}[args.what](args)
 
 
 def _fit(args) -> int:
@@ -56,6 +59,13 @@ def _fit_speed(args) -> int:
     reflection, transmission = args.pair or (None, None)
     ledger = open_ledger(args, "fit-speed", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())))
     return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json, ledger=ledger)
+
+
+def _addon_fit(args) -> int:
+    reflection, transmission = args.pair or (None, None)
+    ledger = open_ledger(args, "addon-fit", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())))
+    return bench_addon_fit(reflection, transmission, args.rounds or 2, args.iterations or 0, args.fit_size or 0,
+                           args.json, ledger=ledger)
 
 
 def _batch(args) -> int:
@@ -107,7 +117,7 @@ def fit_device(fit_args: list[str]) -> str:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("bench", help="print performance figures")
-    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "batch", "profile"])
+    p.add_argument("what", choices=["render", "fit", "placement", "fit-speed", "addon-fit", "batch", "profile"])
     p.add_argument("--json", action="store_true", help="JSON lines")
     p.add_argument("--synthetic", nargs="*", default=[],
                    help="fit, placement: folders with cases.json and <name>_R/_T images (golden renders, "
@@ -120,15 +130,17 @@ def add_parser(sub) -> None:
                                                   '("--size 512")')
     p.add_argument("--cases", nargs="*", help="fit, placement: only these names")
     p.add_argument("--iterations", type=positive_int,
-                   help="iterations per fit (fit, fit-speed: the fit's default; batch: 20)")
+                   help="iterations per fit (fit, fit-speed, addon-fit: the fit's default; batch: 20)")
     p.add_argument("--pair", nargs=2, metavar=("REFLECTION", "TRANSMISSION"),
-                   help="fit-speed, profile: the photo pair (default: the bundled example)")
+                   help="fit-speed, addon-fit, profile: the photo pair (default: the bundled example)")
     p.add_argument("--top", type=positive_int, default=12, help="profile: the top operators and functions shown")
     p.add_argument("--operators", action="store_true", help="profile: also torch's operators, forward and backward "
                                                             "(keeps every event in memory: a short fit)")
-    p.add_argument("--fit-size", type=positive_int, help="fit-speed: the fit's --size (default: the fit's default)")
+    p.add_argument("--fit-size", type=positive_int,
+                   help="fit-speed, addon-fit: the fit's --size (default: the fit's default)")
     p.add_argument("--rounds", type=positive_int,
-                   help="fit-speed: compiled + eager rounds (default 2); batch: how often the ways take turns "
+                   help="fit-speed: compiled + eager rounds, addon-fit: add-on + command-line rounds (default 2); "
+                        "batch: how often the ways take turns "
                         "(default 1)")
     p.add_argument("--size", type=positive_int, help="render: image size (default 512); batch: the fits' working "
                                                      "size (default 64)")
