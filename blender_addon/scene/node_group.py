@@ -51,7 +51,7 @@ _ERROR = "woven_fabric_osl_error"
 # On a material: the photographed width and the cloth size its uv scale was set for.
 WIDTH_KEY = "woven_fabric_width_cm"
 CLOTH_SIZE_KEY = "woven_fabric_cloth_size_cm"
-_BUILD = 3  # bump when the node layout changes
+_BUILD = 4  # bump when the node layout changes (4: the fallback in part groups)
 
 
 def _source_hash() -> str:
