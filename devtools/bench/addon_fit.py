@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from .fit import run_fit
-from .fit_speed import _example_pair
+from .fit_speed import pair_or_example
 from .ledger import NOT_RECORDED, Ledger
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -152,7 +152,7 @@ def bench_addon_fit(reflection: str | None, transmission: str | None, rounds: in
     rows: list[dict] = []
     with tempfile.TemporaryDirectory(prefix="addon-fit-") as tmp_name:
         tmp = Path(tmp_name)
-        pair = (Path(reflection), Path(transmission)) if reflection else _example_pair(tmp / "photos")
+        pair = pair_or_example(reflection, transmission, tmp / "photos")
         zip_path = build_zip(tmp / "dist")
         for index in range(1, rounds + 1):
             for way in (("cli", "addon") if index % 2 else ("addon", "cli")):

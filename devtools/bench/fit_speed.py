@@ -29,8 +29,10 @@ from .ledger import NOT_RECORDED, Ledger
 MODES = {"compiled": {"WFC_COMPILE": "1"}, "eager": {"WFC_COMPILE": "0"}}
 
 
-def _example_pair(folder: Path) -> tuple[Path, Path]:
-    """The fit command's own example pair, rendered into ``folder``."""
+def pair_or_example(reflection: str | None, transmission: str | None, folder: Path) -> tuple[Path, Path]:
+    """The given photo pair, or (none given) the fit command's own example pair rendered into ``folder``."""
+    if reflection:
+        return Path(reflection), Path(transmission)
     reflection, transmission, _ = make_example(folder)
     return reflection, transmission
 
@@ -64,7 +66,7 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
 
     with tempfile.TemporaryDirectory(prefix="fit-speed-") as tmp_name:
         tmp = Path(tmp_name)
-        pair = (Path(reflection), Path(transmission)) if reflection else _example_pair(tmp / "photos")
+        pair = pair_or_example(reflection, transmission, tmp / "photos")
         fit("compiled", 0, pair, tmp)  # compilation (or its disk cache), reported apart
         for index in range(1, rounds + 1):
             order = ("compiled", "eager") if index % 2 else ("eager", "compiled")

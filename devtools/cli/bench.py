@@ -57,13 +57,18 @@ def _placement(args) -> int:
 def _fit_speed(args) -> int:
     extra = _iterations(args) + (["--size", str(args.fit_size)] if args.fit_size else [])
     reflection, transmission = args.pair or (None, None)
-    ledger = open_ledger(args, "fit-speed", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())))
+    ledger = open_ledger(args, "fit-speed", _pair_folders(args))
     return bench_fit_speed(reflection, transmission, args.rounds or 2, extra, args.json, ledger=ledger)
+
+
+def _pair_folders(args) -> list[str]:
+    """The folders of ``--pair``'s photos, once each (the ledger's data sets)."""
+    return list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ()))
 
 
 def _addon_fit(args) -> int:
     reflection, transmission = args.pair or (None, None)
-    ledger = open_ledger(args, "addon-fit", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())))
+    ledger = open_ledger(args, "addon-fit", _pair_folders(args))
     return bench_addon_fit(reflection, transmission, args.rounds or 2, args.iterations or 0, args.fit_size or 0,
                            args.json, ledger=ledger)
 
@@ -80,8 +85,7 @@ def _batch(args) -> int:
 def _profile(args) -> int:
     from ..bench.profile import bench_profile
     extra = _iterations(args) + shlex.split(args.fit_args) + _device(args)
-    ledger = open_ledger(args, "profile", list(dict.fromkeys(str(Path(p).parent) for p in args.pair or ())),
-                         fit_device(extra))
+    ledger = open_ledger(args, "profile", _pair_folders(args), fit_device(extra))
     return bench_profile(tuple(args.pair) if args.pair else None, extra, args.top, args.json, args.operators,
                          ledger=ledger)
 
