@@ -233,7 +233,7 @@ def build_fallback_group(part_nodes: int = PART_NODES):
     env.update(UV=uvmap.outputs["UV"], Tangent=tangent.outputs["Tangent"], Normal=geometry.outputs["Normal"],
                Incoming=geometry.outputs["Incoming"], Backfacing=geometry.outputs["Backfacing"])
     env = shader_fallback.run(builder, env)
-    x0 = 180.0 * (max(builder.column_rows) + 2)
+    x0 = 180.0 * (len(builder.parts) + 2)   # right of the part groups, the fallback's own nodes
     row = iter(range(0, -10000, -120))
 
     def bsdf(kind, **inputs):
