@@ -140,4 +140,38 @@ def test_a_variation_that_costs_the_fabric_its_colour_is_dropped(monkeypatch, da
     result = pipeline.fit(photos.reflection.numpy(), photos.transmission.numpy(), settings=settings)
     assert result.variation["kept"] is not darker
     assert result.variation["dropped"] == ("colour" if darker else None)
+    assert (max(result.variation["colour_shift"]) > pipeline.MEAN_COLOUR_SLACK) is darker
     assert result.params.brightness_variation == pytest.approx((0.0, 0.0) if darker else (0.05, 0.05))
+
+
+def test_a_true_variation_whose_pattern_lies_elsewhere_is_kept(monkeypatch):
+    """Photos of TWILL whose yarns' brightness varies (drifting over 3 yarns), and a reading of that
+    amplitude at the default length: a random pattern that never lies where the photos' does. After
+    settling, its 16 x 16 colour term is more than 10 % above the regular weave's (in blocks of a
+    yarn or two two independent patterns differ more than either from their mean), but the fabric's
+    overall colour stays within MEAN_COLOUR_SLACK of the regular weave's, so the fit keeps it."""
+    import torch
+
+    import backend.fit.pipeline as pipeline
+    from backend.fit.variation_estimate import VariationEstimate
+    from backend.model.param_tensors import ParamTensors
+
+    amplitude, regular_colour = 0.25, []
+
+    def reading(params, objective, blur, seed, progress):
+        with torch.no_grad():
+            terms = objective.terms(ParamTensors.from_params(params), blur)
+        regular_colour.append(float(terms["colour_R"] + terms["colour_T"]))
+        return (with_amplitudes(params, {"brightness": amplitude}),
+                VariationEstimate({k: amplitude * (k == "brightness") for k in KINDS}, 10.0, 5.0, True))
+
+    monkeypatch.setattr(pipeline, "estimate_variation", reading)
+    shown = TWILL.replace(brightness_variation=(amplitude, amplitude), brightness_variation_length=(3.0, 3.0))
+    photos = render_pair(shown, size=64, spp=8, seed=3)
+    settings = FitSettings(pattern="twill1", iterations=2, trial_iterations=1, size=64, spp=4, search_every=0,
+                           compile=False, camera_blur=0.0, sample_rotation=0.0, settle_steps=2)
+    result = pipeline.fit(photos.reflection.numpy(), photos.transmission.numpy(), settings=settings)
+    assert result.terms["colour_R"] + result.terms["colour_T"] > 1.1 * regular_colour[0]
+    assert result.variation["kept"] and result.variation["dropped"] is None
+    assert max(result.variation["colour_shift"]) <= pipeline.MEAN_COLOUR_SLACK
+    assert result.params.brightness_variation == pytest.approx((amplitude, amplitude))

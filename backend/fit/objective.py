@@ -162,6 +162,22 @@ class Objective:
 
         return ratio(pair.reflection, self.target.reflection), ratio(pair.transmission, self.target.transmission)
 
+    def mean_colour_errors(self, params: FabricParams, camera_blur_px: float) -> tuple[float, float]:
+        """Per photo (R, T), the L1 (mean over the channels) between the photo's overall colour and a
+        render's of ``params`` as the photos show it (:meth:`rendered`): the area mean of each whole
+        image in linear light, in display space. Unlike the 16 x 16 colour term it does not see where
+        a random yarn pattern lies, only what it does to the fabric's colour."""
+        with torch.no_grad():
+            pair, _ = self.rendered(params, camera_blur_px)
+        gamma = self.rig.gamma
+
+        def overall(image):
+            return image.clamp_min(0).pow(gamma).mean(dim=(0, 1)).pow(1 / gamma)
+
+        return tuple(float((overall(render) - overall(photo)).abs().mean())
+                     for render, photo in ((pair.reflection, self.target.reflection),
+                                           (pair.transmission, self.target.transmission)))
+
     def spectrum_similarity(self, params: FabricParams, camera_blur_px: float) -> float:
         """Mean over R and T of the log-power-spectrum correlation between a render of ``params``
         (blurred, without the light falloff) and the photo (:func:`backend.image.metrics.spectrum_corr`)."""

@@ -77,9 +77,9 @@ BLUR_DUEL_PX = 0.25
 # last, small steps that move the means back, where a run that stopped early would still take steps
 # that search anew (and worsen the loss).
 SETTLE_LR_FACTOR = 0.5 ** len(LR_MILESTONES)
-# How much more colour error (the loss's colour terms, both photos) a settled varied fit may have than
-# the regular one: the yarns' texture is worth no more of the fabric's colour than that.
-COLOUR_TOLERANCE = 0.1
+# How far a settled varied fit may move either photo's overall colour from the photo's beyond where the
+# regular weave has it (display units: one code value of an 8-bit image, a shift no display shows).
+MEAN_COLOUR_SLACK = 1 / 255
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -408,9 +408,16 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     from the varied parameters for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the base
     learning rates, its best loss counted afresh: the variation moves the images' means (a
     yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
-    make up for. Where the settled fit's colour terms are still more than COLOUR_TOLERANCE above the
-    regular weave's, the variation is dropped and the regular weave kept (``reading.dropped``): the
-    settling steps do not always bring a varied transmission's mean back."""
+    make up for. Where the settled fit's overall colour of either photo is still more than
+    MEAN_COLOUR_SLACK further from the photo's than the regular weave's, the variation is dropped and
+    the regular weave kept (``reading.dropped``): the settling steps do not always bring a varied
+    transmission's mean back.
+
+    Why the overall colour and not the loss's 16 x 16 colour term: a random yarn pattern never lies
+    where the photo's does, so in blocks of a few yarns even the true variation adds colour error
+    (two independent patterns differ by more than either differs from their mean), and that term
+    dropped the variation of most photos that have it; over the whole image the pattern averages
+    out and what is left is the shift of the fabric's colour the guard is for."""
     total = READINGS + settings.settle_steps
 
     def counted(done: int) -> None:
@@ -425,16 +432,14 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
         for step in range(settings.settle_steps):
             run.step()
             counted(READINGS + 1 + step)
-        if _colour(run.best_terms) > (1 + COLOUR_TOLERANCE) * _colour(regular[3]):
+        before = run.objective.mean_colour_errors(regular[1], regular[2])
+        after = run.objective.mean_colour_errors(run.best, run.best_blur)
+        reading.colour_shift = tuple(a - b for a, b in zip(after, before))
+        if max(reading.colour_shift) > MEAN_COLOUR_SLACK:
             run.best_loss, run.best, run.best_blur, run.best_terms = regular
             reading.kept, reading.dropped = False, "colour"
     progress("variation", total, total, run.best_loss, 0.0)
     return reading
-
-
-def _colour(terms: dict[str, float]) -> float:
-    """The colour terms of a loss's terms (both photos)."""
-    return terms.get("colour_R", 0.0) + terms.get("colour_T", 0.0)
 
 
 def search_due(settings: FitSettings, done: int) -> bool:

@@ -83,11 +83,15 @@ class VariationEstimate:
     kept: bool
     band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # varied (if read kept) - photo
     dropped: str | None = None  # why a variation read was dropped after all (the fit's pipeline: "colour")
+    # per photo (R, T), how much further the settled varied fit's overall colour is from the photo's than
+    # the regular weave's (the fit's pipeline, where it settled one)
+    colour_shift: tuple[float, float] | None = None
 
     def to_dict(self) -> dict:
         return {"amplitudes": {k: round(v, 4) for k, v in self.amplitudes.items()},
                 "gap_before_db": round(self.gap_before_db, 2), "gap_after_db": round(self.gap_after_db, 2),
                 "kept": self.kept, "dropped": self.dropped,
+                "colour_shift": None if self.colour_shift is None else [round(x, 5) for x in self.colour_shift],
                 "band_gaps_db": {k: [round(x, 2) if np.isfinite(x) else None for x in v]  # None: past Nyquist
                                  for k, v in self.band_gaps_db.items()}}
 
