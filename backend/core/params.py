@@ -15,7 +15,8 @@ Interchange string (spec section 2)::
 The yarn variations (``width_variation`` ... ``slub_variation_length``, :mod:`backend.core.variation`)
 are beyond the paper: the interchange string does not carry them (reading one gives none), the JSON
 form does. They are neither optimised nor searched: a fit reads the amplitudes from the photos after
-its optimisation (:mod:`backend.fit.variation_estimate`), warp and weft alike, and keeps the lengths.
+its optimisation (:mod:`backend.fit.variation_estimate`), warp and weft alike, each at the centre of
+its length's prior.
 """
 from __future__ import annotations
 

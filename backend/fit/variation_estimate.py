@@ -28,7 +28,7 @@ samples per pixel would otherwise read as texture the render lacks.
 
 The estimate is kept where a render at it (read the same way) has a smaller texture gap than the
 regular weave's by at least MIN_GAIN_DB; else the fit keeps none. Warp and weft get the same
-amplitudes (octave bands do not tell them apart), the correlation lengths their defaults.
+amplitudes (octave bands do not tell them apart), each kind the length of :func:`read_length`.
 Cost: 2 (kinds + 2) renders at READ_SIZE, without gradients.
 
 =================  =======  ==================================================================
@@ -50,6 +50,7 @@ READ_SEED_OFFSET   1000     the readings' jitter seeds above the fit's: samples 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -57,7 +58,7 @@ import numpy as np
 import torch
 
 from ..core.params import SPECS, FabricParams
-from ..core.variation import KINDS, amplitude_name
+from ..core.variation import KINDS, amplitude_name, length_name
 from ..image.metrics import band_power, power_db
 from ..model.imaging import downsample_linear
 from .objective import Objective, Target
@@ -69,6 +70,15 @@ READ_SIZE = 256          # px of the readings' renders (the bands scale with the
 READ_SPP = 4             # samples per pixel of each of the two renders of a reading
 READ_SEED_OFFSET = 1000  # the readings' jitter seeds are the fit's plus this and one more: other samples
 READINGS = len(KINDS) + 2  # the regular weave, each kind alone, the estimate: progress(done) counts them
+
+
+def read_length(kind: str) -> float:
+    """The correlation length a reading gives ``kind`` (yarns; crossings for the slub): the geometric
+    centre of its declared prior. A variation's power moves to lower bands as its length grows, so a
+    reading at one length misreads the amplitude of a variation at another; the centre of the prior
+    (on the log scale the bands are on) misreads the least over the lengths it allows."""
+    low, high = SPECS[length_name(kind)].prior
+    return math.sqrt(low * high)
 
 
 @dataclass
@@ -86,9 +96,11 @@ class VariationEstimate:
     # per photo (R, T), how much further the settled varied fit's overall colour is from the photo's than
     # the regular weave's (the fit's pipeline, where it settled one)
     colour_shift: tuple[float, float] | None = None
+    lengths: dict[str, float] = field(default_factory=dict)  # kind -> correlation length read (kinds read)
 
     def to_dict(self) -> dict:
         return {"amplitudes": {k: round(v, 4) for k, v in self.amplitudes.items()},
+                "lengths": dict(self.lengths),
                 "gap_before_db": round(self.gap_before_db, 2), "gap_after_db": round(self.gap_after_db, 2),
                 "kept": self.kept, "dropped": self.dropped,
                 "colour_shift": None if self.colour_shift is None else [round(x, 5) for x in self.colour_shift],
@@ -96,9 +108,12 @@ class VariationEstimate:
                                  for k, v in self.band_gaps_db.items()}}
 
 
-def with_amplitudes(params: FabricParams, amplitudes: dict[str, float]) -> FabricParams:
-    """``params`` with each kind's amplitude set for warp and weft alike."""
-    return params.replace(**{amplitude_name(k): (a, a) for k, a in amplitudes.items()})
+def with_amplitudes(params: FabricParams, amplitudes: dict[str, float],
+                    lengths: dict[str, float] | None = None) -> FabricParams:
+    """``params`` with each kind's amplitude (and correlation length, where given) set for warp and
+    weft alike."""
+    return params.replace(**{amplitude_name(k): (a, a) for k, a in amplitudes.items()},
+                          **{length_name(k): (n, n) for k, n in (lengths or {}).items()})
 
 
 def bounded_least_squares(a: np.ndarray, b: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -163,10 +178,11 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     photo = powers.photo
     base = powers(regular)
     progress(1)
+    lengths = {k: read_length(k) for k in KINDS}
     added = []
     for k in KINDS:
-        added.append(np.maximum(powers(with_amplitudes(regular, {k: PROBE_AMPLITUDE})) - base, 0.0)
-                     / PROBE_AMPLITUDE ** 2)
+        probe = with_amplitudes(regular, {k: PROBE_AMPLITUDE}, {k: lengths[k]})
+        added.append(np.maximum(powers(probe) - base, 0.0) / PROBE_AMPLITUDE ** 2)
         progress(1 + len(added))
     seen = np.isfinite(photo.reshape(-1)) & (photo.reshape(-1) > 0)  # bands below the readings' Nyquist corner
     scale = photo.reshape(-1)[seen]
@@ -174,7 +190,8 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     upper = np.array([SPECS[amplitude_name(k)].hi ** 2 for k in KINDS])
     squares = bounded_least_squares(design, 1.0 - base.reshape(-1)[seen] / scale, upper)
     amplitudes = {k: float(np.sqrt(x)) for k, x in zip(KINDS, squares)}
-    varied = with_amplitudes(regular, amplitudes)
+    lengths = {k: n for k, n in lengths.items() if amplitudes[k] > 0}
+    varied = with_amplitudes(regular, amplitudes, lengths)
     after = powers(varied) if squares.any() else base
     progress(READINGS)
     before_db, after_db = _gap_db(base, photo), _gap_db(after, photo)
@@ -182,5 +199,6 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     shown = after if kept else base
     reading = VariationEstimate(amplitudes, before_db, after_db, kept,
                                 {tag: list(power_db(np.maximum(shown[i], GAP_FLOOR * photo[i])) - power_db(photo[i]))
-                                 for i, tag in enumerate("RT")})
+                                 for i, tag in enumerate("RT")},
+                                lengths=lengths)
     return (varied if kept else regular), reading
