@@ -293,6 +293,21 @@ def test_the_fit_benchmark_reports_the_camera_blur_against_the_phones():
     assert section["blur_error_px_mean_abs"] == pytest.approx(0.2)
 
 
+def test_the_fit_benchmark_means_the_texture_gap_and_the_variation_error_with_their_targets():
+    from devtools.bench.fit import TARGETS, _format_summary, summarise
+
+    rows = [_bench_row("even", texture_gap_db_R=2.0, texture_gap_db_T=4.0, variation_rms_error=-0.5),
+            _bench_row("uneven", texture_gap_db_R=6.0, texture_gap_db_T=1.0, variation_rms_error=0.1),
+            _bench_row("regular", texture_gap_db_R=1.0, texture_gap_db_T=1.0, variation_rms_error=None)]
+    summary = summarise(rows)
+    section = summary["photolike"]
+    assert section["texture_gap_db_R"] == pytest.approx(3.0) and section["texture_gap_db_T"] == pytest.approx(2.0)
+    assert section["variation_rms_abs_error"] == pytest.approx(0.3)  # the truths without variation left out
+    text = _format_summary(summary)
+    assert "texture gap 3.0/2.0 dB" in text and "variation amplitude error (mean size, relative) 0.3" in text
+    assert TARGETS["real"]["texture_gap_db_max"] == 3.0 and TARGETS["photolike"]["variation_rms_abs_error_max"] == 0.25
+
+
 @pytest.mark.slow
 def test_the_placement_benchmark_reports_the_fits_placement_and_lattice_against_the_truth(tmp_path, capsys):
     from devtools.bench.placement import summary
