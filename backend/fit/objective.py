@@ -156,8 +156,7 @@ class Objective:
         gamma = self.rig.gamma
 
         def ratio(render, photo):
-            r = render.clamp_min(0).pow(gamma).mean(dim=(0, 1))
-            p = photo.clamp_min(0).pow(gamma).mean(dim=(0, 1))
+            r, p = _linear_mean(render, gamma), _linear_mean(photo, gamma)
             return (p / r.clamp_min(1e-4)).clamp(0.05, 20.0).tolist()
 
         return ratio(pair.reflection, self.target.reflection), ratio(pair.transmission, self.target.transmission)
@@ -172,7 +171,7 @@ class Objective:
         gamma = self.rig.gamma
 
         def overall(image):
-            return image.clamp_min(0).pow(gamma).mean(dim=(0, 1)).pow(1 / gamma)
+            return _linear_mean(image, gamma).pow(1 / gamma)
 
         return tuple(float((overall(render) - overall(photo)).abs().mean())
                      for render, photo in ((pair.reflection, self.target.reflection),
@@ -186,3 +185,8 @@ class Objective:
         return 0.5 * sum(spectrum_corr(photo.cpu().numpy(), render.cpu().numpy())
                          for photo, render in ((self.target.reflection, pair.reflection),
                                                (self.target.transmission, pair.transmission)))
+
+
+def _linear_mean(image: torch.Tensor, gamma: float) -> torch.Tensor:
+    """The mean linear colour (3,) of a display-space image (size, size, 3)."""
+    return image.clamp_min(0).pow(gamma).mean(dim=(0, 1))

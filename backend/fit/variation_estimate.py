@@ -81,6 +81,11 @@ def read_length(kind: str) -> float:
     return math.sqrt(low * high)
 
 
+def read_lengths(amplitudes: dict[str, float]) -> dict[str, float]:
+    """The correlation length (:func:`read_length`) of each kind read with an amplitude."""
+    return {k: read_length(k) for k, a in amplitudes.items() if a > 0}
+
+
 @dataclass
 class VariationEstimate:
     """The amplitudes read (``amplitudes``: kind -> value, warp and weft alike), the texture gap
@@ -96,7 +101,11 @@ class VariationEstimate:
     # per photo (R, T), how much further the settled varied fit's overall colour is from the photo's than
     # the regular weave's (the fit's pipeline, where it settled one)
     colour_shift: tuple[float, float] | None = None
-    lengths: dict[str, float] = field(default_factory=dict)  # kind -> correlation length read (kinds read)
+
+    @property
+    def lengths(self) -> dict[str, float]:
+        """The correlation length of each kind read (:func:`read_lengths`)."""
+        return read_lengths(self.amplitudes)
 
     def to_dict(self) -> dict:
         return {"amplitudes": {k: round(v, 4) for k, v in self.amplitudes.items()},
@@ -178,10 +187,9 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     photo = powers.photo
     base = powers(regular)
     progress(1)
-    lengths = {k: read_length(k) for k in KINDS}
     added = []
     for k in KINDS:
-        probe = with_amplitudes(regular, {k: PROBE_AMPLITUDE}, {k: lengths[k]})
+        probe = with_amplitudes(regular, {k: PROBE_AMPLITUDE}, {k: read_length(k)})
         added.append(np.maximum(powers(probe) - base, 0.0) / PROBE_AMPLITUDE ** 2)
         progress(1 + len(added))
     seen = np.isfinite(photo.reshape(-1)) & (photo.reshape(-1) > 0)  # bands below the readings' Nyquist corner
@@ -190,8 +198,7 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     upper = np.array([SPECS[amplitude_name(k)].hi ** 2 for k in KINDS])
     squares = bounded_least_squares(design, 1.0 - base.reshape(-1)[seen] / scale, upper)
     amplitudes = {k: float(np.sqrt(x)) for k, x in zip(KINDS, squares)}
-    lengths = {k: n for k, n in lengths.items() if amplitudes[k] > 0}
-    varied = with_amplitudes(regular, amplitudes, lengths)
+    varied = with_amplitudes(regular, amplitudes, read_lengths(amplitudes))
     after = powers(varied) if squares.any() else base
     progress(READINGS)
     before_db, after_db = _gap_db(base, photo), _gap_db(after, photo)
@@ -199,6 +206,5 @@ def estimate_variation(params: FabricParams, objective: Objective, blur: float, 
     shown = after if kept else base
     reading = VariationEstimate(amplitudes, before_db, after_db, kept,
                                 {tag: list(power_db(np.maximum(shown[i], GAP_FLOOR * photo[i])) - power_db(photo[i]))
-                                 for i, tag in enumerate("RT")},
-                                lengths=lengths)
+                                 for i, tag in enumerate("RT")})
     return (varied if kept else regular), reading
