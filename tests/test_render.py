@@ -23,7 +23,8 @@ from backend.model.imaging import display_transform, gaussian_blur, subpixel_blu
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
 from backend.model.projections import project
-from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, Renderer
+from backend.model import render as render_module
+from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, GradientShare, Renderer
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
 OPTIMISED = [s.name for s in PARAMETERS if s.optimised]
@@ -172,6 +173,42 @@ def test_checkpointed_chunks_give_the_same_gradients():
         (pair.reflection.sum() + pair.transmission.sum()).backward()
         grads.append(torch.cat([fabric.values[n].grad.flatten() for n in OPTIMISED]))
     torch.testing.assert_close(grads[0], grads[1], rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("period", [2, 3])
+def test_a_gradient_share_keeps_the_values_and_its_phases_average_to_the_whole_gradient(monkeypatch, period):
+    # 64 px, 4 spp in blocks of 8 rows: 8 blocks, shared 4 / 4 (period 2) or 3 / 3 / 2 (period 3)
+    monkeypatch.setattr(render_module, "EAGER_BLOCK_SAMPLES", 64 * 4 * 8)
+    params = FabricParams(pattern="twill0", tiles=(70.0, 90.0))
+    renderer = Renderer(size=64, spp=4)
+
+    def rendered(share):
+        fabric = ParamTensors.from_params(params, requires_grad=OPTIMISED)
+        with renderer.gradient_share(share):
+            pair = renderer.render(fabric)
+        loss = (pair.reflection ** 2).mean() + (pair.transmission ** 2).mean()  # not linear in the samples
+        loss.backward()
+        return pair, torch.cat([fabric.values[n].grad.flatten() for n in OPTIMISED])
+
+    whole, gradient = rendered(None)
+    phases = [rendered(GradientShare(phase, period)) for phase in range(period)]
+    for pair, _ in phases:
+        assert torch.equal(pair.reflection, whole.reflection) and torch.equal(pair.transmission, whole.transmission)
+    shares = torch.stack([g for _, g in phases])
+    assert all((share - gradient).norm() > 1e-3 * gradient.norm() for share in shares)  # each is a share, not all
+    torch.testing.assert_close(shares.mean(0), gradient, rtol=1e-4, atol=1e-7)
+    torch.testing.assert_close(rendered(GradientShare(5, 1))[1], gradient)  # a period of 1 is every block
+
+
+def test_a_render_without_gradients_ignores_the_gradient_share():
+    params = FabricParams(pattern="plain", tiles=(60.0, 60.0))
+    renderer = Renderer(size=32, spp=4)
+    with torch.no_grad():
+        whole = renderer.render(params)
+        with renderer.gradient_share(GradientShare(1, 2)):
+            shared = renderer.render(params)
+    assert torch.equal(whole.reflection, shared.reflection)
+    assert renderer._gradient_share is None  # the share holds for its block only
 
 
 def test_fixed_seed_is_deterministic_and_seeds_differ():

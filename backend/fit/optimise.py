@@ -28,6 +28,7 @@ import torch
 from ..core.params import SPECS, FabricParams
 from ..core.rig import MAX_CAMERA_BLUR_PX
 from ..model.param_tensors import ParamTensors, as_float
+from ..model.render import GradientShare
 from ..model.spacing_warp import SpacingWarp
 from .objective import Objective
 from .settings import OPTIMISED, FitSettings
@@ -157,7 +158,9 @@ class Run:
         """One Adam step; returns the loss of the parameters before the step."""
         self._schedule()
         self.optimiser.zero_grad(set_to_none=True)
-        terms = self.objective.terms(self.fabric, self._blur if self.estimates_blur else self.camera_blur_px)
+        share = GradientShare(self.step_count, self.settings.gradient_period)
+        with self.objective.renderer.gradient_share(share):
+            terms = self.objective.terms(self.fabric, self._blur if self.estimates_blur else self.camera_blur_px)
         loss = terms["loss"]
         value = float(loss.detach())  # the step's one wait for the device (on a GPU)
         if not math.isfinite(value):

@@ -63,6 +63,7 @@ Parameters of :class:`Renderer`:
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import warnings
@@ -164,6 +165,7 @@ class Renderer:
         self._compiled = torch.compile(self._terms, dynamic=False, options=COMPILE_OPTIONS) if compile else None
         # the parameters the compiled graph differentiates: as declared, else as the last render with gradients had them
         self._grad_names = None if gradient_inputs is None else frozenset(gradient_inputs)
+        self._gradient_share: GradientShare | None = None  # set for one step by gradient_share()
 
     def like(self, size: int, spp: int, seed: int) -> "Renderer":
         """A renderer like this one (rig, options, camera blur's mode, spacing warp; eager) at another
@@ -202,6 +204,16 @@ class Renderer:
         self._geometry.clear()
         self._bands.clear()
         self._last_radiance = None
+
+    @contextlib.contextmanager
+    def gradient_share(self, share: "GradientShare | None"):
+        """Renders with gradients in this block carry them through ``share``'s blocks of film rows only
+        (:class:`GradientShare`); the values are those of every sample."""
+        kept, self._gradient_share = self._gradient_share, share
+        try:
+            yield
+        finally:
+            self._gradient_share = kept
 
     # -- cached stages -----------------------------------------------------------------------
     def _chunk(self, rows: tuple[int, int]) -> SampleChunk:
@@ -338,11 +350,19 @@ class Renderer:
         if step >= rows:
             return self._pixels(samples, self._terms(samples, fabric), glow, fine)
         scale = 2 if fine else 1  # glow rows per film row
+        share = self._gradient_share if torch.is_grad_enabled() else None
         pieces = []
-        for r0 in range(0, rows, step):
+        for index, r0 in enumerate(range(0, rows, step)):
             block = samples.between(r0 * self.size * self.spp, min(r0 + step, rows) * self.size * self.spp)
             block_glow = None if glow is None else glow[scale * r0:scale * (r0 + step)]
-            pieces.append(self._pixels(block, self._terms(block, fabric), block_glow, fine))
+            if share is None or share.period == 1:
+                pieces.append(self._pixels(block, self._terms(block, fabric), block_glow, fine))
+            elif share.carries(index):
+                pieces.append(tuple(share.scaled(p) for p in self._pixels(block, self._terms(block, fabric),
+                                                                          block_glow, fine)))
+            else:
+                with torch.no_grad():
+                    pieces.append(self._pixels(block, self._terms(block, fabric), block_glow, fine))
         return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 
     def _terms(self, samples: SampleProjections, fabric: ParamTensors) -> tuple[torch.Tensor, ...]:
@@ -428,6 +448,34 @@ class Renderer:
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(reflection, g, c, self.vignette),
                             display_transform(transmission, g, c, self.vignette), reflection, transmission)
+
+
+@dataclass(frozen=True)
+class GradientShare:
+    """The blocks of film rows (of the eager path's blocks, :data:`EAGER_BLOCK_SAMPLES` samples each)
+    whose samples carry a render's gradient: every ``period``-th, from the ``phase``-th. Their
+    gradients are taken ``period`` times, the others' not at all; the values are every sample's.
+
+        grad ~= period * sum over the carrying blocks of d(pixels)/d(parameters)
+
+    Over ``period`` renders at the phases 0 .. period - 1 each block carries once, so their mean is
+    the whole gradient (exactly, for the same parameters). Why: the fabric's parameters are the
+    same in every block of rows (each holds many tiles of the weave), so a share of them points
+    the gradient nearly as all of them do, and a backward pass through them costs that share of
+    one through all; the forward pass, which the loss needs whole, is not shared. The compiled
+    graph (``compile=True``) differentiates whole chunks, fused: it takes no share.
+    """
+
+    phase: int
+    period: int
+
+    def carries(self, block: int) -> bool:
+        return block % self.period == self.phase % self.period
+
+    def scaled(self, pixels: torch.Tensor) -> torch.Tensor:
+        """``pixels`` unchanged, their gradient ``period`` times."""
+        kept = pixels.detach()
+        return kept + self.period * (pixels - kept)
 
 
 def _variation(fabric: ParamTensors) -> VariationSettings | None:
