@@ -132,7 +132,7 @@ class ScriptedRun:
     def __init__(self, best_after_step, search_gain=0.0, last_rate_from=0):
         self.best_after_step, self.search_gain = list(best_after_step), search_gain
         self.best_loss, self.steps, self.searches, self.warp_reads = float("inf"), 0, [], []
-        self.last_rate_from, self.drops = last_rate_from, []
+        self.last_rate_from, self.drops, self.periods = last_rate_from, [], []
 
     def restart_from_best(self):
         pass
@@ -144,7 +144,8 @@ class ScriptedRun:
     def at_last_rate(self):
         return self.steps >= self.last_rate_from or bool(self.drops)
 
-    def step(self):
+    def step(self, gradient_period=1):
+        self.periods.append(gradient_period)
         self.best_loss = min(self.best_loss, self.best_after_step[self.steps])
         self.steps += 1
         return self.best_loss
@@ -186,6 +187,7 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     # still improving at the end: every step runs
     improving = ScriptedRun([10.0 - 0.01 * i for i in range(100)])
     assert optimise(improving) == 100 and [r[1] for r in reports] == list(range(1, 101))
+    assert set(improving.periods) == {FitSettings().gradient_period}  # its steps take gradient shares
     # patience 0, or no search where one is due: every step runs
     assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0)) == 100
     assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
@@ -317,6 +319,27 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     for _ in range(3):
         floored.step()
     assert floored.camera_blur_px == 3.5
+
+
+def test_each_step_takes_its_gradient_through_the_next_share_of_the_rows(monkeypatch):
+    """Run.step(period) renders with the share of the film rows at the step's count (GradientShare):
+    over ``period`` steps every block of rows carries once; the loss is every sample's."""
+    photos = render_pair(TWILL, size=64, spp=8, seed=3)
+    losses = {}
+    for period in (1, 4):
+        settings = FitSettings(pattern="twill1", size=64, spp=4, compile=False)
+        objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
+        shares = []
+        given = objective.renderer.gradient_share
+        monkeypatch.setattr(objective.renderer, "gradient_share", lambda share: (shares.append(share), given(share))[1])
+        run = Run(TWILL, objective, settings, 8, 1.0)
+        run.step()  # a short run's step (a trial's, the duel's, the settling's): through every row
+        losses[period] = run.step(period)
+        for _ in range(5):
+            run.step(period)
+        assert [(s.phase % s.period, s.period) for s in shares] == [(0, 1)] + [(i % period, period)
+                                                                               for i in range(1, 7)]
+    assert losses[1] == losses[4]  # the parameters of the second step alike: the same loss
 
 
 def test_candidates_the_network_rules_out_get_no_trial_fit(twill_pair):

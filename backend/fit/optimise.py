@@ -154,11 +154,13 @@ class Run:
         for group, lr in zip(self.optimiser.param_groups, self.base_lr):
             group["lr"] = lr * factor
 
-    def step(self) -> float:
-        """One Adam step; returns the loss of the parameters before the step."""
+    def step(self, gradient_period: int = 1) -> float:
+        """One Adam step; returns the loss of the parameters before the step. Its gradient comes
+        through every ``gradient_period``-th block of film rows, a block further on each step
+        (:class:`backend.model.render.GradientShare`; 1: through all)."""
         self._schedule()
         self.optimiser.zero_grad(set_to_none=True)
-        share = GradientShare(self.step_count, self.settings.gradient_period)
+        share = GradientShare(self.step_count, gradient_period)
         with self.objective.renderer.gradient_share(share):
             terms = self.objective.terms(self.fabric, self._blur if self.estimates_blur else self.camera_blur_px)
         loss = terms["loss"]

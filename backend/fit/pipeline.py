@@ -361,7 +361,11 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
     ``done``: the steps it has had at the working size already (the duel's, :func:`_finalist`): it
     goes on from them as one run, so a winner that holds its place fits as it would have alone. With
     none (its steps were trial steps at the base size), it goes on from its best parameters so far
-    with a fresh Adam state."""
+    with a fresh Adam state.
+
+    Its steps take their gradients through a share of the film rows (``settings.gradient_period``,
+    :class:`backend.model.render.GradientShare`), unlike the short runs before and after it (trials,
+    duel, settling), whose ends are compared: a share's noise slows a run's first steps."""
     if done == 0:
         run.restart_from_best()
     loop_started = time.perf_counter()
@@ -373,7 +377,7 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             if value < best:
                 best, improved_at = value, step
     for it in range(done, settings.iterations):
-        value = run.step()
+        value = run.step(settings.gradient_period)
         check_stop(run)
         done = it + 1
         if search_due(settings, done):

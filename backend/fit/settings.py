@@ -50,8 +50,9 @@ class FitSettings:
     patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
                                      # a discrete search has had its turn, at the schedule's last learning rate
                                      # (above it, it goes on from its best at that rate; 0: it runs every iteration)
-    gradient_period: int = 4         # each Adam step's gradient through every gradient_period-th block of film rows,
-                                     # a block further on each step (backend.model.render.GradientShare; 1: all)
+    gradient_period: int = 4         # the optimisation's steps take their gradients through every gradient_period-th
+                                     # block of film rows, a block further on each step (backend.model.render.
+                                     # GradientShare; 1: all); the short runs whose ends are compared take all
     lr: float = 0.02                 # Adam step as a fraction of each parameter's range
     weights: LossWeights = LossWeights()
     prior_weight: float = 0.002
