@@ -16,6 +16,7 @@ from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model import imaging
+from backend.model import render as render_module
 from backend.model.bsdf import eval_pair
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
@@ -23,7 +24,6 @@ from backend.model.imaging import display_transform, gaussian_blur, subpixel_blu
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
 from backend.model.projections import project
-from backend.model import render as render_module
 from backend.model.render import AUTO_SUBPIXEL_BELOW_PX, GradientShare, Renderer
 from blender_addon.core.rig_display import gaussian_blur as numpy_blur
 
