@@ -173,7 +173,12 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
                    "size); it ends sooner once its best loss has not moved for 20 steps at its last learning rate",
               details="Discrete steps on the gap scale, twist and camera blur come after 25, 50 and 75 iterations; "
                       "where one falls inside the run, the optimisation does not end before it has had its turn. "
-                      "A stall at a higher learning rate goes on from the best parameters at the last rate."),
+                      "A stall at a higher learning rate goes on from the best parameters at the last rate. Each of "
+                      "its steps takes its gradient through a quarter of the film's rows, another quarter at each "
+                      "step, while its loss is every pixel's: a step costs about 0.6 of one through every row, and "
+                      "four steps' gradients add up to the whole one (the short runs whose ends are compared, the "
+                      "trials, the duel and the variation's settling, take every row's; a compiled renderer takes "
+                      "every row's too)."),
     FitOption("size", WHOLE, None, lo=MIN_WORKING_SIZE, unit="pixels", metavar="N", setting="size", batch=True,
               default_text=f"256 or {_FILM}",
               help=f"working size of the loss in pixels, {MIN_WORKING_SIZE} up to the photos' working size (the rig's "
