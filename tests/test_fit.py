@@ -683,19 +683,25 @@ def test_a_start_on_a_lattice_chosen_would_rule_out_gets_no_trial_steps(twill_pa
                                                      ("twill1m", (TWILL.tiles[0], 3 * TWILL.tiles[1]))])]
     coverage = {"twill1": 0.93, "twill0": 0.95, "twill1m": 0.13}
 
+    counts = []
+
     def trials_of(chosen_starts, restarted=False):
-        return trial_runs(chosen_starts, objective, settings, 1.0, None, {}, lambda run: None, lambda *a: None,
+        counts.clear()
+        return trial_runs(chosen_starts, objective, settings, 1.0, None, {}, lambda run: None,
+                          lambda count, total, selection: counts.append((count, total)),
                           lambda cand: coverage[cand.pattern], restarted)
 
     every = trials_of(starts)
     steps = [len(t.run.history) for t in every]
     assert steps == [2, 2, 0] and every[2].summary["skipped"] and every[2].summary["spectrum_corr"] is None
+    assert counts == [(1, 2), (2, 2)]  # the progress counts the trials that take steps
     assert every[2].summary["trial_loss"] == every[2].start.loss
     alone = trials_of(starts[:2])      # the same two eligible starts without the third: the same trials
     assert [t.selection for t in alone] == [t.selection for t in every[:2]]
     assert chosen(alone).start is chosen(every).start
     lone = [starts[0], starts[2]]
     assert [len(t.run.history) for t in trials_of(lone, restarted=True)] == [0, 0]
+    assert counts == [(1, 1)]  # none takes steps: one count, the phase passed by
     assert [len(t.run.history) for t in trials_of(lone, restarted=False)] == [2, 0]  # its steps go on in the fit
 
 

@@ -230,7 +230,9 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
     """The trials of the best ``settings.trials`` starts: a short fit of each that
     :func:`search.trial_plan` gives steps, its spectrum similarity, its selection
     (:func:`search.trial`); ``coverage_of(candidate)`` is its lattice's peak coverage,
-    ``on_trial(count, total, selection)`` is called after each.
+    ``on_trial(count, total, selection)`` is called after each trial that takes steps (``total``: how
+    many do; where none does, once, as (1, 1): the whole-fit progress paces the fit by the trials'
+    work, and a start given no steps takes none).
 
     The runs' learning-rate schedules span the trial and the final iterations: at a working size of
     BASE_SIZE or below the winner goes on (above it, ``restarted``, the fit starts the winner again
@@ -239,8 +241,9 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
     coverages = [coverage_of(start.candidate) for start in shortlisted]
     plan = search.trial_plan([start.candidate for start in shortlisted], coverages, restarted)
     total = settings.iterations + settings.trial_iterations
+    stepped, done = sum(tried for tried, _ in plan), 0
     trials = []
-    for index, (start, coverage, (tried, skipped)) in enumerate(zip(shortlisted, coverages, plan)):
+    for start, coverage, (tried, skipped) in zip(shortlisted, coverages, plan):
         run = Run(start.params, objective, settings, total, camera_blur_px, blur_floor)
         for _ in range(settings.trial_iterations if tried else 0):
             run.step()
@@ -248,7 +251,11 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
         similarity = objective.spectrum_similarity(run.best, camera_blur_px) if tried else None
         trials.append(search.trial(start, run, coverage, similarity, rated.get(id(start.candidate)), skipped,
                                    settings.spectrum_weight))
-        on_trial(index + 1, len(shortlisted), trials[-1].selection)
+        if tried:
+            done += 1
+            on_trial(done, stepped, trials[-1].selection)
+    if not stepped:
+        on_trial(1, 1, trials[0].selection)
     return trials
 
 
