@@ -73,23 +73,23 @@ class Phase:
 
 # A discrete search of the optimiser (20 loss evaluations) takes as long as this many of its steps
 # (measured by tools/fit_timeline.py replay on the fits it tunes on).
-SEARCH_COUNTS = 16.2
+SEARCH_COUNTS = 16.6
 # In the order a fit runs them. An event of iteration 0 starts a stage and counts nothing. A
 # counted phase ends where its count is complete (the next one begins then: the work of its first
 # count comes before that count's event) or where its counter starts again (the iteration goes
 # back, or the total changes); an uncounted one where its stage's next phase counts.
 PHASES: tuple[Phase, ...] = (
-    Phase("load", "load", "Reading the photos", 0.0091, fixed=True),
-    Phase("placement", "search", "Finding the weave in the photos", 0.0525, fixed=True, counted=False),
+    Phase("load", "load", "Reading the photos", 0.0082, fixed=True),
+    Phase("placement", "search", "Finding the weave in the photos", 0.0535, fixed=True, counted=False),
     Phase("starts", "search", "Trying starting points", 0.0037, counts=2),
-    Phase("trials", "search", "Comparing weaves", 0.2146, counts=2),
-    Phase("duel", "search", "Checking the weave at full size", 0.1684, counts=30, optional=True),
-    Phase("optimise", "optimise", "Optimising", 0.4021, patience=20, ends_from=25, pauses=(25, 50, 75),
+    Phase("trials", "search", "Comparing weaves", 0.2092, counts=2),
+    Phase("duel", "search", "Checking the weave at full size", 0.1738, counts=30, optional=True),
+    Phase("optimise", "optimise", "Optimising", 0.3995, patience=20, ends_from=25, pauses=(25, 50, 75),
           pause_counts=SEARCH_COUNTS),
     # its counts are not alike (quick readings, then steps at the working size): its share, not its count, paces it
-    Phase("variation", "variation", "Reading the yarns' irregularity", 0.0784, counted=False, optional=True),
-    Phase("render", "render", "Rendering the result", 0.0638, fixed=True),
-    Phase("report", "report", "Writing the report", 0.0074, fixed=True, counted=False),
+    Phase("variation", "variation", "Reading the yarns' irregularity", 0.081, counted=False, optional=True),
+    Phase("render", "render", "Rendering the result", 0.0635, fixed=True),
+    Phase("report", "report", "Writing the report", 0.0076, fixed=True, counted=False),
 )
 NAMES = tuple(phase.name for phase in PHASES)
 MIN_REMAINDER = 0.1  # a phase near or past its expected length still has this part of that length to go
