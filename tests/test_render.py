@@ -200,7 +200,8 @@ def test_a_gradient_share_keeps_the_values_and_its_phases_average_to_the_whole_g
     torch.testing.assert_close(rendered(GradientShare(5, 1))[1], gradient)  # a period of 1 is every block
 
 
-def test_a_render_without_gradients_ignores_the_gradient_share():
+def test_a_render_without_gradients_ignores_the_gradient_share(monkeypatch):
+    monkeypatch.setattr(render_module, "EAGER_BLOCK_SAMPLES", 32 * 4 * 8)  # 4 blocks of 8 rows
     params = FabricParams(pattern="plain", tiles=(60.0, 60.0))
     renderer = Renderer(size=32, spp=4)
     with torch.no_grad():

@@ -355,14 +355,10 @@ class Renderer:
         for index, r0 in enumerate(range(0, rows, step)):
             block = samples.between(r0 * self.size * self.spp, min(r0 + step, rows) * self.size * self.spp)
             block_glow = None if glow is None else glow[scale * r0:scale * (r0 + step)]
-            if share is None or share.period == 1:
-                pieces.append(self._pixels(block, self._terms(block, fabric), block_glow, fine))
-            elif share.carries(index):
-                pieces.append(tuple(share.scaled(p) for p in self._pixels(block, self._terms(block, fabric),
-                                                                          block_glow, fine)))
-            else:
-                with torch.no_grad():
-                    pieces.append(self._pixels(block, self._terms(block, fabric), block_glow, fine))
+            carries = share is None or share.carries(index)
+            with contextlib.nullcontext() if carries else torch.no_grad():
+                piece = self._pixels(block, self._terms(block, fabric), block_glow, fine)
+            pieces.append(tuple(map(share.scaled, piece)) if share is not None and carries else piece)
         return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 
     def _terms(self, samples: SampleProjections, fabric: ParamTensors) -> tuple[torch.Tensor, ...]:
@@ -474,6 +470,8 @@ class GradientShare:
 
     def scaled(self, pixels: torch.Tensor) -> torch.Tensor:
         """``pixels`` unchanged, their gradient ``period`` times."""
+        if self.period == 1:
+            return pixels
         kept = pixels.detach()
         return kept + self.period * (pixels - kept)
 
