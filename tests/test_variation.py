@@ -78,6 +78,23 @@ def test_torch_float32_and_plain_python_give_the_same_bits():
     torch.testing.assert_close(got, torch.tensor(expected, dtype=torch.float64), rtol=1e-12, atol=1e-12)
 
 
+def test_knot_values_gathered_from_the_keys_range_are_the_hash_of_every_sample():
+    gen = torch.Generator().manual_seed(3)
+    yarns = torch.randint(-10, 20, (8000,), generator=gen)
+    knots = torch.randint(-30, 90, (8000,), generator=gen)
+    cases = [((knots,), ()),                                   # per-yarn values: the knot alone
+             ((knots,), (yarns,)),                             # slubs: the yarn and its knot
+             ((knots[:, None],), (yarns[None, :50],)),         # keys broadcast together
+             ((torch.randint(-(1 << 20), 1 << 20, (300,), generator=gen),), ()),  # sparser than the samples
+             ((torch.zeros(0, dtype=torch.int64),), ())]       # nothing to hash
+    for (j,), keys in cases:
+        gathered = variation.knot_gauss(5, j, *keys)
+        direct = variation.knot_gauss_direct(5, j, *keys)
+        for got, expected in zip(gathered, direct):
+            assert got.shape == expected.shape
+            assert torch.equal(got, expected)
+
+
 def test_the_hash_is_deterministic_and_spread_evenly():
     k = torch.arange(-20000, 20000)
     first, again = variation.hash_keys(2, 0, k), variation.hash_keys(2, 0, k)

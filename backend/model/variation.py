@@ -15,6 +15,7 @@ alone, none of them optimised, so the renderer computes it once per geometry sta
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -57,9 +58,37 @@ def smooth(stream: int, x: torch.Tensor, length: float, *keys: torch.Tensor) -> 
     j = torch.floor(t)
     f = t - j
     w = f * f * (3.0 - 2.0 * f)
-    j = j.to(torch.int64)
-    return ((1.0 - w) * gauss(stream, *keys, j) + w * gauss(stream, *keys, j + 1)) / torch.sqrt(
-        (1.0 - w) ** 2 + w * w)
+    at, following = knot_gauss(stream, j.to(torch.int64), *keys)
+    return ((1.0 - w) * at + w * following) / torch.sqrt((1.0 - w) ** 2 + w * w)
+
+
+def knot_gauss(stream: int, j: torch.Tensor, *keys: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(G(keys, j), G(keys, j + 1)) at every point, the keys and j broadcast together.
+
+    A cloth's keys take few values (a few hundred yarns, knots) over a million samples, so G is
+    hashed once per combination in the keys' ranges and gathered: the same numbers as
+    :func:`knot_gauss_direct`, which hashes every sample, for a small part of its cost. Where the
+    ranges hold more combinations than there are samples, it hashes every sample."""
+    keys = torch.broadcast_tensors(*(k.to(torch.int64) for k in keys), j)
+    if keys[0].numel() == 0:
+        return knot_gauss_direct(stream, j, *keys[:-1])
+    lows = [int(k.min()) for k in keys]
+    spans = [int(k.max()) - low + 1 for k, low in zip(keys, lows)]
+    spans[-1] += 1                                  # the last knot's following one
+    if math.prod(spans) >= keys[0].numel():
+        return knot_gauss_direct(stream, j, *keys[:-1])
+    grid = torch.meshgrid(*(torch.arange(low, low + span, device=j.device) for low, span in zip(lows, spans)),
+                          indexing="ij")
+    table = gauss(stream, *grid).reshape(-1)
+    index = torch.zeros_like(keys[0])
+    for k, low, span in zip(keys, lows, spans):
+        index = index * span + (k - low)
+    return table[index], table[index + 1]         # j is the grid's last axis: j + 1 is the next entry
+
+
+def knot_gauss_direct(stream: int, j: torch.Tensor, *keys: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`knot_gauss` hashed at every sample (its plain twin, and its path for sparse keys)."""
+    return gauss(stream, *keys, j), gauss(stream, *keys, j + 1)
 
 
 @dataclass(frozen=True)
