@@ -14,25 +14,32 @@ from conftest import ROOT
 from oracles import reference
 
 from backend.app.cli.main import build_parser
+from backend.app.folder import _blur_at_ceiling
 from backend.core.fit_options import BLUR_ON
 from backend.core.params import FabricParams
 from backend.core.priors import FIT_PATTERNS, typical
 from backend.core.protocol import decode
 from backend.core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX, CaptureRig
+from backend.fit import search as fit_search
 from backend.fit.gram import GramDescriptor, GramWeightsError, vgg19_features
 from backend.fit.objective import Objective, Target
 from backend.fit.optimise import Run, parabolic_step
 from backend.fit.pipeline import _objective, fit
 from backend.fit.search import (
+    BLUR_ALLOWANCE_PX,
+    BLUR_SCAN,
     COVERAGE_MARGIN,
+    BlurRange,
     Trial,
+    blur_range,
+    blur_scan,
     chosen,
     family_lattices,
     rated_candidates,
     samples_per_pixel,
     working_size,
 )
-from backend.fit.settings import FitSettings
+from backend.fit.settings import FitResult, FitSettings
 from backend.image import metrics
 from backend.model.param_tensors import ParamTensors, as_float
 from backend.model.render import Renderer, render_pair
@@ -299,7 +306,7 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     photos = render_pair(TWILL, rig, size=256, spp=8, seed=3)
     settings = FitSettings(pattern="twill1", size=256, spp=4, compile=False)
     objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
-    run = Run(TWILL, objective, settings, 8, start, blur_floor=0.5)
+    run = Run(TWILL, objective, settings, 8, start, blur_range=BlurRange(0.5, MAX_CAMERA_BLUR_PX))
     blurs = [run.camera_blur_px]
     for _ in range(8):
         run.step()
@@ -315,10 +322,45 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     for _ in range(3):
         fixed.step()
     assert fixed.camera_blur_px == start
-    floored = Run(TWILL, objective, settings, 3, 3.51, blur_floor=3.5)  # the loss is lower below the floor
+    # the loss is lower below the floor
+    floored = Run(TWILL, objective, settings, 3, 3.51, blur_range=BlurRange(3.5, MAX_CAMERA_BLUR_PX))
     for _ in range(3):
         floored.step()
     assert floored.camera_blur_px == 3.5
+    # the photos' 2.5 px lie above the range's ceiling: the blur goes no further than the ceiling
+    capped = Run(TWILL, objective, settings, 3, 0.95, blur_range=BlurRange(0.5, 1.0))
+    for _ in range(3):
+        capped.step()
+    assert capped.camera_blur_px == 1.0
+
+
+def test_the_blur_range_runs_from_the_photos_reading_to_the_allowance_above_it(monkeypatch):
+    """blur_range: none for sharp photos or a blur given; else from the reading to BLUR_ALLOWANCE_PX
+    above it (within MAX_CAMERA_BLUR_PX); the scan keeps to it, with the ceiling in place of the scan
+    values it cuts off; the discrete search's blur steps are clamped to it."""
+    image = np.zeros((8, 8, 3))
+    for reading, expected in ((0.1, None), (0.8, BlurRange(0.8, 0.8 + BLUR_ALLOWANCE_PX)),
+                              (3.5, BlurRange(3.5, MAX_CAMERA_BLUR_PX)), (9.0, BlurRange(MAX_CAMERA_BLUR_PX,
+                                                                                         MAX_CAMERA_BLUR_PX))):
+        monkeypatch.setattr(fit_search, "photo_blur_px", lambda *_, value=reading: value)
+        assert blur_range(FitSettings(), image, image, 512) == expected
+    assert blur_range(FitSettings(camera_blur=1.2), image, image, 512) is None
+    assert blur_scan(BlurRange(0.8, 1.8)) == (0.8, 1.0, 1.5, 1.8)
+    assert blur_scan(BlurRange(0.8, 1.8), also=1.2) == (0.8, 1.0, 1.5, 1.8, 1.2)
+    assert blur_scan(BlurRange(0.8, MAX_CAMERA_BLUR_PX)) == (0.8,) + tuple(b for b in BLUR_SCAN if b > 0.8)
+    assert blur_scan(BlurRange(1.5, 2.0)) == (1.5, 2.0)
+    assert [BlurRange(0.8, 1.8).clamped(b) for b in (0.2, 1.1, 2.5)] == [0.8, 1.1, 1.8]
+
+
+def test_a_blur_left_at_the_photos_ceiling_is_listed_with_the_parameters_at_bounds():
+    def result(blur, allowed):
+        return FitResult(TWILL, 1.0, {}, [], [], camera_blur_px=blur, camera_blur_range=allowed)
+
+    [line] = _blur_at_ceiling(result(1.8, (0.8, 1.8)))
+    assert line.startswith("camera_blur_px = 1.8 (upper bound")
+    assert _blur_at_ceiling(result(1.79, (0.8, 1.8))) == []
+    assert _blur_at_ceiling(result(0.8, (0.8, 1.8))) == []     # at the floor: the photos' own reading
+    assert _blur_at_ceiling(result(2.0, None)) == []           # a blur given, not estimated
 
 
 def test_each_step_takes_its_gradient_through_the_next_share_of_the_rows(monkeypatch):

@@ -17,10 +17,11 @@ import pytest
 import torch
 
 from backend.core.params import FabricParams
-from backend.core.rig import DEFAULT_RIG
+from backend.core.rig import DEFAULT_RIG, MAX_CAMERA_BLUR_PX
 from backend.fit.objective import Objective, Target
 from backend.fit.optimise import Run
 from backend.fit.pipeline import _objective, fit
+from backend.fit.search import BlurRange
 from backend.fit.settings import OPTIMISED, FitSettings
 from backend.model.param_tensors import ParamTensors
 from backend.model.render import Renderer, render_pair
@@ -123,7 +124,8 @@ def _on_device(run: Run, device: torch.device) -> list[str]:
 def test_a_run_on_cuda_keeps_every_tensor_on_the_device(cuda, photos):
     settings = _settings(cuda)
     objective = _objective(*photos, DEFAULT_RIG, settings)
-    run = Run(START, objective, settings, total=6, camera_blur_px=0.8, blur_floor=0.3)
+    run = Run(START, objective, settings, total=6, camera_blur_px=0.8,
+              blur_range=BlurRange(0.3, MAX_CAMERA_BLUR_PX))
     losses = [run.step() for _ in range(3)]
     run.discrete_search(0)
     losses += [run.step() for _ in range(2)]
@@ -136,7 +138,7 @@ def test_a_run_on_cuda_keeps_every_tensor_on_the_device(cuda, photos):
 def test_an_adam_step_waits_for_the_device_only_a_few_times(cuda, photos):
     settings = _settings(cuda)
     run = Run(START, _objective(*photos, DEFAULT_RIG, settings), settings, total=20, camera_blur_px=0.8,
-              blur_floor=0.3)
+              blur_range=BlurRange(0.3, MAX_CAMERA_BLUR_PX))
     run.step()  # the first step makes the camera samples, geometry and lattice probe
     steps = 4
     torch.cuda.synchronize()

@@ -161,6 +161,16 @@ def _photo_paths(reflection: str | Path | None, transmission: str | Path | None,
     return Path(reflection), Path(transmission), None
 
 
+def _blur_at_ceiling(result) -> list[str]:
+    """The camera blur, in the style of :meth:`FabricParams.at_bounds`, where the fit left it at the
+    most the photos allow (``FitResult.camera_blur_range``): the loss wanted a softer render there."""
+    allowed = result.camera_blur_range
+    if allowed is None or result.camera_blur_px < allowed[1]:
+        return []
+    return [f"camera_blur_px = {result.camera_blur_px:g} (upper bound: the photos' blur reading + "
+            f"{allowed[1] - allowed[0]:g} px)"]
+
+
 def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None, out: Path,
                   options: FolderFitOptions, reporter: Reporter, should_stop: Callable[[], bool],
                   example: bool = False, written: dict[str, str] | None = None) -> int:
@@ -191,11 +201,12 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     rig = dataclasses.replace(rig, camera_blur_px=round(result.camera_blur_px, 4), glow_strength=result.glow_strength,
                               sample_rotation_deg=round(result.sample_rotation_deg, 4),
                               sample_skew_deg=round(result.sample_skew_deg, 4))
-    at_bounds = result.params.at_bounds(FITTED)
+    at_bounds = result.params.at_bounds(FITTED) + _blur_at_ceiling(result)
     extra = {"interchange": result.params.to_interchange(), "version": __version__, "rig": rig.to_dict(),
              "fit": {"loss": result.loss, "terms": result.terms, "candidates": result.candidates,
                      "at_bounds": at_bounds, "light_falloff": result.light.to_dict(),
                      "spacing_warp": None if result.warp is None else result.warp.to_dict(),
+                     "camera_blur_range_px": result.camera_blur_range,
                      "variation": result.variation,
                      "settings": {"pattern": settings.pattern, "iterations": result.iterations, "steps": result.steps,
                                   "size": result.size, "spp": result.spp, "seed": settings.seed}},

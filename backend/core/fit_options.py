@@ -199,8 +199,10 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
               setting="camera_blur", batch=True,
               help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's non-zero "
                    "camera_blur_px is kept) or fixed",
-              details="With auto it is estimated by gradient with the fabric's parameters, never below the blur the "
-                      "photos' noise spectrum reads (`camera_blur_px` in `params.json`'s rig)."),
+              details="With auto it is estimated by gradient with the fabric's parameters, from the blur the "
+                      "photos' noise spectrum reads to 1 pixel above it, so that a softer render cannot hide texture "
+                      "the photos show (`camera_blur_px` in `params.json`'s rig; the range in its `fit`; a blur left "
+                      "at the top is listed with the parameters at a bound)."),
     FitOption("sample_rotation", AUTO_OR_NUMBER, "auto", lo=-MAX_SAMPLE_ROTATION_DEG, hi=MAX_SAMPLE_ROTATION_DEG,
               unit="degrees", metavar="auto|DEG", setting="sample_rotation", batch=True,
               help="how far the sample is turned in the holder (counter-clockwise, degrees): read from the photos with "

@@ -21,7 +21,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import torch
 
@@ -33,6 +33,9 @@ from ..model.spacing_warp import SpacingWarp
 from .objective import Objective
 from .settings import OPTIMISED, FitSettings
 from .warp import reread
+
+if TYPE_CHECKING:
+    from .search import BlurRange
 
 LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
 # The strengths of the back light's glow through the gaps (the rig's glow_strength; the spec's rig: 8)
@@ -59,10 +62,11 @@ class _WarpTrial:
 class Run:
     """Parameters (as tensors), their Adam state and the best parameters seen.
 
-    ``camera_blur_px`` is the camera blur the run renders with. With a ``blur_floor`` it is estimated:
-    Adam moves it with the continuous parameters (learning rate ``lr`` times its range, from the floor
-    to MAX_CAMERA_BLUR_PX, on the same schedule), and the discrete search by parabolic steps, never
-    below the floor; with None it stays fixed. ``total`` is the number of Adam steps the
+    ``camera_blur_px`` is the camera blur the run renders with. With a ``blur_range``
+    (:class:`backend.fit.search.BlurRange`) it is estimated within it: Adam moves it with the
+    continuous parameters (learning rate ``lr`` times the span from the floor to MAX_CAMERA_BLUR_PX,
+    on the same schedule: the ceiling bounds the blur, it does not set its scale), and the discrete
+    search by parabolic steps; with None it stays fixed. ``total`` is the number of Adam steps the
     learning-rate schedule spans.
 
     Why by gradient: the blur and the fabric trade off along a valley (a softer camera and sharper
@@ -71,14 +75,14 @@ class Run:
     """
 
     def __init__(self, params: FabricParams, objective: Objective, settings: FitSettings, total: int,
-                 camera_blur_px: float, blur_floor: float | None = None):
+                 camera_blur_px: float, blur_range: BlurRange | None = None):
         self.objective, self.settings, self.total = objective, settings, total
-        self.blur_floor = blur_floor
+        self.blur_range = blur_range
         # float64: a fixed blur reads back as the number given; the renders take it as their sigma
         self._blur = torch.tensor(float(camera_blur_px), dtype=torch.float64, device=objective.renderer.device)
         self.base_lr = [settings.lr * (SPECS[n].hi - SPECS[n].lo) for n in OPTIMISED]
-        if blur_floor is not None:
-            self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_floor))
+        if blur_range is not None:
+            self.base_lr.append(settings.lr * (MAX_CAMERA_BLUR_PX - blur_range.floor))
         self.step_count = 0
         self.lr_factor: float | None = None  # in place of the schedule's factor (start_over_from)
         self.lowered = False  # at the schedule's last rates from a stall on (lower_rate)
@@ -101,7 +105,7 @@ class Run:
 
     @property
     def estimates_blur(self) -> bool:
-        return self.blur_floor is not None
+        return self.blur_range is not None
 
     def _start_from(self, params: FabricParams) -> None:
         self.fabric = ParamTensors.from_params(params, self.objective.renderer.device, requires_grad=OPTIMISED)
@@ -176,7 +180,7 @@ class Run:
         self.fabric.clamp_()
         if self.estimates_blur:
             with torch.no_grad():
-                self._blur.clamp_(self.blur_floor, MAX_CAMERA_BLUR_PX)
+                self._blur.clamp_(self.blur_range.floor, self.blur_range.ceiling)
         self.history.append((self.step_count, value))
         self.step_count += 1
         if self._warp_trial is not None:
@@ -324,13 +328,11 @@ class Run:
 
     def _blur_step(self, current: float, span: float) -> float:
         """The parabolic step of the discrete parameters, on the camera blur."""
-        def clamped(blur):
-            return min(MAX_CAMERA_BLUR_PX, max(self.blur_floor, blur))
-
         def loss_at(blur):
             return self.objective.value(self.fabric, blur)
 
-        self.camera_blur_px, current = parabolic_step(loss_at, self.camera_blur_px, current, span, clamped)
+        self.camera_blur_px, current = parabolic_step(loss_at, self.camera_blur_px, current, span,
+                                                      self.blur_range.clamped)
         return current
 
 

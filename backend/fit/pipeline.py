@@ -133,17 +133,17 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
 
     start_blur = rig.camera_blur_px if settings.camera_blur is None else settings.camera_blur
     starts = _starting_points(found, objective, start_blur, initial_for, on_start)
-    blur, blur_floor = _camera_blur(settings, reflection, transmission, rig.film_size, starts[0].params, objective)
-    if blur_floor is not None and len(starts) > 1:  # the starting losses change with the blur
+    blur, blur_range = _camera_blur(settings, reflection, transmission, rig.film_size, starts[0].params, objective)
+    if blur_range is not None and len(starts) > 1:  # the starting losses change with the blur
         starts = search.reranked(starts, objective.values([s.params for s in starts], [blur] * len(starts)))
-    trials = trial_runs(starts, objective, coarse, blur, blur_floor, rated, check_stop,
+    trials = trial_runs(starts, objective, coarse, blur, blur_range, rated, check_stop,
                         lambda i, n, selection: progress("search", i, n, selection, None), coverage_of,
                         restarted=coarse is not settings)
     winner = search.chosen(trials)
     run, duel_steps = winner.run, 0
     if coarse is not settings:
         run, duel_steps = _finalist(winner, trials, ruled_out, _objective(reflection, transmission, rig, settings),
-                                    objective, settings, blur, blur_floor, initial_for, check_stop, progress)
+                                    objective, settings, blur, blur_range, initial_for, check_stop, progress)
     timings["search_s"] = time.perf_counter() - started
 
     loop_started = time.perf_counter()
@@ -159,7 +159,8 @@ def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = Capt
     return FitResult(run.best, run.best_loss, run.best_terms, [t.summary for t in trials] + ruled_out,
                      run.history, timings, run.best_blur, rotation, skew, light, settings.size, settings.spp,
                      settings.iterations, steps, run.objective.renderer.warp,
-                     None if variation is None else variation.to_dict(), run.objective.renderer.rig.glow_strength)
+                     None if variation is None else variation.to_dict(), run.objective.renderer.rig.glow_strength,
+                     None if blur_range is None else (blur_range.floor, blur_range.ceiling))
 
 
 def _objective(reflection, transmission, rig: CaptureRig, settings: FitSettings) -> Objective:
@@ -208,23 +209,25 @@ def _starting_points(candidates: list[Candidate], objective: Objective, camera_b
 
 
 def _camera_blur(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int,
-                 best_start: FabricParams, objective: Objective) -> tuple[float, float | None]:
-    """(camera blur to fit with, its lower bound while fitting, or None where it stays fixed):
-    the scan's choice at the best start, from the photos' reading up (:func:`search.blur_floor`)."""
-    floor = search.blur_floor(settings, reflection, transmission, film_size)
-    if floor is None:
+                 best_start: FabricParams, objective: Objective) -> tuple[float, search.BlurRange | None]:
+    """(camera blur to fit with, the range it may move in while fitting, or None where it stays
+    fixed): the scan's choice at the best start, in the range the photos allow
+    (:func:`search.blur_range`)."""
+    allowed = search.blur_range(settings, reflection, transmission, film_size)
+    if allowed is None:
         return search.fixed_blur(settings), None
-    return _best_blur(best_start, objective, floor), floor
+    return _best_blur(best_start, objective, allowed), allowed
 
 
-def _best_blur(params: FabricParams, objective: Objective, floor: float, also: float | None = None) -> float:
-    """The camera blur of :func:`search.blur_scan` (``floor`` up, and ``also``) with the lowest loss."""
-    scan = search.blur_scan(floor, also)
+def _best_blur(params: FabricParams, objective: Objective, allowed: search.BlurRange,
+               also: float | None = None) -> float:
+    """The camera blur of :func:`search.blur_scan` (in ``allowed``, and ``also``) with the lowest loss."""
+    scan = search.blur_scan(allowed, also)
     return search.best_blur(scan, objective.values([params] * len(scan), scan))
 
 
 def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSettings, camera_blur_px: float,
-               blur_floor: float | None, rated: dict[int, float], check_stop: Callable[[Run], None],
+               blur_range: search.BlurRange | None, rated: dict[int, float], check_stop: Callable[[Run], None],
                on_trial: Callable[[int, int, float], None],
                coverage_of: Callable[[Candidate], float], restarted: bool = False) -> list[search.Trial]:
     """The trials of the best ``settings.trials`` starts: a short fit of each that
@@ -244,7 +247,7 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
     stepped, done = sum(tried for tried, _ in plan), 0
     trials = []
     for start, coverage, (tried, skipped) in zip(shortlisted, coverages, plan):
-        run = Run(start.params, objective, settings, total, camera_blur_px, blur_floor)
+        run = Run(start.params, objective, settings, total, camera_blur_px, blur_range)
         for _ in range(settings.trial_iterations if tried else 0):
             run.step()
             check_stop(run)
@@ -260,7 +263,8 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
 
 
 def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], fine: Objective,
-              coarse: Objective, settings: FitSettings, blur: float, blur_floor: float | None, initial_for,
+              coarse: Objective, settings: FitSettings, blur: float, blur_range: search.BlurRange | None,
+              initial_for,
               check_stop, progress: Progress) -> tuple[Run, int]:
     """(the run that goes on at the working size, the steps it has had), where the search ran coarse.
 
@@ -275,24 +279,24 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     loss there (``fine_trial_loss``).
 
     Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
-    photos' reading (``blur_floor``), the winner first also runs from its start at the reading for
+    photos' reading (``blur_range.floor``), the winner first also runs from its start at the reading for
     those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     # the schedule of a run at the base size (its trial steps and the optimiser's), though this one has
     # no trial steps: it ends at a quarter of the base rate, not an eighth (an eighth measured no
     # better: devtools/bench/results/history/fit.jsonl)
     total = settings.iterations + settings.trial_iterations
-    runs = [_fine_run(params, fine, settings, total, blur, blur_floor) for params, _ in finalists]
+    runs = [_fine_run(params, fine, settings, total, blur, blur_range) for params, _ in finalists]
     steps = min(settings.duel_iterations, settings.iterations)
-    duelling_blur = blur_floor is not None and runs[0].camera_blur_px > blur_floor + BLUR_DUEL_PX
+    duelling_blur = blur_range is not None and runs[0].camera_blur_px > blur_range.floor + BLUR_DUEL_PX
     if steps == 0 or (len(runs) == 1 and not duelling_blur):
         return runs[0], 0
     scanned_blur = runs[0].camera_blur_px  # where the winner starts: its run moves the blur from there
     if duelling_blur:  # the winner also from the photos' blur: the scan's choice can be a valley
-        runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_floor, blur_floor))
+        runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_range.floor, blur_range))
     _duel_steps(runs, steps, check_stop, progress)
     if duelling_blur:
-        runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_floor)]
+        runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_range.floor)]
     for (_, summary), run in zip(finalists, runs):
         summary["fine_trial_loss"] = run.best_loss
     if len(runs) == 1:
@@ -318,12 +322,12 @@ def _finalists(winner: search.Trial, trials: list[search.Trial], ruled_out: list
 
 
 def _fine_run(params: FabricParams, fine: Objective, settings: FitSettings, total: int, blur: float,
-              blur_floor: float | None) -> Run:
+              blur_range: search.BlurRange | None) -> Run:
     """A run from ``params`` at the working size; where the blur is estimated, from the scan's choice
     there (the blur that matched at BASE_SIZE need not match at the working size)."""
-    run = Run(params, fine, settings, total, blur, blur_floor)
-    if blur_floor is not None:
-        run.camera_blur_px = _best_blur(run.best, fine, blur_floor, also=blur)
+    run = Run(params, fine, settings, total, blur, blur_range)
+    if blur_range is not None:
+        run.camera_blur_px = _best_blur(run.best, fine, blur_range, also=blur)
     return run
 
 

@@ -14,8 +14,8 @@ the trials, and hands the numbers to these functions, which never call back.
    scales (:func:`gap_variants`, :func:`lowest`); ranked by loss (:func:`ranked`).
 3. Camera blur: fixed when given; none for photos whose noise is as white as a render's
    (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`blur_scan`,
-   :func:`best_blur`), never below the blur the photos' noise shows (:func:`blur_floor`), which also
-   becomes the optimiser's lower bound.
+   :func:`best_blur`) within the range the photos' noise allows (:func:`blur_range`: from the blur
+   it shows to BLUR_ALLOWANCE_PX above), which also bounds the optimiser.
 4. Trials: the best ``trials`` starts get a short fit each (:func:`trial_plan`); the pattern is the
    one whose trial ends lowest in
 
@@ -50,6 +50,9 @@ BASE_SIZE, BASE_SPP = 256, 16
 BASE_ITERATIONS, FINE_ITERATIONS = 150, 100
 MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
+# film px a fitted camera blur may lie above the photos' reading: the reading's under-reads of a
+# phone's blur (up to 0.83 px on photo-like pairs), and no room to blur away texture the photos show
+BLUR_ALLOWANCE_PX = 1.0
 COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
 LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
 
@@ -208,22 +211,40 @@ def reranked(starts: list[Start], losses: list[float]) -> list[Start]:
     return ranked([Start(loss, s.order, s.candidate, s.params) for s, loss in zip(starts, losses, strict=True)])
 
 
-def blur_floor(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int
-               ) -> float | None:
-    """The lower bound of the camera blur the fit estimates: the blur the photos' noise shows (at
-    most MAX_CAMERA_BLUR_PX); None where the blur stays fixed (:func:`fixed_blur`).
+@dataclass(frozen=True)
+class BlurRange:
+    """The camera blurs (film pixels) a fit may estimate: from ``floor`` to ``ceiling``."""
+
+    floor: float
+    ceiling: float
+
+    def clamped(self, blur: float) -> float:
+        return min(self.ceiling, max(self.floor, blur))
+
+
+def blur_range(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int
+               ) -> BlurRange | None:
+    """The camera blurs the fit may estimate: from the blur the photos' noise shows (at most
+    MAX_CAMERA_BLUR_PX) to BLUR_ALLOWANCE_PX above it; None where the blur stays fixed
+    (:func:`fixed_blur`).
 
     The fit starts from the loss's choice at the best starting parameters (:func:`best_blur`), and
     the runs move it from there, by gradient and by the discrete searches' parabolic steps
     (:class:`backend.fit.optimise.Run`); where the start is far from the photos that choice can be
     a valley the fit stays in, hence a duel from the floor at the working size
-    (:func:`backend.fit.pipeline._finalist`)."""
+    (:func:`backend.fit.pipeline._finalist`).
+
+    Why a ceiling: a pixel loss falls wherever a softer render hides what the model cannot match
+    (a yarn texture, speckle), so without one a fit can blur a sharp photo's texture away; the
+    photos' reading says how soft the camera is, and the fit's blur may add to it only what the
+    reading can miss."""
     if settings.camera_blur is not None:
         return None
     photo_blur = photo_blur_px(reflection, transmission, film_size)
     if photo_blur < SOFT_PHOTO_PX:
         return None  # as sharp as a render: a blur would only hide model error
-    return min(photo_blur, MAX_CAMERA_BLUR_PX)
+    floor = min(photo_blur, MAX_CAMERA_BLUR_PX)
+    return BlurRange(floor, min(floor + BLUR_ALLOWANCE_PX, MAX_CAMERA_BLUR_PX))
 
 
 def fixed_blur(settings: FitSettings) -> float:
@@ -231,9 +252,12 @@ def fixed_blur(settings: FitSettings) -> float:
     return 0.0 if settings.camera_blur is None else settings.camera_blur
 
 
-def blur_scan(floor: float, also: float | None = None) -> tuple[float, ...]:
-    """The camera blurs to compare: ``floor``, the BLUR_SCAN values above it (and ``also``)."""
-    scan = (floor,) + tuple(b for b in BLUR_SCAN if b > floor)
+def blur_scan(allowed: BlurRange, also: float | None = None) -> tuple[float, ...]:
+    """The camera blurs to compare: the floor, the BLUR_SCAN values above it within the range, the
+    ceiling where the range cuts some off (and ``also``)."""
+    scan = (allowed.floor,) + tuple(b for b in BLUR_SCAN if allowed.floor < b <= allowed.ceiling)
+    if any(b > allowed.ceiling for b in BLUR_SCAN) and allowed.ceiling not in scan:
+        scan += (allowed.ceiling,)
     return scan + ((also,) if also is not None and also not in scan else ())
 
 

@@ -95,3 +95,4 @@ class FitResult:
     warp: SpacingWarp | None = None  # the photos' uneven yarn spacing the renders show (None: even)
     variation: dict | None = None    # the variation reading (VariationEstimate.to_dict; None: not read)
     glow_strength: float = 8.0       # the back light's glow through the gaps the renders show (the rig's unless read)
+    camera_blur_range: tuple[float, float] | None = None  # the blurs the fit could estimate (None: fixed)
