@@ -335,16 +335,20 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
 
 
 def test_the_blur_range_runs_from_the_photos_reading_to_the_allowance_above_it(monkeypatch):
-    """blur_range: none for sharp photos or a blur given; else from the reading to BLUR_ALLOWANCE_PX
-    above it (within MAX_CAMERA_BLUR_PX); the scan keeps to it, with the ceiling in place of the scan
-    values it cuts off; the discrete search's blur steps are clamped to it."""
+    """blur_range: none for sharp photos or a blur given; else from the reading up to
+    MAX_CAMERA_BLUR_PX, or under a ceiling to BLUR_ALLOWANCE_PX above it; the scan keeps to it, with
+    the ceiling in place of the scan values it cuts off; the discrete search's blur steps are
+    clamped to it."""
     image = np.zeros((8, 8, 3))
+    capped = FitSettings(blur_ceiling=True)
     for reading, expected in ((0.1, None), (0.8, BlurRange(0.8, 0.8 + BLUR_ALLOWANCE_PX)),
                               (3.5, BlurRange(3.5, MAX_CAMERA_BLUR_PX)), (9.0, BlurRange(MAX_CAMERA_BLUR_PX,
                                                                                          MAX_CAMERA_BLUR_PX))):
         monkeypatch.setattr(fit_search, "photo_blur_px", lambda *_, value=reading: value)
-        assert blur_range(FitSettings(), image, image, 512) == expected
-    assert blur_range(FitSettings(camera_blur=1.2), image, image, 512) is None
+        assert blur_range(capped, image, image, 512) == expected
+        assert blur_range(FitSettings(), image, image, 512) == (
+            expected and BlurRange(expected.floor, MAX_CAMERA_BLUR_PX))
+    assert blur_range(FitSettings(camera_blur=1.2, blur_ceiling=True), image, image, 512) is None
     assert blur_scan(BlurRange(0.8, 1.8)) == (0.8, 1.0, 1.5, 1.8)
     assert blur_scan(BlurRange(0.8, 1.8), also=1.2) == (0.8, 1.0, 1.5, 1.8, 1.2)
     assert blur_scan(BlurRange(0.8, MAX_CAMERA_BLUR_PX)) == (0.8,) + tuple(b for b in BLUR_SCAN if b > 0.8)

@@ -119,6 +119,7 @@ BEFORE = [
     (["--camera-blur", "0.5", "--sample-rotation", "3"], RIG, {"camera_blur": 0.5, "sample_rotation": 3.0}),
     ([], {"camera_blur_px": 0.0, "sample_rotation_deg": 0.0}, {}),
     (["--glow", "fit"], None, {"estimate_glow": True}),   # declared after the others
+    (["--blur-ceiling", "photos"], None, {"blur_ceiling": True}),
 ]
 
 
@@ -292,7 +293,8 @@ def test_the_help_quotes_the_codes_figures():
     assert f"{DEFAULT_RIG.film_size}" in size.help and "default: 256," in size.help
     assert f"under {AUTO_SUBPIXEL_BELOW_PX:g} render pixels" in OPTIONS["blur_on"].help
     allowance = {1.0: "1 pixel", 0.5: "half a pixel", 2.0: "2 pixels"}[BLUR_ALLOWANCE_PX]
-    assert f"to {allowance} above it" in OPTIONS["camera_blur"].details
+    assert f"plus {allowance}" in OPTIONS["blur_ceiling"].help
+    assert f"at most {allowance} above it" in OPTIONS["camera_blur"].details
     assert OPTIONS["init"].choices == INIT_CHOICES
     assert OPTIONS["pattern"].choices[1:] == FIT_PATTERNS
     low, high = MULTIPLE_ROUGHNESS_RATIO

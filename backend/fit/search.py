@@ -14,8 +14,8 @@ the trials, and hands the numbers to these functions, which never call back.
    scales (:func:`gap_variants`, :func:`lowest`); ranked by loss (:func:`ranked`).
 3. Camera blur: fixed when given; none for photos whose noise is as white as a render's
    (:mod:`backend.image.camera_blur`); otherwise the best of a scan (:func:`blur_scan`,
-   :func:`best_blur`) within the range the photos' noise allows (:func:`blur_range`: from the blur
-   it shows to BLUR_ALLOWANCE_PX above), which also bounds the optimiser.
+   :func:`best_blur`) within :func:`blur_range`: never below the blur the photos' noise shows, and
+   where asked, at most BLUR_ALLOWANCE_PX above it; the range also bounds the optimiser.
 4. Trials: the best ``trials`` starts get a short fit each (:func:`trial_plan`); the pattern is the
    one whose trial ends lowest in
 
@@ -50,8 +50,8 @@ BASE_SIZE, BASE_SPP = 256, 16
 BASE_ITERATIONS, FINE_ITERATIONS = 150, 100
 MIN_PIXELS_PER_YARN = 2.5
 BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
-# film px a fitted camera blur may lie above the photos' reading: the reading's under-reads of a
-# phone's blur (up to 0.83 px on photo-like pairs), and no room to blur away texture the photos show
+# film px a fitted camera blur may lie above the photos' reading under a ceiling (FitSettings.blur_ceiling):
+# the reading's under-reads of a phone's blur (up to 0.83 px on photo-like pairs), little room beyond
 BLUR_ALLOWANCE_PX = 1.0
 COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
 LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
@@ -225,8 +225,8 @@ class BlurRange:
 def blur_range(settings: FitSettings, reflection: np.ndarray, transmission: np.ndarray, film_size: int
                ) -> BlurRange | None:
     """The camera blurs the fit may estimate: from the blur the photos' noise shows (at most
-    MAX_CAMERA_BLUR_PX) to BLUR_ALLOWANCE_PX above it; None where the blur stays fixed
-    (:func:`fixed_blur`).
+    MAX_CAMERA_BLUR_PX) up to MAX_CAMERA_BLUR_PX, or with ``settings.blur_ceiling`` to BLUR_ALLOWANCE_PX
+    above it; None where the blur stays fixed (:func:`fixed_blur`).
 
     The fit starts from the loss's choice at the best starting parameters (:func:`best_blur`), and
     the runs move it from there, by gradient and by the discrete searches' parabolic steps
@@ -235,16 +235,19 @@ def blur_range(settings: FitSettings, reflection: np.ndarray, transmission: np.n
     (:func:`backend.fit.pipeline._finalist`).
 
     Why a ceiling: a pixel loss falls wherever a softer render hides what the model cannot match
-    (a yarn texture, speckle), so without one a fit can blur a sharp photo's texture away; the
-    photos' reading says how soft the camera is, and the fit's blur may add to it only what the
-    reading can miss."""
+    (a yarn texture, speckle, a random yarn pattern), so without one a fit can blur a sharp photo's
+    texture away; the photos' reading says how soft the camera is, and the fit's blur may add to it
+    only what the reading can miss. Why not by default: the other parameters then make up for what
+    the blur hid, and on a real satin the transmission's colour went far off (the benchmark's
+    results)."""
     if settings.camera_blur is not None:
         return None
     photo_blur = photo_blur_px(reflection, transmission, film_size)
     if photo_blur < SOFT_PHOTO_PX:
         return None  # as sharp as a render: a blur would only hide model error
     floor = min(photo_blur, MAX_CAMERA_BLUR_PX)
-    return BlurRange(floor, min(floor + BLUR_ALLOWANCE_PX, MAX_CAMERA_BLUR_PX))
+    return BlurRange(floor, min(floor + BLUR_ALLOWANCE_PX, MAX_CAMERA_BLUR_PX) if settings.blur_ceiling
+                     else MAX_CAMERA_BLUR_PX)
 
 
 def fixed_blur(settings: FitSettings) -> float:

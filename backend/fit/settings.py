@@ -61,6 +61,8 @@ class FitSettings:
     vgg_weights: str | None = None   # adds the paper's VGG-19 Gram loss (user-supplied weights)
     gram_weight: float = 1.0
     camera_blur: float | None = None  # film pixels; None: estimated from the photos
+    blur_ceiling: bool = False       # an estimated blur at most BLUR_ALLOWANCE_PX above the photos' reading
+                                     # (backend.fit.search.blur_range; fit option --blur-ceiling photos)
     sample_rotation: float | None = None  # degrees; None: read from the photos' spectra
     light_falloff: bool = True       # solve each photo's smooth light falloff (backend.model.photo_light)
     subpixel_blur: bool | None = False  # the camera blur of the loss's renders on sub-pixels (True), on the pixel
