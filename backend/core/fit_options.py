@@ -195,7 +195,8 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
     FitOption("strict", FLAG, False, batch=True, help="refuse (not just warn) photos that look swapped"),
     FitOption("seed", WHOLE, 0, lo=0, hi=MAX_SEED, metavar="S", setting="seed", batch=True,
               help="seed of the fit's random numbers (its renders' sample jitter, torch's generator): the same photos, "
-                   "options and seed give the same fit"),
+                   "options and seed give the same fit on one machine with one thread count (another processor or "
+                   "thread count rounds sums differently, and a fit can end elsewhere)"),
     FitOption("camera_blur", AUTO_OR_NUMBER, "auto", lo=0.0, hi=MAX_CAMERA_BLUR_PX, unit="pixels", metavar="auto|PX",
               setting="camera_blur", batch=True,
               help="the camera's blur in film pixels: estimated with the fit (auto, default; a rig file's non-zero "
