@@ -264,8 +264,7 @@ def trial_runs(starts: list[search.Start], objective: Objective, settings: FitSe
 
 def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], fine: Objective,
               coarse: Objective, settings: FitSettings, blur: float, blur_range: search.BlurRange | None,
-              initial_for,
-              check_stop, progress: Progress) -> tuple[Run, int]:
+              initial_for, check_stop, progress: Progress) -> tuple[Run, int]:
     """(the run that goes on at the working size, the steps it has had), where the search ran coarse.
 
     The winner starts again from its start at the working size, as a lone candidate does: the trial
@@ -279,8 +278,8 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     loss there (``fine_trial_loss``).
 
     Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
-    photos' reading (``blur_range.floor``), the winner first also runs from its start at the reading for
-    those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
+    photos' reading (``blur_range.floor``), the winner first also runs from its start at the reading
+    for those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     # the schedule of a run at the base size (its trial steps and the optimiser's), though this one has
     # no trial steps: it ends at a quarter of the base rate, not an eighth (an eighth measured no
