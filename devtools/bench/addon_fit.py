@@ -162,11 +162,9 @@ def bench_addon_fit(reflection: str | None, transmission: str | None, rounds: in
                 row = {"round": index, "way": way, **{k: round(v, 3) if isinstance(v, float) else v
                                                        for k, v in result.items()}}
                 rows.append(row)
-                print(json.dumps(row) if as_json else _row_text(row), flush=True)
-                ledger.row(row)
+                ledger.print_row(row, as_json, _row_text)
     s = summary(rows)
-    print(json.dumps(s) if as_json else format_summary(s), flush=True)
-    ledger.summary(s)
+    ledger.print_summary(s, as_json, format_summary)
     return 0 if s["failed"] == 0 else 1
 
 

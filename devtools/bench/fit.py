@@ -187,11 +187,9 @@ def bench_fit(synthetic: list[str], real: list[str], names: list[str] | None, ex
                 shutil.rmtree(out)
             row = pair_row(job, run_fit(job["reflection"], job["transmission"], out, extra), novel_light)
             rows.append(row)
-            print(json.dumps(row) if as_json else _format(row), flush=True)
-            ledger.row(row)
+            ledger.print_row(row, as_json, _format)
     summary = summarise(rows)
-    print(json.dumps(summary) if as_json else _format_summary(summary), flush=True)
-    ledger.summary(summary)
+    ledger.print_summary(summary, as_json, _format_summary)
     return 0 if all("error" not in r for r in rows) else 1
 
 

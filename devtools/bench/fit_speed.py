@@ -73,8 +73,7 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
             for mode in order:
                 fit(mode, index, pair, tmp)
     summary = _summary(runs)
-    print(json.dumps(summary) if as_json else _format_summary(summary), flush=True)
-    ledger.summary(summary)
+    ledger.print_summary(summary, as_json, _format_summary)
     return 0 if all("error" not in r for r in runs) else 1
 
 

@@ -14,6 +14,7 @@ import os
 import platform
 import shlex
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -50,6 +51,16 @@ class Ledger:
     def summary(self, data: dict) -> None:
         """The summary the benchmark printed last."""
         self._append("summary", data)
+
+    def print_row(self, data: dict, as_json: bool, text: Callable[[dict], str]) -> None:
+        """Prints a row (as JSON, or ``text(data)``) and records it: the ledger keeps what was shown."""
+        print(json.dumps(data) if as_json else text(data), flush=True)
+        self.row(data)
+
+    def print_summary(self, data: dict, as_json: bool, text: Callable[[dict], str]) -> None:
+        """Prints the summary (as JSON, or ``text(data)``) and records it."""
+        print(json.dumps(data) if as_json else text(data), flush=True)
+        self.summary(data)
 
     def _append(self, kind: str, data: dict) -> None:
         if self.path is None:

@@ -87,6 +87,5 @@ def bench_placement(synthetic: list[str], names: list[str] | None, as_json: bool
     result = summary(rows)
     measured_with = {**result, "gates": {name: value for name, value, _ in table}}
     # as JSON, the summary carries the gates it was measured with, as the ledger keeps it
-    print(json.dumps(measured_with) if as_json else "  ".join(f"{k}={v}" for k, v in result.items()), flush=True)
-    ledger.summary(measured_with)
+    ledger.print_summary(measured_with, as_json, lambda _: "  ".join(f"{k}={v}" for k, v in result.items()))
     return 0

@@ -174,11 +174,9 @@ def bench_profile(pair: tuple[str, str] | None, fit_args: list[str], top: int, a
     if operators is not None:
         rows.append(operator_split(operators.events(), top))
     for row in rows:
-        print(json.dumps(row) if as_json else _text(row), flush=True)
-        ledger.row(row)
+        ledger.print_row(row, as_json, _text)
     summary = {"summary": "profile", "wall_s": round(wall, 2), "fit": command}
-    print(json.dumps(summary) if as_json else f"profiled wall {summary['wall_s']} s (both profilers on)", flush=True)
-    ledger.summary(summary)
+    ledger.print_summary(summary, as_json, lambda s: f"profiled wall {s['wall_s']} s (both profilers on)")
     return 0
 
 
