@@ -148,27 +148,27 @@ def bench_batch(pairs: int, iterations: int, size: int, film: int, cpus_per_fit:
     summary = {"pairs": pairs, "rounds": rounds, "film": film, "size": size, "iterations": iterations,
                "output_spp": OUTPUT_SPP, "cores": cores, "ray_start_s": round(ray_start_s, 1),
                "totals": list(totals.values())}
-    if as_json:
-        print(json.dumps(summary), flush=True)
-    else:
-        print(f"bench batch: {pairs} pairs x {rounds} round(s), film {film} px, --size {size} --iterations "
-              f"{iterations} --output-spp {OUTPUT_SPP}; {cores} cores; Ray's start {ray_start_s:.1f} s (not counted)")
-        for total in totals.values():
-            print(f"  {total['way']:<10} {total['wall_s']:8.1f} s  {total['pairs_per_hour']:7.1f} pairs/hour  "
-                  f"{total['vs_sequential']:.2f}x sequential  ({total['failed']} failed)", flush=True)
-    ledger.summary(summary)
+    ledger.print_summary(summary, as_json, _summary_text)
     return 1 if any(t["failed"] for t in totals.values()) else 0
 
 
 def _show(row: dict, as_json: bool, ledger: Ledger) -> None:
-    shown = {**row, "wall_s": round(row["wall_s"], 1)}
-    if as_json:
-        print(json.dumps(shown), flush=True)
-    else:
-        print(f"round {row['round']}: {row['way']:<10} {row['fits_at_once']} at a time x {row['threads']} thread(s): "
-              f"{row['wall_s']:7.1f} s  {row['pairs_per_hour']:7.1f} pairs/hour  {row['vs_sequential']:.2f}x "
-              f"sequential  ({row['failed']} failed)", flush=True)
-    ledger.row(shown)
+    ledger.print_row({**row, "wall_s": round(row["wall_s"], 1)}, as_json, _row_text)
+
+
+def _row_text(row: dict) -> str:
+    return (f"round {row['round']}: {row['way']:<10} {row['fits_at_once']} at a time x {row['threads']} thread(s): "
+            f"{row['wall_s']:7.1f} s  {row['pairs_per_hour']:7.1f} pairs/hour  {row['vs_sequential']:.2f}x "
+            f"sequential  ({row['failed']} failed)")
+
+
+def _summary_text(summary: dict) -> str:
+    head = (f"bench batch: {summary['pairs']} pairs x {summary['rounds']} round(s), film {summary['film']} px, "
+            f"--size {summary['size']} --iterations {summary['iterations']} --output-spp {summary['output_spp']}; "
+            f"{summary['cores']} cores; Ray's start {summary['ray_start_s']:.1f} s (not counted)")
+    return "\n".join([head] + [f"  {total['way']:<10} {total['wall_s']:8.1f} s  {total['pairs_per_hour']:7.1f} "
+                               f"pairs/hour  {total['vs_sequential']:.2f}x sequential  ({total['failed']} failed)"
+                               for total in summary["totals"]])
 
 
 def _subprocess_loop(tmp: Path, rig_path: Path, fit_options: dict, threads: int, out: Path) -> dict:

@@ -13,7 +13,6 @@ parameters: the largest difference of the fitted values between the two is print
 """
 from __future__ import annotations
 
-import json
 import statistics
 import sys
 import tempfile
@@ -60,8 +59,7 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
                        timings=result["timings"], params=result["params"])
         runs.append(row)
         shown = {k: v for k, v in row.items() if k != "params"}
-        _print_run(shown, as_json)
-        ledger.row(shown)
+        ledger.print_row(shown, as_json, _run_text)
         return row
 
     with tempfile.TemporaryDirectory(prefix="fit-speed-") as tmp_name:
@@ -77,18 +75,14 @@ def bench_fit_speed(reflection: str | None, transmission: str | None, rounds: in
     return 0 if all("error" not in r for r in runs) else 1
 
 
-def _print_run(row: dict, as_json: bool) -> None:
-    if as_json:
-        print(json.dumps(row), flush=True)
-        return
+def _run_text(row: dict) -> str:
     label = "warm-up" if row["round"] == 0 else f"round {row['round']}"
     if "error" in row:
-        print(f"{label:9s} {row['mode']:8s} ERROR {row['error']}", flush=True)
-        return
+        return f"{label:9s} {row['mode']:8s} ERROR {row['error']}"
     cpu = "" if row["cpu_s"] is None else f"  cpu {row['cpu_s']:7.1f} s"
     optimise = row["timings"].get("optimise_s")
-    print(f"{label:9s} {row['mode']:8s} wall {row['wall_s']:7.1f} s{cpu}  (fit {row['timings'].get('total_s')} s, "
-          f"optimise {optimise} s)", flush=True)
+    return (f"{label:9s} {row['mode']:8s} wall {row['wall_s']:7.1f} s{cpu}  (fit {row['timings'].get('total_s')} s, "
+            f"optimise {optimise} s)")
 
 
 def _summary(runs: list[dict]) -> dict:
