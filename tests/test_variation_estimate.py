@@ -18,6 +18,7 @@ from backend.fit.variation_estimate import (
     estimate_variation,
     read_length,
     with_amplitudes,
+    with_scaled_variation,
 )
 from backend.image.metrics import band_power, power_db, texture_gap_db
 from backend.model.render import render_pair
@@ -164,6 +165,60 @@ def test_a_variation_that_costs_the_fabric_its_colour_is_dropped(monkeypatch, da
     assert result.variation["dropped"] == ("colour" if darker else None)
     assert (max(result.variation["colour_shift"]) > pipeline.MEAN_COLOUR_SLACK) is darker
     assert result.params.brightness_variation == pytest.approx((0.0, 0.0) if darker else (0.05, 0.05))
+    # darker: the halved albedos are no part of the amplitudes, so a part of them moves the colour too
+    settled = result.variation["settled"]
+    assert [s["scale"] for s in settled] == pytest.approx(
+        [1.0, pipeline.retreat_scale(max(settled[0]["colour_shift"]))] if darker else [1.0], abs=1e-4)
+    assert result.variation["scale"] == (0.0 if darker else 1.0)
+
+
+def test_a_variation_that_moves_the_colour_in_full_is_kept_at_the_part_that_does_not(monkeypatch):
+    """A reading whose overall colour shift grows with the square of its amplitude (as a convex
+    transmission's does) and is four times the slack in full: the fit settles once more at
+    retreat_scale's part of it, which moves the colour by RETREAT_TARGET of the slack, and keeps that
+    part, saying so; the regular weave's colour is read once."""
+    import backend.fit.pipeline as pipeline
+    from backend.fit.objective import Objective
+    from backend.fit.variation_estimate import VariationEstimate
+
+    amplitude, read = 0.2, []
+    full_shift = 4 * pipeline.MEAN_COLOUR_SLACK
+
+    def reading(params, objective, blur, seed, progress):
+        return (with_amplitudes(params, {"thickness": amplitude}),
+                VariationEstimate({k: amplitude * (k == "thickness") for k in KINDS}, 10.0, 5.0, True))
+
+    def mean_colour_errors(self, params, blur):
+        a = params.thickness_variation[0]
+        read.append(a)
+        return (0.01, 0.01 + full_shift * (a / amplitude) ** 2)
+
+    monkeypatch.setattr(pipeline, "estimate_variation", reading)
+    monkeypatch.setattr(Objective, "mean_colour_errors", mean_colour_errors)
+    photos = render_pair(TWILL, size=64, spp=8, seed=3)
+    settings = FitSettings(pattern="twill1", iterations=2, trial_iterations=1, size=64, spp=4, search_every=0,
+                           compile=False, camera_blur=0.0, sample_rotation=0.0, settle_steps=2)
+    result = pipeline.fit(photos.reflection.numpy(), photos.transmission.numpy(), settings=settings)
+    scale = pipeline.retreat_scale(full_shift)
+    assert scale == pytest.approx(math.sqrt(pipeline.RETREAT_TARGET / 4))
+    assert result.variation["kept"] and result.variation["dropped"] is None
+    assert result.variation["scale"] == pytest.approx(scale, abs=1e-4)
+    assert [s["scale"] for s in result.variation["settled"]] == pytest.approx([1.0, scale], abs=1e-4)
+    assert max(result.variation["colour_shift"]) == pytest.approx(pipeline.RETREAT_TARGET
+                                                                  * pipeline.MEAN_COLOUR_SLACK, abs=1e-5)
+    assert result.params.thickness_variation == pytest.approx((amplitude * scale, amplitude * scale))
+    assert read.count(0.0) == 1  # the regular weave's, once; then each settled one's
+    assert len(read) == 3
+
+
+def test_a_scaled_variation_scales_every_amplitude_and_keeps_its_lengths():
+    varied = with_amplitudes(TWILL, {"thickness": 0.2, "slub": 0.1}, {"thickness": 3.0, "slub": 5.0})
+    half = with_scaled_variation(varied, 0.5)
+    assert half.thickness_variation == pytest.approx((0.1, 0.1))
+    assert half.slub_variation == pytest.approx((0.05, 0.05))
+    assert half.width_variation == (0.0, 0.0)
+    assert (half.thickness_variation_length, half.slub_variation_length) == ((3.0, 3.0), (5.0, 5.0))
+    assert with_scaled_variation(varied, 1.0) is varied
 
 
 def test_a_true_variation_whose_pattern_lies_elsewhere_is_kept(monkeypatch):

@@ -67,7 +67,7 @@ from .gram import GramDescriptor
 from .objective import Objective, Target
 from .optimise import LR_MILESTONES, Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
-from .variation_estimate import READINGS, VariationEstimate, estimate_variation
+from .variation_estimate import READINGS, VariationEstimate, estimate_variation, with_scaled_variation
 
 # The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
 BLUR_DUEL_PX = 0.25
@@ -80,6 +80,9 @@ SETTLE_LR_FACTOR = 0.5 ** len(LR_MILESTONES)
 # How far a settled varied fit may move either photo's overall colour from the photo's beyond where the
 # regular weave has it (display units: one code value of an 8-bit image, a shift no display shows).
 MEAN_COLOUR_SLACK = 1 / 255
+# A variation that moved the colour too far is settled once more at a part of its amplitudes, chosen for a
+# shift of this part of MEAN_COLOUR_SLACK (:func:`retreat_scale`): room for the settling's own scatter.
+RETREAT_TARGET = 0.5
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -423,37 +426,69 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     learning rates, its best loss counted afresh: the variation moves the images' means (a
     yarn's transmission is convex in its thickness and width), which the albedos and thicknesses
     make up for. Where the settled fit's overall colour of either photo is still more than
-    MEAN_COLOUR_SLACK further from the photo's than the regular weave's, the variation is dropped and
-    the regular weave kept (``reading.dropped``): the settling steps do not always bring a varied
-    transmission's mean back.
+    MEAN_COLOUR_SLACK further from the photo's than the regular weave's, the run settles once more
+    from the regular weave's best at a part of the amplitudes read (:func:`retreat_scale`); where
+    that part moves the colour too far as well, the variation is dropped and the regular weave
+    kept (``reading.dropped``): the settling steps do not always bring a varied transmission's mean
+    back. ``reading.scale`` is the part of the amplitudes read that the fit keeps, and
+    ``reading.settled`` each settling's (scale, colour shift).
 
     Why the overall colour and not the loss's 16 x 16 colour term: a random yarn pattern never lies
     where the photo's does, so in blocks of a few yarns even the true variation adds colour error
     (two independent patterns differ by more than either differs from their mean), and that term
     dropped the variation of most photos that have it; over the whole image the pattern averages
-    out and what is left is the shift of the fabric's colour the guard is for."""
+    out and what is left is the shift of the fabric's colour the guard is for. Why a part before
+    none: the shift grows with the square of the amplitudes where the one it has to make up for is
+    the convexity's, so a smaller variation keeps most of the texture the photos show at a
+    fraction of the shift."""
     total = READINGS + settings.settle_steps
 
-    def counted(done: int) -> None:
+    def counted(done: int, of: int = total) -> None:
         check_stop(run)
-        progress("variation", done, total, run.best_loss, None)
+        progress("variation", done, of, run.best_loss, None)
 
     progress("variation", 0, total, run.best_loss, None)
     varied, reading = estimate_variation(run.best, run.objective, run.best_blur, settings.seed, counted)
     if reading.kept:
         regular = (run.best_loss, run.best, run.best_blur, run.best_terms)
-        run.start_over_from(varied, SETTLE_LR_FACTOR)
-        for step in range(settings.settle_steps):
-            run.step()
-            counted(READINGS + 1 + step)
-        before = run.objective.mean_colour_errors(regular[1], regular[2])
-        after = run.objective.mean_colour_errors(run.best, run.best_blur)
-        reading.colour_shift = tuple(a - b for a, b in zip(after, before))
-        if max(reading.colour_shift) > MEAN_COLOUR_SLACK:
+        start_blur, scale, before = run.camera_blur_px, 1.0, None
+        while True:
+            run.camera_blur_px = start_blur
+            done = READINGS + len(reading.settled) * settings.settle_steps
+            _settle(run, with_scaled_variation(varied, scale), settings,
+                    lambda step: counted(done + 1 + step, max(total, done + settings.settle_steps)))
+            if before is None:  # the regular weave's, read once (after the first settling, as it always was)
+                before = run.objective.mean_colour_errors(regular[1], regular[2])
+            after = run.objective.mean_colour_errors(run.best, run.best_blur)
+            reading.colour_shift = tuple(a - b for a, b in zip(after, before))
+            reading.settled.append({"scale": scale, "colour_shift": reading.colour_shift})
+            if max(reading.colour_shift) <= MEAN_COLOUR_SLACK:
+                reading.scale = scale
+                break
             run.best_loss, run.best, run.best_blur, run.best_terms = regular
-            reading.kept, reading.dropped = False, "colour"
+            if len(reading.settled) > 1:
+                reading.kept, reading.dropped, reading.scale = False, "colour", 0.0
+                break
+            scale = retreat_scale(max(reading.colour_shift))
+        total = READINGS + len(reading.settled) * settings.settle_steps
     progress("variation", total, total, run.best_loss, 0.0)
     return reading
+
+
+def _settle(run: Run, varied: FabricParams, settings: FitSettings, on_step: Callable[[int], None]) -> None:
+    """The run goes on from ``varied`` for ``settings.settle_steps`` steps at SETTLE_LR_FACTOR of the
+    base learning rates, its best counted afresh (:func:`_with_variation`)."""
+    run.start_over_from(varied, SETTLE_LR_FACTOR)
+    for step in range(settings.settle_steps):
+        run.step()
+        on_step(step)
+
+
+def retreat_scale(shift: float) -> float:
+    """The part of a variation's amplitudes to settle again where, in full, it moved an overall colour
+    by ``shift`` (> MEAN_COLOUR_SLACK): the shift taken as growing with the amplitudes' square, the
+    part that moves it by RETREAT_TARGET of the slack."""
+    return math.sqrt(RETREAT_TARGET * MEAN_COLOUR_SLACK / shift)
 
 
 def search_due(settings: FitSettings, done: int) -> bool:

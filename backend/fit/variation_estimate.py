@@ -99,8 +99,10 @@ class VariationEstimate:
     band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # varied (if read kept) - photo
     dropped: str | None = None  # why a variation read was dropped after all (the fit's pipeline: "colour")
     # per photo (R, T), how much further the settled varied fit's overall colour is from the photo's than
-    # the regular weave's (the fit's pipeline, where it settled one)
+    # the regular weave's (the fit's pipeline, where it settled one: the last settling's)
     colour_shift: tuple[float, float] | None = None
+    scale: float | None = None  # the part of ``amplitudes`` the fit keeps (the pipeline, where it settled one)
+    settled: list[dict] = field(default_factory=list)  # each settling's {"scale", "colour_shift"} (the pipeline)
 
     @property
     def lengths(self) -> dict[str, float]:
@@ -113,6 +115,9 @@ class VariationEstimate:
                 "gap_before_db": round(self.gap_before_db, 2), "gap_after_db": round(self.gap_after_db, 2),
                 "kept": self.kept, "dropped": self.dropped,
                 "colour_shift": None if self.colour_shift is None else [round(x, 5) for x in self.colour_shift],
+                "scale": None if self.scale is None else round(self.scale, 4),
+                "settled": [{"scale": round(s["scale"], 4), "colour_shift": [round(x, 5) for x in s["colour_shift"]]}
+                            for s in self.settled],
                 "band_gaps_db": {k: [round(x, 2) if np.isfinite(x) else None for x in v]  # None: past Nyquist
                                  for k, v in self.band_gaps_db.items()}}
 
@@ -123,6 +128,14 @@ def with_amplitudes(params: FabricParams, amplitudes: dict[str, float],
     weft alike."""
     return params.replace(**{amplitude_name(k): (a, a) for k, a in amplitudes.items()},
                           **{length_name(k): (n, n) for k, n in (lengths or {}).items()})
+
+
+def with_scaled_variation(params: FabricParams, scale: float) -> FabricParams:
+    """``params`` with every kind's amplitude (warp and weft) times ``scale``; the lengths as they are."""
+    if scale == 1.0:
+        return params
+    return params.replace(**{amplitude_name(k): tuple(a * scale for a in getattr(params, amplitude_name(k)))
+                             for k in KINDS})
 
 
 def bounded_least_squares(a: np.ndarray, b: np.ndarray, upper: np.ndarray) -> np.ndarray:
