@@ -42,6 +42,7 @@ def test_a_run_appends_one_record_per_row_it_prints_and_one_summary(results, pla
     monkeypatch.setenv("WFC_COMPILE", "0")
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     monkeypatch.setenv("UNRELATED", "x")
+    monkeypatch.setenv("MKL_CBWR", "COMPATIBLE")  # a numeric library's code path: it changes the fits' last bits
     argv = ["bench", "placement", "--synthetic", str(tmp_path / "set"), "--json"]
     assert main(argv) == 0
     printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
@@ -52,8 +53,9 @@ def test_a_run_appends_one_record_per_row_it_prints_and_one_summary(results, pla
         assert set(record) == RUN_FIELDS
         assert record["bench"] == "placement" and record["command"] == "python -m devtools " + " ".join(argv)
         assert record["datasets"] == [str((tmp_path / "set").resolve())]
-        assert record["environment"] == {"OMP_NUM_THREADS": "3", "WFC_COMPILE": "0"}
-        assert set(record["machine"]) == {"cpu", "cores", "torch_threads", "device", "gpu"}
+        assert record["environment"] == {"MKL_CBWR": "COMPATIBLE", "OMP_NUM_THREADS": "3", "WFC_COMPILE": "0"}
+        assert set(record["machine"]) == {"cpu", "cores", "torch_threads", "kernels", "device", "gpu"}
+        assert record["machine"]["kernels"] == ledger.kernels()
         assert record["machine"]["device"] == "cpu" and record["machine"]["torch_threads"] >= 1
     assert len({(r["date"], r["commit"]) for r in records}) == 1  # the run's context, read once
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", records[0]["date"])
@@ -144,3 +146,24 @@ def test_evaluate_init_records_each_case_as_a_row_and_its_report_without_them_as
     assert summary["data"]["fits"]["iterations"] == 5 and "cases" not in summary["data"]["fits"]
     assert summary["data"]["fits"]["summary"]["network"]["pattern_accuracy"] == 1.0
     assert summary["datasets"] == [str(tmp_path.resolve())]
+
+
+def test_the_machine_s_kernels_are_the_vector_code_the_libraries_run():
+    """In a process told to keep to AVX2 (torch's ATEN_CPU_CAPABILITY, NumPy's dispatch without its
+    AVX-512 targets), the ledger's ``kernels`` say AVX2 for both, on any machine that has AVX2; a
+    machine without it runs neither, and says so."""
+    import os
+    import sys
+
+    import torch
+
+    native = ledger.kernels()
+    if native["torch"] not in ("AVX2", "AVX512"):
+        pytest.skip(f"this CPU runs torch's {native['torch']} kernels: no AVX2 to keep to")
+    no_avx512 = " ".join(f"AVX512{suffix}" for suffix in ("F", "CD", "_SKX", "_CLX", "_CNL", "_ICL", "_SPR"))
+    env = dict(os.environ, ATEN_CPU_CAPABILITY="avx2", NPY_DISABLE_CPU_FEATURES=no_avx512)
+    done = subprocess.run([sys.executable, "-c", "import json; from devtools.bench.ledger import kernels; "
+                           "print(json.dumps(kernels()))"], env=env, capture_output=True, text=True, check=True,
+                          cwd=ledger.ROOT)
+    assert json.loads(done.stdout.splitlines()[-1]) == {"torch": "AVX2", "numpy": "AVX2"}
+    assert native["torch"] == torch.backends.cpu.get_cpu_capability()

@@ -96,16 +96,44 @@ def run_context(bench: str, argv: list[str], datasets: list[str], device: str, r
             "machine": machine(device), "datasets": [str(Path(folder).resolve()) for folder in datasets]}
 
 
+# Variables that choose the numeric libraries' code paths, and so the last bits of every fit
+# (a fit's choices amplify them): ATen's and NumPy's vector instructions, MKL's branch, oneDNN's.
+KERNEL_SWITCHES = ("ATEN_CPU_CAPABILITY", "NPY_DISABLE_CPU_FEATURES", "NPY_ENABLE_CPU_FEATURES", "MKL_CBWR",
+                   "MKL_ENABLE_INSTRUCTIONS", "ONEDNN_MAX_CPU_ISA")
+
+
 def _environment() -> dict:
     """The variables set that change what a benchmark measures: the renderer's compile switch
-    (``WFC_COMPILE``) and the thread counts its fits inherit."""
-    return {name: value for name, value in sorted(os.environ.items()) if name.startswith("WFC_") or name in THREADS}
+    (``WFC_COMPILE``), the thread counts its fits inherit and the numeric libraries' code paths."""
+    return {name: value for name, value in sorted(os.environ.items())
+            if name.startswith("WFC_") or name in THREADS or name in KERNEL_SWITCHES}
 
 
 def machine(device: str) -> dict:
-    """The CPU's model, its cores, this process's torch threads and the device the benchmark ran on."""
+    """The CPU's model, its cores, this process's torch threads, the vector code its numeric libraries
+    run (:func:`kernels`) and the device the benchmark ran on."""
     return {"cpu": _cpu_model(), "cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-            "device": device, "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+            "kernels": kernels(), "device": device,
+            "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def kernels() -> dict:
+    """The vector instructions PyTorch's CPU kernels use and the widest that NumPy dispatches to:
+    two machines whose fits give different numbers from the same photos and code differ here (or in
+    the CPU's vendor, for MKL, or in the thread count). Figures from runs that differ in them are
+    different fits, not a change's effect."""
+    return {"torch": torch.backends.cpu.get_cpu_capability(), "numpy": _numpy_widest()}
+
+
+def _numpy_widest() -> str | None:
+    """The last of NumPy's dispatch targets this machine has and NumPy uses (None where it does not say)."""
+    try:
+        from numpy._core import _multiarray_umath as umath
+    except ImportError:
+        from numpy.core import _multiarray_umath as umath
+    features = getattr(umath, "__cpu_features__", {})
+    used = [name for name in getattr(umath, "__cpu_dispatch__", []) if features.get(name)]
+    return used[-1] if used else None
 
 
 def _cpu_model() -> str | None:
