@@ -20,7 +20,8 @@ taking the values the one before returned.
                goes on from its best at that rate
     variation  the yarn variation the photos show, read from the texture power the regular weave
                leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
-               goes on from it for ``settings.settle_steps`` steps (:func:`_with_variation`)
+               goes on from it for ``settings.settle_steps`` steps, and once more from a part of it
+               where it moved the photos' overall colour too far (:func:`_with_variation`)
     coarse to fine
                with a working size above BASE_SIZE (dense weaves), the search runs at BASE_SIZE with
                the same samples per image, its camera blur on sub-pixels (:func:`_coarse`), and only
