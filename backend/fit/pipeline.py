@@ -84,6 +84,7 @@ MEAN_COLOUR_SLACK = 1 / 255
 # A variation that moved the colour too far is settled once more at a part of its amplitudes, chosen for a
 # shift of this part of MEAN_COLOUR_SLACK (:func:`retreat_scale`): room for the settling's own scatter.
 RETREAT_TARGET = 0.5
+SETTLINGS = 2  # the variation's settlings at most: in full, then once at retreat_scale's part
 
 
 def fit(reflection: np.ndarray, transmission: np.ndarray, rig: CaptureRig = CaptureRig(),
@@ -453,24 +454,22 @@ def _with_variation(run: Run, settings: FitSettings, check_stop, progress: Progr
     if reading.kept:
         regular = (run.best_loss, run.best, run.best_blur, run.best_terms)
         start_blur, scale, before = run.camera_blur_px, 1.0, None
-        while True:
+        for settling in range(SETTLINGS):
             run.camera_blur_px = start_blur
-            done = READINGS + len(reading.settled) * settings.settle_steps
+            done = READINGS + settling * settings.settle_steps
             _settle(run, with_scaled_variation(varied, scale), settings,
                     lambda step: counted(done + 1 + step, max(total, done + settings.settle_steps)))
             if before is None:  # the regular weave's, read once (after the first settling, as it always was)
                 before = run.objective.mean_colour_errors(regular[1], regular[2])
             after = run.objective.mean_colour_errors(run.best, run.best_blur)
-            reading.colour_shift = tuple(a - b for a, b in zip(after, before))
-            reading.settled.append({"scale": scale, "colour_shift": reading.colour_shift})
-            if max(reading.colour_shift) <= MEAN_COLOUR_SLACK:
-                reading.scale = scale
+            shift = tuple(a - b for a, b in zip(after, before))
+            reading.settled.append({"scale": scale, "colour_shift": shift})
+            if max(shift) <= MEAN_COLOUR_SLACK:
                 break
             run.best_loss, run.best, run.best_blur, run.best_terms = regular
-            if len(reading.settled) > 1:
-                reading.kept, reading.dropped, reading.scale = False, "colour", 0.0
-                break
-            scale = retreat_scale(max(reading.colour_shift))
+            scale = retreat_scale(max(shift))
+        else:
+            reading.kept, reading.dropped = False, "colour"
         total = READINGS + len(reading.settled) * settings.settle_steps
     progress("variation", total, total, run.best_loss, 0.0)
     return reading

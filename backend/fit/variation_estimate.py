@@ -98,11 +98,22 @@ class VariationEstimate:
     kept: bool
     band_gaps_db: dict[str, list[float]] = field(default_factory=dict)  # varied (if read kept) - photo
     dropped: str | None = None  # why a variation read was dropped after all (the fit's pipeline: "colour")
-    # per photo (R, T), how much further the settled varied fit's overall colour is from the photo's than
-    # the regular weave's (the fit's pipeline, where it settled one: the last settling's)
-    colour_shift: tuple[float, float] | None = None
-    scale: float | None = None  # the part of ``amplitudes`` the fit keeps (the pipeline, where it settled one)
-    settled: list[dict] = field(default_factory=list)  # each settling's {"scale", "colour_shift"} (the pipeline)
+    # each settling of the fit's pipeline: {"scale": the part of ``amplitudes`` it settled at, "colour_shift":
+    # per photo (R, T), how much further its overall colour is from the photo's than the regular weave's}
+    settled: list[dict] = field(default_factory=list)
+
+    @property
+    def colour_shift(self) -> tuple[float, float] | None:
+        """The last settling's colour shift (None where the pipeline settled none)."""
+        return self.settled[-1]["colour_shift"] if self.settled else None
+
+    @property
+    def scale(self) -> float | None:
+        """The part of ``amplitudes`` the fit keeps: the last settling's, 0 where it dropped them after
+        settling (None where the pipeline settled none)."""
+        if not self.settled:
+            return None
+        return self.settled[-1]["scale"] if self.kept else 0.0
 
     @property
     def lengths(self) -> dict[str, float]:
