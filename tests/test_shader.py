@@ -2,6 +2,7 @@
 (in Blender subprocesses) OSL compilation, Cycles / EEVEE renders and a cheap validation."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -18,6 +19,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT / "tools"))
 
+import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from addon_support import run_blender  # noqa: E402
@@ -536,3 +538,38 @@ def test_cheap_validation_against_the_backend(tmp_path):
     assert abs(fallback["R_l1"] - case["R_l1"]) < 0.004 and abs(fallback["T_l1"] - case["T_l1"]) < 0.004, fallback
     eevee = figures["engines"]["eevee"]["cases"][0]  # measured 0.0114 and 0.0179
     assert eevee["R_l1"] < 0.025 and eevee["T_l1"] < 0.03, eevee
+
+
+@pytest.mark.blender
+@pytest.mark.slow
+def test_validation_renders_a_fits_yarn_variation_in_both_renderers(tmp_path):
+    """tools/validate_shader.py --set fits: a fit's params.json is rendered with its yarn variation by the
+    backend (a JSON file, not the interchange string, which has none) and by the OSL shader, and the two
+    agree within the cheap run's loose bounds; the same fabric without variation renders otherwise."""
+    regular = FabricParams.from_dict({**FabricParams().to_dict(), "pattern": "twill0", "tiles": (60.0, 60.0)})
+    varied = dataclasses.replace(regular, brightness_variation=(0.4, 0.4), brightness_variation_length=(1.0, 1.0),
+                                 width_variation=(0.3, 0.3))
+    paths = []
+    for name, params in (("regular", regular), ("varied", varied)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "params.json").write_text(params.to_json(rig={}, fit={}))  # as a fit writes it
+        paths.append(str(tmp_path / name / "params.json"))
+    out, cache = tmp_path / "figures.json", tmp_path / "cache"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), "--set", "fits", "--params",
+                           *paths, "--size", "48", "--samples", "16", "--backend-spp", "4", "--threads", "1",
+                           "--engines", "osl", "--cache", str(cache), "--out", str(tmp_path / "images"),
+                           "--json", str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    figures = json.loads(out.read_text())
+    assert figures["sample"] == "out-of-sample"
+    cases = {case["case"]: case for case in figures["engines"]["osl"]["cases"]}
+    assert cases["varied"]["params"]["brightness_variation"] == [0.4, 0.4]
+    rendered = {json.loads((folder / "params.json").read_text())["brightness_variation"][0]: folder
+                for folder in cache.iterdir()}
+    assert set(rendered) == {0.0, 0.4}  # the backend rendered (and recorded) each fabric's own variation
+    images = {amplitude: cv2.imread(str(folder / "reflection.png")).astype(float)
+              for amplitude, folder in rendered.items()}
+    assert np.abs(images[0.4] - images[0.0]).mean() > 2.0  # 8-bit levels: the variation shows
+    for case in cases.values():
+        assert case["R_l1"] < 0.06 and case["T_l1"] < 0.06, case

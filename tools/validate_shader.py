@@ -11,8 +11,9 @@ For each parameter set this script
    - ``fallback``: Cycles without OSL (what GPU Cycles shows): the standard-node fallback;
    - ``eevee``: EEVEE: the standard-node fallback (the viewport an artist looks at most);
 
-2. renders the same parameters with the backend (``python -m backend render PARAMS --size N --spp S``;
-   cached in ``--cache``, keyed by the parameters, size, samples and rig);
+2. renders the same parameters with the backend (``python -m backend render params.json --size N --spp S``:
+   a JSON file, which carries the yarn variation the interchange string leaves out; cached in
+   ``--cache``, keyed by the parameters, size, samples and rig);
 3. reports, for reflection (R) and transmission (T), the colour L1 between 16 x 16 area downsamples
    and the spectrum correlation, with the definitions of ``../shared/tools/imagemetrics.py``
    (imported from that file), per case and on average over R, T and the cases.
@@ -24,16 +25,21 @@ Parameter sets:
   figures are **in-sample**;
 - ``--set draws --seed S --per-pattern N``: fresh draws from the spec's dataset priors
   (``backend/core/priors.py::sample``), N per preset weave, ``random.Random(S)``. Any seed other
-  than :data:`TUNING_SEEDS` gives **out-of-sample** figures.
+  than :data:`TUNING_SEEDS` gives **out-of-sample** figures. With ``--variation`` each draw also
+  gets yarn variation from the declared priors (``priors.sample_variation``, from its own generator:
+  the same seed's draws are otherwise the same);
+- ``--set fits --params P.json ...``: the parameters of fits (their ``params.json``, yarn variation
+  included), in the default rig (the fit's sample rotation and camera blur are the photos', not the
+  material's). The shader's constants were never tuned on a fit: **out-of-sample**.
 
 Targets (issue 13, out of sample): Cycles OSL colour L1 <= 0.01 and spectrum correlation >= 0.7;
 the fallback (EEVEE, and Cycles without OSL) colour L1 <= 0.015 and correlation >= 0.6.
 
 Usage::
 
-    .venv/bin/python tools/validate_shader.py [--set golden|draws] [--seed S] [--per-pattern N]
-        [--cases a,b] [--engines osl,eevee,fallback] [--size 256] [--samples 64] [--backend-spp 64]
-        [--threads 0] [--out DIR] [--cache DIR] [--json F] [--floor]
+    .venv/bin/python tools/validate_shader.py [--set golden|draws|fits] [--seed S] [--per-pattern N]
+        [--variation] [--params P.json ...] [--cases a,b] [--engines osl,eevee,fallback] [--size 256]
+        [--samples 64] [--backend-spp 64] [--threads 0] [--out DIR] [--cache DIR] [--json F] [--floor]
 
 ``--floor`` adds the figures of the backend against itself (another jitter seed): the spectrum
 correlation of a reference is limited by its own sampling noise where yarns are smaller than a pixel
@@ -42,6 +48,7 @@ correlation of a reference is limited by its own sampling noise where yarns are 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import importlib.util
 import json
@@ -62,8 +69,8 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from backend.core.params import FabricParams  # noqa: E402  (torch-free)
-from backend.core.priors import PATTERNS, sample  # noqa: E402
+from backend.core.params import FabricParams, load_params  # noqa: E402  (torch-free)
+from backend.core.priors import PATTERNS, sample, sample_variation  # noqa: E402
 from blender_addon.scene import node_group, rig_scene  # noqa: E402
 
 SHARED = ROOT.parent / "shared"  # the shared data beside the checkout (/work/shared)
@@ -103,26 +110,41 @@ def golden_cases(path: Path, names: str | None = None) -> list[tuple[str, Fabric
     return [(c["name"], FabricParams.from_interchange(c["params"])) for c in cases]
 
 
-def prior_draws(seed: int, per_pattern: int = 1, patterns=PATTERNS) -> list[tuple[str, FabricParams]]:
-    """``per_pattern`` draws of the spec's dataset prior for each preset, from ``random.Random(seed)``."""
-    rng = random.Random(seed)
-    return [(f"{pattern}_seed{seed}_{index}", sample(pattern, rng))
-            for index in range(per_pattern) for pattern in patterns]
+def prior_draws(seed: int, per_pattern: int = 1, patterns=PATTERNS, variation: bool = False
+                ) -> list[tuple[str, FabricParams]]:
+    """``per_pattern`` draws of the spec's dataset prior for each preset, from ``random.Random(seed)``;
+    with ``variation`` each also gets yarn variation from the declared priors, drawn from a generator
+    of its own so that the fabrics are the same draws as without it."""
+    rng, varied = random.Random(seed), random.Random(f"variation {seed}")
+    draws = [(f"{pattern}_seed{seed}_{index}", sample(pattern, rng))
+             for index in range(per_pattern) for pattern in patterns]
+    if not variation:
+        return draws
+    return [(f"{name}_varied", dataclasses.replace(params, **sample_variation(varied))) for name, params in draws]
+
+
+def fit_cases(paths: list[str]) -> list[tuple[str, FabricParams]]:
+    """(name, params) of fits' ``params.json`` files, yarn variation included; the name is the fit's
+    folder."""
+    if not paths:
+        raise SystemExit("--set fits needs --params with one or more fits' params.json")
+    return [(Path(path).resolve().parent.name, load_params(str(path))) for path in paths]
 
 
 def in_sample(set_name: str, seed: int | None) -> bool:
-    return set_name == "golden" or seed in TUNING_SEEDS
+    return set_name == "golden" or (set_name == "draws" and seed in TUNING_SEEDS)
 
 
 # -- renders -------------------------------------------------------------------------------------
 def backend_render(params: FabricParams, size: int, spp: int, cache: Path, seed: int = 0,
                    rig: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The backend's displayed pair for ``params`` (``python -m backend render``), cached on disk."""
-    key = json.dumps([params.to_interchange(), size, spp, seed, rig], sort_keys=True)
+    key = json.dumps([params.to_dict(), size, spp, seed, rig], sort_keys=True)
     folder = Path(cache) / hashlib.md5(key.encode(), usedforsecurity=False).hexdigest()
     if not (folder / "transmission.png").is_file():
         folder.mkdir(parents=True, exist_ok=True)
-        cmd = [sys.executable, "-m", "backend", "render", params.to_interchange(), "--out", str(folder),
+        (folder / "fabric.json").write_text(params.to_json())  # the interchange string has no variation
+        cmd = [sys.executable, "-m", "backend", "render", str(folder / "fabric.json"), "--out", str(folder),
                "--spp", str(spp), "--size", str(size), "--seed", str(seed)]
         if rig:
             (folder / "rig.json").write_text(json.dumps(rig))
@@ -194,8 +216,10 @@ def parse_engines(text: str) -> list[str]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--set", choices=("golden", "draws"), default="golden",
-                    help="golden: the dev golden cases (in-sample); draws: fresh prior draws")
+    ap.add_argument("--set", choices=("golden", "draws", "fits"), default="golden",
+                    help="golden: the dev golden cases (in-sample); draws: fresh prior draws; fits: --params files")
+    ap.add_argument("--variation", action="store_true", help="draws: with yarn variation from its priors")
+    ap.add_argument("--params", nargs="+", default=[], help="fits: params.json files of fits")
     ap.add_argument("--seed", type=int, default=7, help="seed of the prior draws (default 7; 1 is the tuning seed)")
     ap.add_argument("--per-pattern", type=int, default=1, help="prior draws per preset weave (default 1)")
     ap.add_argument("--cases", help="comma-separated golden case names (default: every case without flags)")
@@ -214,8 +238,9 @@ def main(argv=None) -> int:
 
     metrics = load_metrics()
     engines = parse_engines(args.engines)
-    cases = golden_cases(Path(args.golden), args.cases) if args.set == "golden" else \
-        prior_draws(args.seed, args.per_pattern)
+    cases = {"golden": lambda: golden_cases(Path(args.golden), args.cases),
+             "draws": lambda: prior_draws(args.seed, args.per_pattern, variation=args.variation),
+             "fits": lambda: fit_cases(args.params)}[args.set]()
     sample_kind = "in-sample" if in_sample(args.set, args.seed) else "out-of-sample"
     out_dir = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="validate_shader_"))
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -224,6 +249,7 @@ def main(argv=None) -> int:
     rows = {engine: [] for engine in engines}
     floors = []
     print(f"{sample_kind} set: {args.set}" + (f" seed {args.seed}, {args.per_pattern} per pattern"
+                                               + (", with yarn variation" if args.variation else "")
                                                if args.set == "draws" else ""), flush=True)
     for name, params in cases:
         ref_R, ref_T = backend_render(params, args.size, args.backend_spp, Path(args.cache))
@@ -232,7 +258,7 @@ def main(argv=None) -> int:
             t0 = time.time()
             R, T = blender.render(params, engine)
             seconds = time.time() - t0
-            row = {"case": name, "params": params.to_interchange(), **compare(metrics, R, T, ref_R, ref_T),
+            row = {"case": name, "params": params.to_dict(), **compare(metrics, R, T, ref_R, ref_T),
                    "seconds": seconds}
             rows[engine].append(row)
             print(row_text(f"{name} [{engine}]", row, f"  {seconds:6.1f} s"), flush=True)
@@ -244,6 +270,7 @@ def main(argv=None) -> int:
         write_png(out_dir / f"{name}_compare.png", np.concatenate(images, 0))  # backend, then each engine
 
     report = {"set": args.set, "seed": args.seed if args.set == "draws" else None, "sample": sample_kind,
+              "variation": args.variation if args.set == "draws" else None,
               "size": args.size, "samples": args.samples, "backend_spp": args.backend_spp, "engines": {}}
     print(HEADER)
     for engine in engines:
