@@ -594,3 +594,31 @@ def test_the_convolution_path_of_the_blur_is_the_matrix_products():
         assert torch.allclose(convolved, (rows @ planes @ cols.T).permute(1, 2, 0))
     small = torch.rand(30, 30, 2, dtype=torch.float64, generator=generator, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: gaussian_blur(x, 0.3), (small,))
+
+
+@pytest.mark.parametrize("sigma", [0.3, 0.9, 2.8])
+def test_the_blur_s_shifted_sums_are_the_depthwise_convolution_with_its_gradients(sigma):
+    """imaging._shifted_sums (the camera blur at stride 1) against PyTorch's depthwise convolution
+    (imaging._depthwise_conv, its plain twin): the same values, and the same gradients with respect to
+    the image and to a tensor sigma's taps, to float rounding."""
+    generator = torch.Generator().manual_seed(11)
+    image = torch.rand(40, 52, 3, dtype=torch.float64, generator=generator, requires_grad=True)
+    weights = torch.rand(40, 52, 3, dtype=torch.float64, generator=generator)
+    radius = imaging.blur_radius(sigma, 39)
+    outputs = []
+    for blur in (imaging._shifted_sums, lambda planes, taps: imaging._depthwise_conv(planes[None], taps)[0]):
+        image.grad = None
+        sigma_t = torch.tensor(sigma, dtype=torch.float64, requires_grad=True)
+        taps = imaging.gaussian_taps(sigma_t, radius, torch.float64)
+        planes = torch.nn.functional.pad(image.permute(2, 0, 1)[None], (radius,) * 4, mode="reflect")[0]
+        out = blur(planes, taps)
+        (out.permute(1, 2, 0) * weights).sum().backward()
+        outputs.append((out.detach(), image.grad.clone(), sigma_t.grad.clone()))
+    (shifted, image_grad, sigma_grad), (conv, conv_image_grad, conv_sigma_grad) = outputs
+    assert shifted.shape == conv.shape == (3, 40, 52)
+    assert torch.allclose(shifted, conv, rtol=1e-12, atol=1e-14)
+    assert torch.allclose(image_grad, conv_image_grad, rtol=1e-12, atol=1e-14)
+    assert torch.allclose(sigma_grad, conv_sigma_grad, rtol=1e-10)
+    numpy_taps = imaging.gaussian_kernel(sigma, radius)  # a fixed blur's taps: plain numbers
+    assert torch.allclose(imaging._shifted_sums(planes.detach(), numpy_taps),
+                          imaging._depthwise_conv(planes.detach()[None], numpy_taps)[0], rtol=1e-12, atol=1e-14)

@@ -148,15 +148,45 @@ def _convolved(image: torch.Tensor, taps: np.ndarray | torch.Tensor, radius: int
     """A depthwise convolution by ``taps`` along the rows, then the columns, of the image
     mirror-padded by ``radius`` ("reflect": the edge sample is not repeated, as in
     :func:`blur_matrix`), evaluated every ``stride`` pixels: :func:`gaussian_blur` with a Gaussian's
-    taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2."""
-    kernel = taps if isinstance(taps, torch.Tensor) else _kernel(tuple(taps), image.dtype, image.device)
-    channels = image.shape[2]
+    taps, :func:`subpixel_blur` with its blur-and-mean taps at stride 2.
+
+    At stride 1 as a sum of shifted copies of the padded planes, one per tap (:func:`_shifted_sums`):
+    the same values as PyTorch's depthwise convolution (:func:`_depthwise_conv`, its plain twin, which
+    the strided blur keeps) and its gradients to float rounding, at half its time or less for the
+    camera's kernels (forward and backward of a 512-px colour image at sigma 0.45-2.8 px, 2 threads).
+    """
     planes = F.pad(image.permute(2, 0, 1)[None], (radius, radius, radius, radius), mode="reflect")
+    if stride == 1:
+        return _shifted_sums(planes[0], taps).permute(1, 2, 0)
+    return _depthwise_conv(planes, taps, stride)[0].permute(1, 2, 0)
+
+
+def _shifted_sums(planes: torch.Tensor, taps: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """The valid part of the convolution of (C, H, W) ``planes`` by ``taps`` along W, then along H:
+    out = sum_k taps[k] shift_k(planes), in the order of the taps. A tensor's taps stay differentiable."""
+    weights = taps if isinstance(taps, torch.Tensor) else [float(t) for t in taps]
+    differentiable = isinstance(weights, torch.Tensor)
+
+    def along(x: torch.Tensor, dim: int) -> torch.Tensor:
+        span = x.shape[dim] - len(weights) + 1
+        total = x.narrow(dim, 0, span) * weights[0]
+        for k in range(1, len(weights)):
+            part = x.narrow(dim, k, span)
+            total = torch.addcmul(total, part, weights[k]) if differentiable else total.add(part, alpha=weights[k])
+        return total
+
+    return along(along(planes, 2), 1)
+
+
+def _depthwise_conv(planes: torch.Tensor, taps: np.ndarray | torch.Tensor, stride: int = 1) -> torch.Tensor:
+    """PyTorch's depthwise convolution of padded (1, C, H, W) ``planes`` by ``taps`` along W, then H,
+    evaluated every ``stride`` pixels."""
+    kernel = taps if isinstance(taps, torch.Tensor) else _kernel(tuple(taps), planes.dtype, planes.device)
+    channels = planes.shape[1]
     planes = F.conv2d(planes, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), stride=(1, stride),
                       groups=channels)
-    planes = F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
-                      groups=channels)
-    return planes[0].permute(1, 2, 0)
+    return F.conv2d(planes, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), stride=(stride, 1),
+                    groups=channels)
 
 
 @functools.lru_cache(maxsize=32)
