@@ -65,6 +65,54 @@ def test_asggx_lobe_is_invariant_under_rotation_about_the_fiber():
     assert torch.allclose(asggx.lobe(wo[2], wi[2], alpha), base)
 
 
+@pytest.mark.parametrize("k", [0.0, 0.3, 0.7, 0.9])
+def test_forward_scattering_moves_the_lobe_around_the_fiber_and_keeps_its_mean(k):
+    """A_k over the azimuth of wo around the fiber (at a fixed angle to it) has mean 1, its peak
+    (1 + k) / (1 - k) straight through (wo = -wi) and its least (1 - k) / (1 + k) opposite; k = 0 is 1."""
+    fiber = torch.tensor([0.3, -0.5, 0.8], dtype=DT)
+    fiber = fiber / fiber.norm()
+    gen = torch.Generator().manual_seed(11)
+    for _ in range(5):
+        wi = random_unit(gen)[:, 0]
+        ci = float(wi @ fiber)
+        u = wi - ci * fiber
+        u = u / u.norm()
+        v = torch.linalg.cross(fiber, u)
+        co = float(random_unit(gen)[2, 0])
+        phi = (torch.arange(4096, dtype=DT) + 0.5) / 4096 * 2 * math.pi
+        across = math.sqrt(1 - co * co)
+        wo = co * fiber[:, None] - across * (torch.cos(phi) * u[:, None] + torch.sin(phi) * v[:, None])
+        a = asggx.forward_peak(torch.full_like(phi, ci), wo.T @ fiber, torch.full_like(phi, 1 - ci * ci),
+                               1 - (wo.T @ fiber) ** 2, wo.T @ wi, torch.tensor(k, dtype=DT))
+        assert a.mean().item() == pytest.approx(1.0, abs=1e-9)
+        straight = asggx.forward_peak(*(torch.tensor([x], dtype=DT) for x in (ci, -ci, 1 - ci * ci, 1 - ci * ci, -1.0, k)))
+        assert straight.item() == pytest.approx((1 + k) / (1 - k), rel=1e-9)
+        assert a.min().item() == pytest.approx((1 - k) / (1 + k), rel=1e-6)
+
+
+def test_forward_scattering_acts_on_light_crossing_the_layer_only():
+    """eval_layer: the forward scattering leaves the single lobe and every reflection as they are, and in
+    transmission brightens the straight-through direction and dims the grazing azimuths."""
+    gen = torch.Generator().manual_seed(12)
+    wi = random_unit(gen, 4000)
+    wi[2] = wi[2].abs() + 0.05
+    wi = wi / wi.norm(dim=0, keepdim=True)
+    wo = random_unit(gen, 4000)
+    fiber = random_unit(gen, 4000)
+    args = (torch.tensor(0.4, dtype=DT), torch.tensor(1.5, dtype=DT), torch.tensor(0.5, dtype=DT),
+            torch.tensor(2.0, dtype=DT))
+    plain = eval_layer(wi, wo, fiber, *args)
+    forward = eval_layer(wi, wo, fiber, *args, forward_scattering=0.6)
+    reflected = wo[2] > 0
+    for a, b in zip(plain, forward):
+        if a is not plain[1]:
+            assert torch.equal(a, b)
+    assert torch.equal(plain[1][reflected], forward[1][reflected])
+    straight = eval_layer(wi, -wi, fiber, *args), eval_layer(wi, -wi, fiber, *args, forward_scattering=0.6)
+    torch.testing.assert_close(straight[1][1], straight[0][1] * 4.0)  # (1 + 0.6) / (1 - 0.6)
+    assert (forward[1][~reflected] < plain[1][~reflected]).any()
+
+
 @pytest.mark.parametrize("opposite", [False, True], ids=["reflection", "transmission"])
 def test_single_scattering_is_reciprocal(opposite):
     gen = torch.Generator().manual_seed(5)

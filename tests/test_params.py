@@ -161,6 +161,13 @@ def test_parameters_at_a_bound_are_named_by_component():
     assert FabricParams().at_bounds([s.name for s in PARAMETERS if s.optimised]) == []
 
 
+def test_a_parameter_at_its_neutral_bound_is_not_at_a_bound():
+    """The forward scattering's 0 is the paper's lobe (ParamSpec.neutral): a fit that ends there has not
+    run into the range; its other bound is listed like any other."""
+    assert FabricParams(forward_scattering=(0.0, 0.9)).at_bounds(["forward_scattering"]) == [
+        "forward_scattering (weft) = 0.9 (upper bound)"]
+
+
 
 def _read_afresh(t: ParamTensors) -> FabricParams:
     """What to_params gave before it kept host copies: every tensor read now."""

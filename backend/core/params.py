@@ -12,9 +12,11 @@ Interchange string (spec section 2)::
     <pattern>_R_<a,a>_S_<beta,beta>_T_<T,T>_N_<N>_UV_<tu,tv>_Kd_<r,g,b,r,g,b>_G_<xi,xi>
     _Rm_<a,a>_Tm_<T,T>_W_<w,w_m>_Ks_<r,g,b,r,g,b>_Psi_<psi,psi>
 
-The yarn variations (``width_variation`` ... ``slub_variation_length``, :mod:`backend.core.variation`)
-are beyond the paper: the interchange string does not carry them (reading one gives none), the JSON
-form does. They are neither optimised nor searched: a fit reads the amplitudes from the photos after
+``forward_scattering`` (:mod:`backend.model.asggx`) and the yarn variations (``width_variation`` ...
+``slub_variation_length``, :mod:`backend.core.variation`) are beyond the paper: the interchange
+string does not carry them (reading one gives the paper's lobe and no variation), the JSON form
+does. The forward scattering is optimised with the paper's parameters; the variations are neither
+optimised nor searched: a fit reads the amplitudes from the photos after
 its optimisation (:mod:`backend.fit.variation_estimate`), warp and weft alike, each at the centre of
 its length's prior.
 """
@@ -45,6 +47,8 @@ class ParamSpec:
     prior: (lo, hi) of the uniform draw a realistic fabric takes where a generator draws this
     parameter (the yarn variations, :mod:`backend.core.variation`); None: drawn by core/priors.py's
     per-pattern rules, or not drawn.
+    neutral: a bound at which the parameter leaves the paper's model as it is (a fit that ends there
+    has not run into the range, so :meth:`FabricParams.at_bounds` does not list it); None: no such bound.
     """
 
     name: str
@@ -58,6 +62,7 @@ class ParamSpec:
     optimised: bool = False
     searched: bool = False
     prior: tuple[float, float] | None = None
+    neutral: float | None = None
 
     @property
     def size(self) -> int:
@@ -76,6 +81,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "ASGGX roughness of the multiple-scattering lobe", optimised=True),
     ParamSpec("thickness_multiple", 0.01, 5.0, True, False, "Thickness (multiple)",
               "optical thickness of the multiple-scattering lobe", optimised=True),
+    ParamSpec("forward_scattering", 0.0, 0.9, True, False, "Forward scattering",
+              "how much light crossing the fabric keeps its direction around the fiber (0: evenly around it)",
+              optimised=True, neutral=0.0),
     ParamSpec("height_scale", 0.01, 2.0, True, False, "Height scale",
               "flattens (<1) or steepens (>1) the yarn normals", optimised=True),
     ParamSpec("gap_scale", 0.01, 1.0, True, False, "Gap scale",
@@ -206,6 +214,7 @@ class FabricParams:
     thickness: tuple[float, float] = (1.5, 1.5)
     roughness_multiple: tuple[float, float] = (0.5, 0.5)
     thickness_multiple: tuple[float, float] = (1.5, 1.5)
+    forward_scattering: tuple[float, float] = (0.0, 0.0)
     height_scale: tuple[float, float] = (1.0, 1.0)
     gap_scale: tuple[float, float] = (0.9, 0.9)
     twist_deg: tuple[float, float] = (0.0, 0.0)
@@ -281,7 +290,8 @@ class FabricParams:
             margin = tolerance * (spec.hi - spec.lo)
             for label, x in zip(component_labels(spec), self.flat(name)):
                 bound = "lower" if x <= spec.lo + margin else "upper" if x >= spec.hi - margin else None
-                if bound:
+                neutral = spec.neutral is not None and abs(x - spec.neutral) <= margin
+                if bound and not neutral:
                     out.append(f"{name}{label} = {x:g} ({bound} bound)")
         return out
 

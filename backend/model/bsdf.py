@@ -6,6 +6,9 @@ attenuation att_k, and::
     reflection   = f0(wi, wo) + f1(wi, wo) att0(wo) att0(wi) + diffuse_r
     transmission = f0(wi, wo) att1(wo) + f1(wi, wo) att0(wi) + diffuse_t
 
+In transmission (the back light) each layer's multiple-scattering lobe carries the forward
+scattering's azimuthal factor A_k (:mod:`backend.model.asggx`; k = 0 is the paper's lobe).
+
     diffuse = ((1 - w) k_d |wo_z| + w k_d c) / pi,  0 where every layer is a gap
     reflection:   c = max(0, wo . n0) if layer 0 is a yarn, else max(0, wo . n1)
     transmission: c = product over the yarn layers k of max(0, -wo . nk)
@@ -108,6 +111,10 @@ def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleP
     att_in = torch.exp(-thickness * area_in)
     quarter_inv_wi_z = 0.25 * samples.inv_wi_z
     sin2_in = 1.0 - cos2_in
+    # the paper's even azimuth costs nothing where k is 0 and not fitted (every default render)
+    k = fabric.forward_scattering
+    active = k.requires_grad or any(fabric.host(("forward_scattering",))["forward_scattering"])
+    forward = _pick(k, weft) if options.multiple_lobe == "asggx" and active else None
 
     def lobes(splits, light: LightFactors, same_side: bool) -> LayerLobes:
         cos_out = on_fiber(splits.out)
@@ -124,6 +131,8 @@ def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleP
             flattening_m = _pick(1.0 - alpha_m * alpha_m, weft)
             area_in_m = sggx.projected_area_from(cos2_in, flattening_m) * samples.inv_wi_z
             area_out_m = sggx.projected_area_from(cos2_out, flattening_m) * light.inv_wo_z
+        if forward is not None and not same_side:  # light crossing the layer: asggx.forward_peak
+            ndf_m = ndf_m * asggx.forward_peak(cos_in, cos_out, sin2_in, 1.0 - cos2_out, light.cos_in_out, forward)
         if same_side:  # A_i, A_o > 0: min(p, q) = 0, |q - p| = A_i + A_o
             g = slab_g_from(thickness, area_in + area_out)
             g_m = slab_g_from(thickness_m, area_in_m + area_out_m)

@@ -78,6 +78,7 @@ class LightFactors:
     diffuse_flat: torch.Tensor      # |wo_z| irradiance / pi where some layer is a yarn, else 0 (times the
                                     # brightness of the yarn seen, with a yarn variation)
     diffuse_normal: torch.Tensor    # irradiance / pi where some layer is a yarn, else 0 (the same)
+    cos_in_out: torch.Tensor        # wi . wo (the forward scattering's azimuth, backend.model.asggx)
 
 
 @dataclass
@@ -151,10 +152,10 @@ def _layer(geo: LayerGeometry, directions: tuple[_Parts, ...], dtype) -> LayerPr
         back=LightSplits(*on_fiber["back"], _split(back_wo, normal, dtype)))
 
 
-def _light(samples: LightSamples, any_yarn: torch.Tensor) -> LightFactors:
+def _light(samples: LightSamples, wi: torch.Tensor, any_yarn: torch.Tensor) -> LightFactors:
     wo_z = safe_cos(samples.wo[2])
     diffuse = samples.irradiance * any_yarn * (1.0 / math.pi)
-    return LightFactors(1.0 / wo_z, samples.irradiance, wo_z.abs() * diffuse, diffuse)
+    return LightFactors(1.0 / wo_z, samples.irradiance, wo_z.abs() * diffuse, diffuse, (wi * samples.wo).sum(0))
 
 
 def project(chunk: SampleChunk, geometry: SampleGeometry) -> SampleProjections:
@@ -167,8 +168,8 @@ def project(chunk: SampleChunk, geometry: SampleGeometry) -> SampleProjections:
         any_yarn = any_yarn * geometry.diffuse_scale
     directions = _directions(chunk)
     return SampleProjections(layers=[_layer(geo, directions, dtype) for geo in geometry.layers],
-                             inv_wi_z=1.0 / chunk.wi[2], front=_light(chunk.front, any_yarn),
-                             back=_light(chunk.back, any_yarn), no_yarn=geometry.no_yarn)
+                             inv_wi_z=1.0 / chunk.wi[2], front=_light(chunk.front, chunk.wi, any_yarn),
+                             back=_light(chunk.back, chunk.wi, any_yarn), no_yarn=geometry.no_yarn)
 
 
 def retwisted(projections: SampleProjections, chunk: SampleChunk, fibers: list[torch.Tensor]) -> SampleProjections:

@@ -97,8 +97,11 @@ def multiple_scattering_sggx(cos_in: torch.Tensor, cos_out: torch.Tensor, cos2_h
 
 
 def eval_layer(wi: torch.Tensor, wo: torch.Tensor, fiber: torch.Tensor, alpha, thickness, alpha_m, thickness_m,
-               lobe: str = "asggx"):
+               lobe: str = "asggx", forward_scattering=None):
     """One layer from directions (each (3, *batch), unit): (f_s / k_s, f_m / k_m, att(wi), att(wo)).
+
+    ``forward_scattering``: k of :func:`backend.model.asggx.forward_peak`, applied to the ASGGX lobe
+    where wi and wo lie on opposite sides of the layer (None: the paper's lobe).
 
     The renderer evaluates the same functions from cached projections; this form is for tests and
     tools that start from directions.
@@ -115,6 +118,10 @@ def eval_layer(wi: torch.Tensor, wo: torch.Tensor, fiber: torch.Tensor, alpha, t
     single = single_scattering(cos_half * cos_half, area_in, area_out, alpha, thickness, inv_wi_z)
     if lobe == "asggx":
         multiple = multiple_scattering_asggx(cos_in, cos_out, area_in, area_out, alpha_m, thickness_m, inv_wi_z)
+        if forward_scattering is not None:
+            peak = asggx.forward_peak(cos_in, cos_out, 1.0 - cos_in * cos_in, 1.0 - cos_out * cos_out,
+                                      dot(wi, wo), torch.as_tensor(forward_scattering, dtype=wi.dtype))
+            multiple = torch.where(wi_z * wo_z < 0, multiple * peak, multiple)
     else:
         multiple = multiple_scattering_sggx(cos_in, cos_out, cos_half * cos_half, wo_z, alpha_m, thickness_m, inv_wi_z)
     return single, multiple, attenuation(thickness, area_in), attenuation(thickness, area_out)

@@ -10,7 +10,10 @@ weights (core/shader_fallback.py):
   roughness the colour-weighted mean of theirs;
 - Translucent: each hair closure's share as the lesser of its energy (its weight: the closure is a
   normalised density) and the weight whose value at wo = -wi is its peak (pi f / |wi_z|), plus the
-  multiple lobe's glow and the diffuse transmission; the colour is the square root of that sum.
+  multiple lobe's glow and the diffuse transmission; the colour is the square root of that sum. The
+  forward scattering (backend/model/asggx.py) only moves the multiple lobe's light around the fibre
+  (its mean over the azimuth is 1), which a Translucent BSDF, even in azimuth, cannot show: EEVEE
+  keeps that lobe as at k = 0.
 
 EEVEE measured with Blender 5.0, material thickness mode "Slab", thickness 0: a Translucent BSDF of
 colour k lit from behind renders k^2 |cos| / pi (the light crosses the sheet's two faces), and the

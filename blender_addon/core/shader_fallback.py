@@ -31,7 +31,9 @@ the dependence on the light direction wo is left to the closures:
   r = asin(0.5 alpha / sqrt(1 - alpha^2)), azimuthal roughness 1, tangent = the fiber) weighted so
   that its peak is the exact lobe at the straight-through direction wo = -wi, times the OSL shader's
   factors (0.3 + 0.7 alpha^2 single, TT_CONE multiple); the multiple lobe turns into a Translucent BSDF
-  of weight pi f_m(-wi) / |wi_z| (its straight-through value) as alpha_m grows (TT_GLOW);
+  of weight pi f_m(-wi) / |wi_z| (its straight-through value) as alpha_m grows (TT_GLOW); the forward
+  scattering (backend/model/asggx.py) as in the OSL shader: those two carry A_k's least value
+  (1 - k) / (1 + k), a second Hair BSDF (azimuthal roughness acos(2 k / (1 + k^2))) the peaked rest;
 - two layers (4.5): the back layer's reflection lobes carry att0(wi) att0(wo*), the transmission
   lobes att1(wi) (front layer) and att0(wi) (back layer), att = exp(-T sigma(w) / |w_z|);
 - diffuse: (1 - w) k_d^r diffuse(N) + w k_d^r diffuse(n), n the front yarn's normal (the back one's
@@ -233,10 +235,14 @@ tm{k} = Tm{k} * exp(0 - Tm{k} * Ai{k}) / (2 * piz * am{k})
 glow{k} = min(max((am{k} - {TT_GLOW[0]!r}) / {TT_GLOW[1] - TT_GLOW[0]!r}, 0), 1)
 hair_s_weight{k} = ts{k} / {_hair_peak(f"hair_s_rough{k}", f"th{k}", f"cth{k}")} * att{j}
 cone_m{k} = {TT_CONE!r} * tm{k} / {_hair_peak(f"hair_m_rough{k}", f"th{k}", f"cth{k}")} * att{j}
-hair_m_weight{k} = (1 - glow{k}) * cone_m{k}
+least{k} = (1 - fw{k}) / (1 + fw{k})
+hair_m_weight{k} = (1 - glow{k}) * cone_m{k} * least{k}
 glow_m{k} = glow{k} * {math.pi!r} * tm{k} * att{j} / wiz
+hair_f_rough{k} = min(max({math.pi / 2!r} - asin(2 * fw{k} / (1 + fw{k} * fw{k})), 0.001), 1)
+hair_f_weight{k} = 4 * fw{k} / (1 - fw{k} * fw{k}) * tm{k} / {_hair_peak(f"hair_m_rough{k}", f"th{k}", f"cth{k}", f"hair_f_rough{k}")} * att{j}
 hair_s_color{k} = scale(ks{k}, hair_s_weight{k})
 hair_m_color{k} = scale(km{k}, hair_m_weight{k})
+hair_f_color{k} = scale(km{k}, hair_f_weight{k})
 fiber{k} = normalize({_world(f"o{k}")})
 """
 
@@ -247,11 +253,12 @@ def _hair_roughness(a: str) -> str:
     return f"min(max(asin(min(0.5 * {a} / sqrt(max(1 - {a} * {a}, 0.000001)), 1)), 0.001), 1)"
 
 
-def _hair_peak(r: str, th: str, cth: str) -> str:
-    """Peak of Cycles' hair transmission (roughness r, azimuthal roughness 1) at theta_h = 0:
-    1 / (2 atan(pi / 2)) / (2 r (atan((pi/2 + th) / 2r) - atan((th - pi/2) / 2r)) cos th)."""
+def _hair_peak(r: str, th: str, cth: str, rv: str | None = None) -> str:
+    """Peak of Cycles' hair transmission (roughness r, azimuthal roughness rv, None: 1) at theta_h = 0:
+    1 / (2 rv atan(pi / (2 rv))) / (2 r (atan((pi/2 + th) / 2r) - atan((th - pi/2) / 2r)) cos th)."""
     half = math.pi / 2
-    return (f"({1.0 / (2.0 * math.atan(half))!r} / (2 * {r} * (atan(({half!r} + {th}) / (2 * {r}))"
+    azimuth = repr(1.0 / (2.0 * math.atan(half))) if rv is None else f"(1 / (2 * {rv} * atan({half!r} / {rv})))"
+    return (f"({azimuth} / (2 * {r} * (atan(({half!r} + {th}) / (2 * {r}))"
             f" - atan(({th} - {half!r}) / (2 * {r}))) * {cth}))")
 
 
@@ -269,6 +276,7 @@ a{k} = y{k}w * roughness_warp + y{k}f * roughness_weft + 1 - y{k}
 am{k} = y{k}w * roughness_multiple_warp + y{k}f * roughness_multiple_weft + 1 - y{k}
 T{k} = y{k}w * thickness_warp * w_tension + y{k}f * thickness_weft * f_tension
 Tm{k} = y{k}w * thickness_multiple_warp * w_tension + y{k}f * thickness_multiple_weft * f_tension
+fw{k} = y{k}w * forward_scattering_warp + y{k}f * forward_scattering_weft
 ks{k} = vadd(scale(ks_warp, y{k}w{w_bright}), scale(ks_weft, y{k}f{f_bright}))
 km{k} = vadd(scale(km_warp, y{k}w{w_bright}), scale(km_weft, y{k}f{f_bright}))
 ci{k} = dot(wi, vec(x(o{k}t), y(o{k}t), z(o{k}t) * mirror))
@@ -292,7 +300,7 @@ diffuse_yarn = scale(kd_r, diffuse_normal_weight)
 yarn_cos = max(dot(wi, nm), 0) / wiz
 yarn_t = diffuse_normal_weight * other * yarn_cos
 translucent_diffuse = vadd(scale(kd_t, 1 - diffuse_normal_weight), scale(kd_t, yarn_t))
-translucent = vadd(translucent_diffuse, vadd(scale(km0, glow_m0), scale(km1, glow_m1)))
+translucent = vadd(translucent_diffuse, vadd(scale(km0, glow_m0 * least0), scale(km1, glow_m1 * least1)))
 """
 
 

@@ -250,8 +250,9 @@ def build_fallback_group(part_nodes: int = PART_NODES):
         return node
 
     def hair(lobe, k):
-        node = bsdf("ShaderNodeBsdfHair", Color=f"hair_{lobe}_color{k}", RoughnessU=f"hair_{lobe}_rough{k}",
-                    RoughnessV=1.0, Offset=0.0, Tangent=f"fiber{k}")
+        rough = f"hair_{'m' if lobe == 'f' else lobe}_rough{k}"  # the forward cone's is the multiple lobe's
+        node = bsdf("ShaderNodeBsdfHair", Color=f"hair_{lobe}_color{k}", RoughnessU=rough,
+                    RoughnessV=f"hair_f_rough{k}" if lobe == "f" else 1.0, Offset=0.0, Tangent=f"fiber{k}")
         node.component = "Transmission"
         return node
 
@@ -259,7 +260,7 @@ def build_fallback_group(part_nodes: int = PART_NODES):
                bsdf("ShaderNodeBsdfDiffuse", Color="diffuse_yarn", Normal="n_main")]
     gloss = [glossy(lobe, k) for k in shader_fallback.LAYERS for lobe in ("s", "m")]
     cycles = diffuse + gloss + [bsdf("ShaderNodeBsdfTranslucent", Color="translucent")]
-    cycles += [hair(lobe, k) for k in shader_fallback.LAYERS for lobe in ("s", "m")]
+    cycles += [hair(lobe, k) for k in shader_fallback.LAYERS for lobe in ("s", "m", "f")]
     eevee_gloss = bsdf("ShaderNodeBsdfAnisotropic", Color="eevee_gloss", Roughness="eevee_gloss_rough",
                        Normal="eevee_gloss_normal")
     eevee_gloss.distribution = "GGX"

@@ -213,7 +213,19 @@ def _g_literal(T, a_i, a_o):
     return (torch.exp(T * e0) - torch.exp(-T * e1)) / torch.where(total == 0, torch.ones_like(total), total)
 
 
-def layer_lobes(wi, wo, n, o, alpha, T, alpha_m, T_m, ks, km, lobe: str):
+def _forward_azimuth(wi, wo, o, k):
+    """The forward scattering's wrapped Cauchy (backend.model.asggx) literally: the angle between the
+    parts of wo and of -wi across the fiber, 1 where wi and wo lie on one side of the fabric."""
+    def across(w):
+        v = w - _dot(w, o)[None] * o
+        return v / torch.linalg.norm(v, dim=0, keepdim=True).clamp_min(1e-300)
+
+    phi = torch.arccos(_dot(across(wo), -across(wi)).clamp(-1.0, 1.0))
+    factor = (1 - k ** 2) / (1 + k ** 2 - 2 * k * torch.cos(phi))
+    return torch.where(wi[2] * wo[2] < 0, factor, torch.ones_like(factor))
+
+
+def layer_lobes(wi, wo, n, o, alpha, T, alpha_m, T_m, ks, km, lobe: str, forward=None):
     """f_s + f_m (3, S) and att(wi), att(wo) of one layer, literally."""
     b = torch.linalg.cross(o, n, dim=0)
     wi_f, wo_f = _fiber_frame(wi, n, b, o), _fiber_frame(wo, n, b, o)
@@ -230,6 +242,8 @@ def layer_lobes(wi, wo, n, o, alpha, T, alpha_m, T_m, ks, km, lobe: str):
         th_o = torch.atan2(wo_f[2], torch.sqrt(wo_f[0] ** 2 + wo_f[1] ** 2))
         th = (th_i + th_o) / 2
         d_m = _ndf(torch.cos(th), torch.zeros_like(th), torch.sin(th), alpha_m)
+        if forward is not None:
+            d_m = d_m * _forward_azimuth(wi, wo, o, forward)
         f_m = km * (d_m * _g_literal(T_m, a_i, a_o) / (2 * wi_z.abs()))[None]
     else:
         a_im, a_om = _sigma(*wi_f, alpha_m) / wi_z, _sigma(*wo_f, alpha_m) / wo_z
@@ -271,6 +285,7 @@ def radiance(params: dict, weave: Weave, layers: list[list[PointLayer]], wi, lig
         n, o = height_scaled(n, o, beta)
         lobe_args = dict(alpha=per_yarn("roughness", 1.0), T=per_yarn("thickness", 0.0) * tension,
                          alpha_m=per_yarn("roughness_multiple", 1.0), T_m=per_yarn("thickness_multiple", 0.0) * tension,
+                         forward=per_yarn("forward_scattering", 0.0),
                          ks=torch.where(is_yarn[None], ks_all[idx].T * bright, none),
                          km=torch.where(is_yarn[None], km_all[idx].T * bright, none))
         per_layer.append((n, o, is_yarn, lobe_args))
@@ -319,7 +334,7 @@ def render_points(params: FabricParams | dict, x, y, rig, options: RenderOptions
     if tensors is None:
         tensors = {name: torch.tensor(getattr(params, name), dtype=torch.float64)
                    for name in ("roughness", "thickness", "roughness_multiple", "thickness_multiple",
-                                "height_scale", "specular_albedo", "multiple_weight", "diffuse_reflection",
+                                "forward_scattering", "height_scale", "specular_albedo", "multiple_weight", "diffuse_reflection",
                                 "diffuse_transmission", "diffuse_normal_weight")}
     tensors = dict(tensors, twist_deg=torch.tensor(params.twist_deg, dtype=torch.float64))
     # A sample turned by theta about the view centre: evaluate everything in the fabric's own frame
