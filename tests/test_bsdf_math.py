@@ -85,7 +85,8 @@ def test_forward_scattering_moves_the_lobe_around_the_fiber_and_keeps_its_mean(k
         a = asggx.forward_peak(torch.full_like(phi, ci), wo.T @ fiber, torch.full_like(phi, 1 - ci * ci),
                                1 - (wo.T @ fiber) ** 2, wo.T @ wi, torch.tensor(k, dtype=DT))
         assert a.mean().item() == pytest.approx(1.0, abs=1e-9)
-        straight = asggx.forward_peak(*(torch.tensor([x], dtype=DT) for x in (ci, -ci, 1 - ci * ci, 1 - ci * ci, -1.0, k)))
+        straight = asggx.forward_peak(*(torch.tensor([x], dtype=DT)
+                                        for x in (ci, -ci, 1 - ci * ci, 1 - ci * ci, -1.0, k)))
         assert straight.item() == pytest.approx((1 + k) / (1 - k), rel=1e-9)
         assert a.min().item() == pytest.approx((1 - k) / (1 + k), rel=1e-6)
 

@@ -390,7 +390,8 @@ def transmission_closure_errors(k: float) -> dict:
                     return (f / d2).reshape(16, n // 16, 16, n // 16).mean((1, 3))
 
                 exact = blocks(fm)
-                errors[am, Tm, fiber] = np.abs(blocks(least * (cone + translucent) + rest) - exact).mean() / exact.mean()
+                closures = blocks(least * (cone + translucent) + rest)
+                errors[am, Tm, fiber] = np.abs(closures - exact).mean() / exact.mean()
     return errors
 
 

@@ -334,8 +334,8 @@ def render_points(params: FabricParams | dict, x, y, rig, options: RenderOptions
     if tensors is None:
         tensors = {name: torch.tensor(getattr(params, name), dtype=torch.float64)
                    for name in ("roughness", "thickness", "roughness_multiple", "thickness_multiple",
-                                "forward_scattering", "height_scale", "specular_albedo", "multiple_weight", "diffuse_reflection",
-                                "diffuse_transmission", "diffuse_normal_weight")}
+                                "forward_scattering", "height_scale", "specular_albedo", "multiple_weight",
+                                "diffuse_reflection", "diffuse_transmission", "diffuse_normal_weight")}
     tensors = dict(tensors, twist_deg=torch.tensor(params.twist_deg, dtype=torch.float64))
     # A sample turned by theta about the view centre: evaluate everything in the fabric's own frame
     # (positions and directions turned back by theta), where the weave is the unrotated one.
