@@ -334,6 +334,28 @@ def test_a_run_that_estimates_the_blur_moves_it_with_the_fabric_toward_the_photo
     assert capped.camera_blur_px == 1.0
 
 
+@pytest.mark.parametrize("truth,start", [(0.6, 0.0), (0.0, 0.4)])
+def test_a_run_moves_the_forward_scattering_toward_the_photos(truth, start):
+    """Photos of a satin whose yarns scatter forward (k 0.6) or evenly (0): a run from the true fabric at
+    another k moves both yarns' k toward the photos' in its first steps, and the loss is lower at the
+    truth than at the start."""
+    satin = FabricParams(pattern="satin1", tiles=(120.0, 120.0), roughness=(0.35, 0.5),
+                         roughness_multiple=(0.25, 0.6), gap_scale=(0.85, 0.85), thickness=(2.0, 2.0),
+                         thickness_multiple=(2.0, 2.0), forward_scattering=(truth, truth))
+    photos = render_pair(satin, size=128, spp=8, seed=3)
+    settings = FitSettings(pattern="satin1", size=128, spp=4, compile=False)
+    objective = _objective(photos.reflection.numpy(), photos.transmission.numpy(), DEFAULT_RIG, settings)
+    begin = satin.replace(forward_scattering=(start, start))
+    with torch.no_grad():
+        assert float(objective(ParamTensors.from_params(satin))) < float(objective(ParamTensors.from_params(begin)))
+    run = Run(begin, objective, settings, 6, 0.0)
+    for _ in range(6):
+        run.step()
+    moved = [as_float(k) - start for k in run.fabric.values["forward_scattering"]]
+    lr = settings.lr * 0.9
+    assert all(m * (truth - start) > 2 * lr * abs(truth - start) for m in moved), moved
+
+
 def test_the_blur_range_runs_from_the_photos_reading_to_the_allowance_above_it(monkeypatch):
     """blur_range: none for sharp photos or a blur given; else from the reading up to
     MAX_CAMERA_BLUR_PX, or under a ceiling to BLUR_ALLOWANCE_PX above it; the scan keeps to it, with
