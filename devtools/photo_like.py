@@ -13,7 +13,8 @@ One shot of a weave preset, all drawn from one seeded generator ``rng`` in this 
 
 With ``variation_rng``, the sample's yarns vary (:func:`backend.core.priors.sample_variation`: each
 kind's amplitude and correlation length, warp and weft apart, from the declared priors), drawn from
-that generator of its own, so the set's other draws stay the regular set's.
+that generator of its own, so the set's other draws stay the regular set's. With ``forward_rng``, the
+yarns scatter forward (:func:`backend.core.priors.sample_forward`), drawn the same way.
 
 With ``move_rng``, the phone also moves between the shots (:func:`moved_reflection`): the
 reflection photo is taken from a little further away and turned (up to :data:`MOVE_SCALE` and
@@ -104,13 +105,15 @@ def moved_reflection(params: FabricParams, rig: CaptureRig, move: PhoneMove) -> 
 
 def photograph(pattern: str, rng: random.Random, rig: CaptureRig, phone_scale: int = PHONE_SCALE,
                move_rng: random.Random | None = None, without: tuple[str, ...] = (),
-               variation_rng: random.Random | None = None) -> Shot:
+               variation_rng: random.Random | None = None, forward_rng: random.Random | None = None) -> Shot:
     """A sample of ``pattern`` drawn and photographed as the module docstring says, by a phone
     without the effects named in ``without`` (:meth:`devtools.phone.PhoneEffects.without`: drawn,
     then taken away)."""
     params = framed(priors.sample(pattern, rng), rng.uniform(*PIXELS_PER_YARN), rig)
     if variation_rng is not None:
         params = params.replace(**priors.sample_variation(variation_rng))
+    if forward_rng is not None:
+        params = params.replace(**priors.sample_forward(forward_rng))
     placed = dataclasses.replace(rig, sample_rotation_deg=rng.uniform(-MAX_ROTATION_DEG, MAX_ROTATION_DEG),
                                  camera_blur_px=0.0)
     phone = PhoneEffects.draw(rng).without(*without)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from backend.core.params import FabricParams
+from backend.core.params import SPECS, FabricParams
 from backend.core.priors import typical
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model.imaging import display_transform
@@ -63,6 +63,31 @@ def test_a_moved_set_moves_only_the_reflection_photo(tmp_path):
         (tmp_path / folder / "cases.json").write_text(json.dumps([case]))
     assert [job["move"] for job in pair_jobs([str(tmp_path / "a"), str(tmp_path / "m")], [], None)] == [
         None, moved["move"]]
+
+
+def test_a_forward_set_scatters_forward_and_the_fit_benchmark_scores_it(tmp_path):
+    """--forward: the yarns' forward scattering drawn from its declared prior into the truth, every other
+    draw the plain set's (the photos differ in transmission only); the fit benchmark reads that truth
+    (0 for a set without it) and means the error."""
+    from devtools.bench.fit import _format_summary, forward_error, pair_jobs, summarise
+
+    still = photolike.make_item(tmp_path / "a", seed=4, index=3, rig=SMALL)
+    forward = photolike.make_item(tmp_path / "f", seed=4, index=3, rig=SMALL, forward=True)
+    assert "forward_scattering" not in still
+    assert {k: v for k, v in forward.items() if k != "forward_scattering"} == still
+    lo, hi = SPECS["forward_scattering"].prior
+    assert all(lo <= k <= hi for k in forward["forward_scattering"]) and forward["forward_scattering"] != [0.0, 0.0]
+    name = "satin0_003"
+    assert (tmp_path / "f" / f"{name}_R.png").read_bytes() == (tmp_path / "a" / f"{name}_R.png").read_bytes()
+    assert (tmp_path / "f" / f"{name}_T.png").read_bytes() != (tmp_path / "a" / f"{name}_T.png").read_bytes()
+    for folder, case in (("a", still), ("f", forward)):
+        (tmp_path / folder / "cases.json").write_text(json.dumps([case]))
+    truths = [job["truth"] for job in pair_jobs([str(tmp_path / "a"), str(tmp_path / "f")], [], None)]
+    assert [list(t.forward_scattering) for t in truths] == [[0.0, 0.0], forward["forward_scattering"]]
+    assert forward_error(truths[0].replace(forward_scattering=(0.1, 0.3)), truths[0]) == pytest.approx(0.2)
+    summary = summarise([_bench_row("a", forward_error=0.1), _bench_row("b", forward_error=0.3)])
+    assert summary["photolike"]["forward_error"] == pytest.approx(0.2)
+    assert "forward scattering error 0.2" in _format_summary(summary)
 
 
 @pytest.mark.parametrize("index, pattern", [(1, "twill0"), (3, "twill1")])

@@ -45,8 +45,8 @@ class ParamSpec:
     per_yarn: value is a (warp, weft) pair. rgb: value (per yarn) is an RGB triple.
     optimised: fitted by gradient descent; searched: fitted by the discrete search.
     prior: (lo, hi) of the uniform draw a realistic fabric takes where a generator draws this
-    parameter (the yarn variations, :mod:`backend.core.variation`); None: drawn by core/priors.py's
-    per-pattern rules, or not drawn.
+    parameter (the yarn variations, :mod:`backend.core.variation`; the forward scattering, from the
+    values fits of real photos take); None: drawn by core/priors.py's per-pattern rules, or not drawn.
     neutral: a bound at which the parameter leaves the paper's model as it is (a fit that ends there
     has not run into the range, so :meth:`FabricParams.at_bounds` does not list it); None: no such bound.
     """
@@ -83,7 +83,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "optical thickness of the multiple-scattering lobe", optimised=True),
     ParamSpec("forward_scattering", 0.0, 0.9, True, False, "Forward scattering",
               "how much light crossing the fabric keeps its direction around the fiber (0: evenly around it)",
-              optimised=True, neutral=0.0),
+              optimised=True, neutral=0.0, prior=(0.0, 0.4)),
     ParamSpec("height_scale", 0.01, 2.0, True, False, "Height scale",
               "flattens (<1) or steepens (>1) the yarn normals", optimised=True),
     ParamSpec("gap_scale", 0.01, 1.0, True, False, "Gap scale",

@@ -29,7 +29,7 @@ import math
 import random
 
 from . import variation
-from .params import PARAMETERS, FabricParams
+from .params import PARAMETERS, SPECS, FabricParams
 from .weave import MIRRORED_OF, paper_preset
 
 BASE_TILES = {"plain": (173.0, 173.0), "twill0": (122.0, 80.0), "twill1": (80.0, 122.0),
@@ -115,6 +115,12 @@ def sample_variation(rng: random.Random) -> dict[str, tuple[float, float]]:
     weft apart: ``{name: (warp, weft)}`` for every amplitude and correlation length."""
     return {spec.name: (rng.uniform(*spec.prior), rng.uniform(*spec.prior))
             for spec in PARAMETERS if spec.name in variation.PARAMETER_NAMES}
+
+
+def sample_forward(rng: random.Random) -> dict[str, tuple[float, float]]:
+    """The forward scattering drawn from its declared prior (uniform), warp and weft apart."""
+    lo, hi = SPECS["forward_scattering"].prior
+    return {"forward_scattering": (rng.uniform(lo, hi), rng.uniform(lo, hi))}
 
 
 def typical(pattern: str) -> FabricParams:

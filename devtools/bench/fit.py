@@ -140,6 +140,11 @@ def variation_rms(params: FabricParams) -> float:
                          for a in getattr(params, variation.amplitude_name(kind))) / 2)
 
 
+def forward_error(fitted: FabricParams, truth: FabricParams) -> float:
+    """The forward scattering's error, meaned over warp and weft (a pair without it: its truth is 0)."""
+    return sum(abs(a - b) for a, b in zip(fitted.forward_scattering, truth.forward_scattering)) / 2
+
+
 def variation_errors(fitted: FabricParams, truth: FabricParams) -> dict:
     """The variation's overall amplitude, true and fitted, and the fitted one's relative error
     (None where the truth has none)."""
@@ -164,7 +169,8 @@ def pair_jobs(synthetic: list[str], real: list[str], names: list[str] | None) ->
             jobs.append({"kind": "photolike" if "phone" in case else "golden", "name": case["name"],
                          "reflection": pair.reflection, "transmission": pair.transmission,
                          "truth": FabricParams.from_interchange(case["params"]).replace(
-                             **{name: tuple(value) for name, value in case.get("variation", {}).items()}),
+                             **{name: tuple(value) for name, value in case.get("variation", {}).items()},
+                             forward_scattering=tuple(case.get("forward_scattering", (0.0, 0.0)))),
                          "rig": CaptureRig.from_dict(case["rig"]) if "rig" in case else DEFAULT_RIG,
                          "phone": PhoneEffects(**case["phone"]) if "phone" in case else None,
                          "move": case.get("move")})
@@ -231,6 +237,7 @@ def truth_errors(job: dict, result: dict, novel_light: bool) -> dict:
         row.update(warp_errors(result["warp"], phone, rig.film_size))
         row.update(blur_errors(rig.camera_blur_px, phone))
     row.update(variation_errors(fitted, truth))
+    row["forward_error"] = round(forward_error(fitted, truth), 4)
     if novel_light:
         gains = (phone.gains(0), phone.gains(1)) if phone else None
         errors = novel_light_error(fitted, truth, gains=gains)
@@ -328,7 +335,8 @@ def _truth_figures(rows: list[dict]) -> dict:
             "tiles_error_pct_mean": _mean(r["tiles_error_pct"] for r in rows),
             **_optional_mean("blur_abs_error_px", [abs(r["blur_error_px"]) for r in rows if "blur_error_px" in r]),
             **_optional_mean("variation_rms_abs_error", [abs(r["variation_rms_error"]) for r in rows
-                                                         if r.get("variation_rms_error") is not None])}
+                                                         if r.get("variation_rms_error") is not None]),
+            **_optional_mean("forward_error", [r["forward_error"] for r in rows if "forward_error" in r])}
 
 
 def _optional_mean(key: str, values: list[float]) -> dict:
@@ -360,6 +368,8 @@ def _format_summary(s: dict) -> str:
                         if r["pairs"] else ""))
         if "variation_rms_abs_error" in k:
             line += f"; variation amplitude error (mean size, relative) {k['variation_rms_abs_error']}"
+        if "forward_error" in k:
+            line += f"; forward scattering error {k['forward_error']}"
         if "novel_colour_l1" in k:
             line += f"; novel light colour L1 {k['novel_colour_l1']}, spectrum {k['novel_spectrum_corr']}"
         line += f"; spacing warp {k['warp_rms_px']} px"

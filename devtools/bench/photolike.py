@@ -16,7 +16,8 @@ times as dense and turned by up to 2 degrees, the transmission photo and every o
 unmoved set's, and the truth stays the transmission's framing.
 
 With ``varied``, every item's yarns vary (:func:`devtools.photo_like.photograph`'s
-``variation_rng``, seeded by (s, k) of its own): the other draws stay the regular set's.
+``variation_rng``, seeded by (s, k) of its own): the other draws stay the regular set's. With
+``forward``, every item's yarns scatter forward (``forward_rng``, the same way).
 
 With ``without`` (names of :data:`devtools.phone.EFFECTS`), the phone lacks those effects
 (:meth:`devtools.phone.PhoneEffects.without`): every draw, the render and the other effects
@@ -26,7 +27,8 @@ Files: ``DIR/<name>_R.png``, ``DIR/<name>_T.png`` (8-bit) and ``DIR/cases.json``
 ``{"name", "params" (interchange string), "flags": {}, "rig" (with the true rotation and camera
 blur), "phone" (every drawn effect, as the photos have them), "move" (a moved set's reflection move,
 else absent), "without" (the effects taken away, else absent), "variation" (a varied set's yarn
-variation, ``{name: [warp, weft]}``; the interchange string does not carry it)}``: the
+variation, ``{name: [warp, weft]}``; the interchange string does not carry it), "forward_scattering"
+(a forward set's, ``[warp, weft]``)}``: the
 golden folders' format plus the truth the fit benchmark needs (:mod:`devtools.bench.fit`).
 """
 from __future__ import annotations
@@ -57,12 +59,14 @@ def item_pattern(index: int) -> str:
 
 
 def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, pattern: str | None = None,
-              moved: bool = False, without: tuple[str, ...] = (), varied: bool = False) -> dict:
+              moved: bool = False, without: tuple[str, ...] = (), varied: bool = False,
+              forward: bool = False) -> dict:
     """Renders item ``index`` into ``out``; returns its cases.json entry. ``pattern`` replaces the
     item's preset (:func:`item_pattern`) with the same draws: a mirrored item's unmirrored twin."""
     pattern = pattern or item_pattern(index)
     shot = photograph(pattern, item_rng(seed, index), rig, move_rng=item_rng(seed, index, "move") if moved else None,
-                      without=tuple(without), variation_rng=item_rng(seed, index, "variation") if varied else None)
+                      without=tuple(without), variation_rng=item_rng(seed, index, "variation") if varied else None,
+                      forward_rng=item_rng(seed, index, "forward") if forward else None)
     name = f"{pattern}_{index:03d}"
     write_png(out / f"{name}_R.png", shot.reflection, bits=8)
     write_png(out / f"{name}_T.png", shot.transmission, bits=8)
@@ -74,17 +78,19 @@ def make_item(out: Path, seed: int, index: int, rig: CaptureRig = DEFAULT_RIG, p
         case["without"] = list(without)
     if varied:
         case["variation"] = {name: list(getattr(shot.params, name)) for name in PARAMETER_NAMES}
+    if forward:
+        case["forward_scattering"] = list(shot.params.forward_scattering)
     return case
 
 
 def generate(out: str | Path, count: int, seed: int = 0, log=sys.stderr, moved: bool = False,
-             without: tuple[str, ...] = (), varied: bool = False) -> list[dict]:
+             without: tuple[str, ...] = (), varied: bool = False, forward: bool = False) -> list[dict]:
     """Makes items 0 .. count - 1 into ``out`` (cases.json last, so a finished set is one with it)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cases = []
     for index in range(count):
-        cases.append(make_item(out, seed, index, moved=moved, without=without, varied=varied))
+        cases.append(make_item(out, seed, index, moved=moved, without=without, varied=varied, forward=forward))
         print(f"photolike: {index + 1}/{count} {cases[-1]['name']}", file=log, flush=True)
     (out / "cases.json").write_text(json.dumps(cases, indent=1) + "\n")
     return cases

@@ -1,5 +1,6 @@
-"""``python -m devtools photolike --out DIR --count N [--seed S] [--moved] [--varied] [--without EFFECT ...]``:
-photo-like synthetic pairs with ground truth for the fit benchmark (:mod:`devtools.bench.photolike`)."""
+"""``python -m devtools photolike --out DIR --count N [--seed S] [--moved] [--varied] [--forward]
+[--without EFFECT ...]``: photo-like synthetic pairs with ground truth for the fit benchmark
+(:mod:`devtools.bench.photolike`)."""
 from __future__ import annotations
 
 from backend.app.cli.common import positive_int
@@ -9,7 +10,8 @@ from ..phone import EFFECTS
 
 
 def run_photolike(args) -> int:
-    generate(args.out, args.count, args.seed, moved=args.moved, without=tuple(args.without), varied=args.varied)
+    generate(args.out, args.count, args.seed, moved=args.moved, without=tuple(args.without), varied=args.varied,
+             forward=args.forward)
     return 0
 
 
@@ -24,6 +26,9 @@ def add_parser(sub) -> None:
     p.add_argument("--varied", action="store_true",
                    help="the samples' yarns vary (width, thickness, spacing, brightness, slubs, drawn from the "
                         "declared priors; the other draws as without)")
+    p.add_argument("--forward", action="store_true",
+                   help="the samples' yarns scatter forward (forward_scattering drawn from its declared prior; the "
+                        "other draws as without)")
     p.add_argument("--without", nargs="+", choices=EFFECTS, default=[], metavar="EFFECT",
                    help=f"a phone without these effects ({', '.join(EFFECTS)}): the same set otherwise, so that "
                         "a fit benchmark of both tells what they cost")
