@@ -404,11 +404,12 @@ def test_multiple_transmission_closures_follow_the_exact_lobe_in_the_rig():
     assert max(e for (am, _, _), e in errors.items() if am >= 0.8) < 0.08, errors
 
 
-@pytest.mark.parametrize("k", [0.3, 0.6, 0.85])
+@pytest.mark.parametrize("k", [0.1, 0.3, 0.6, 0.85])
 def test_forward_scattering_closures_follow_the_exact_lobe_in_the_rig(k):
     """With forward scattering k: the same closures at A_k's least value plus the second cone follow the
     exact lobe as closely as at k = 0 (under 0.13 on average, every case under 0.25; the closures at k = 0
-    are 0.38-0.74 off on average for k 0.3-0.85)."""
+    are 0.38-0.74 off on average for k 0.3-0.85). Below k 0.27 the second cone's azimuthal roughness is
+    Cycles' largest, 1, narrower than the rest it stands for (0.1 is 0.095 off on average)."""
     errors = transmission_closure_errors(k)
     assert np.mean(list(errors.values())) < 0.13, errors
     assert max(errors.values()) < 0.25, errors
