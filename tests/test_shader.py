@@ -342,7 +342,7 @@ def cycles_hair_transmission(wi, wo, fiber, r, rv=1.0):
     a = np.arctan((math.pi / 2 + theta_r) / 2 / r)
     b = np.arctan((-math.pi / 2 + theta_r) / 2 / r)
     t, p = (theta_i + theta_r) / 2, math.pi - phi
-    azimuth = rv / (2 * math.atan(math.pi / 2 / rv) * (p * p + rv * rv))
+    azimuth = rv / (2 * np.arctan(math.pi / 2 / rv) * (p * p + rv * rv))
     return r / (2 * (t * t + r * r) * (a - b) * np.cos(theta_i)) * azimuth
 
 
@@ -413,6 +413,35 @@ def test_forward_scattering_closures_follow_the_exact_lobe_in_the_rig(k):
     errors = transmission_closure_errors(k)
     assert np.mean(list(errors.values())) < 0.13, errors
     assert max(errors.values()) < 0.25, errors
+
+
+def test_the_fallback_program_splits_the_forward_scattering_as_the_closures_test_does():
+    """The fallback program with forward scattering k (per yarn): the multiple lobe's hair cone at A_k's
+    least value (1 - k) / (1 + k) of its k = 0 weight, and a second Hair BSDF of azimuthal roughness
+    acos(2 k / (1 + k^2)) whose straight-through value is the rest's, 4 k / (1 - k^2) f_m(-wi) (the split
+    test_forward_scattering_closures_follow_the_exact_lobe_in_the_rig measures); none at k = 0."""
+    rng = np.random.default_rng(8)
+    x, y, wi = rig_points(rng, 2000)
+    k = (0.5, 0.3)
+    plain = shader_fallback.run(NumpyBuilder(),
+                                fallback_env(FabricParams(pattern="twill1", **FALLBACK_PARAMS), x, y, wi))
+    forward = shader_fallback.run(NumpyBuilder(), fallback_env(
+        FabricParams(pattern="twill1", forward_scattering=k, **FALLBACK_PARAMS), x, y, wi))
+    assert np.abs(plain["hair_f_weight0"]).max() == 0 and np.abs(plain["hair_f_weight1"]).max() == 0
+    for layer in shader_fallback.LAYERS:
+        warp, weft = forward[f"y{layer}w"], forward[f"y{layer}f"]
+        yarn = (warp + weft) > 0.5
+        kk = np.where(warp > 0.5, k[0], k[1])[yarn]
+        np.testing.assert_allclose(forward[f"hair_m_weight{layer}"][yarn],
+                                   plain[f"hair_m_weight{layer}"][yarn] * (1 - kk) / (1 + kk), rtol=1e-9)
+        rv = forward[f"hair_f_rough{layer}"][yarn]
+        np.testing.assert_allclose(rv, np.clip(np.arccos(2 * kk / (1 + kk * kk)), 0.001, 1), rtol=1e-9)
+        fiber = forward[f"fiber{layer}"][:, yarn]
+        w = wi[:, yarn]
+        r = forward[f"hair_m_rough{layer}"][yarn]
+        straight = forward[f"hair_f_weight{layer}"][yarn] * cycles_hair_transmission(w, -w, fiber, r, rv)
+        exact = 4 * kk / (1 - kk * kk) * forward[f"tm{layer}"][yarn] * forward[f"att{1 - layer}"][yarn]
+        np.testing.assert_allclose(straight, exact, rtol=1e-6)
 
 
 def test_eevee_translucency_is_capped_at_grazing_views():
