@@ -77,7 +77,7 @@ def test_a_forward_set_scatters_forward_and_the_fit_benchmark_scores_it(tmp_path
     assert {k: v for k, v in forward.items() if k != "forward_scattering"} == still
     lo, hi = SPECS["forward_scattering"].prior
     assert all(lo <= k <= hi for k in forward["forward_scattering"]) and forward["forward_scattering"] != [0.0, 0.0]
-    name = "satin0_003"
+    name = forward["name"]
     assert (tmp_path / "f" / f"{name}_R.png").read_bytes() == (tmp_path / "a" / f"{name}_R.png").read_bytes()
     assert (tmp_path / "f" / f"{name}_T.png").read_bytes() != (tmp_path / "a" / f"{name}_T.png").read_bytes()
     for folder, case in (("a", still), ("f", forward)):

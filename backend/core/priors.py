@@ -113,14 +113,17 @@ def sample(pattern: str, rng: random.Random) -> FabricParams:
 def sample_variation(rng: random.Random) -> dict[str, tuple[float, float]]:
     """Yarn variation drawn from the declared priors (each ParamSpec's ``prior``, uniform), warp and
     weft apart: ``{name: (warp, weft)}`` for every amplitude and correlation length."""
-    return {spec.name: (rng.uniform(*spec.prior), rng.uniform(*spec.prior))
-            for spec in PARAMETERS if spec.name in variation.PARAMETER_NAMES}
+    return {spec.name: _declared_draw(spec, rng) for spec in PARAMETERS if spec.name in variation.PARAMETER_NAMES}
 
 
 def sample_forward(rng: random.Random) -> dict[str, tuple[float, float]]:
     """The forward scattering drawn from its declared prior (uniform), warp and weft apart."""
-    lo, hi = SPECS["forward_scattering"].prior
-    return {"forward_scattering": (rng.uniform(lo, hi), rng.uniform(lo, hi))}
+    return {"forward_scattering": _declared_draw(SPECS["forward_scattering"], rng)}
+
+
+def _declared_draw(spec, rng: random.Random) -> tuple[float, float]:
+    """(warp, weft), each uniform in the ParamSpec's ``prior``."""
+    return rng.uniform(*spec.prior), rng.uniform(*spec.prior)
 
 
 def typical(pattern: str) -> FabricParams:

@@ -86,8 +86,9 @@ def _pick(per_yarn: torch.Tensor, weft: torch.Tensor) -> torch.Tensor:
 
 
 def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleProjections,
-                 options: RenderOptions) -> LayerOptics:
-    """att(wi), and f_s, f_m, att(wo), wo . n for both lights, of one layer (spec 3.3, 4.1-4.4)."""
+                 options: RenderOptions, forward: torch.Tensor | None = None) -> LayerOptics:
+    """att(wi), and f_s, f_m, att(wo), wo . n for both lights, of one layer (spec 3.3, 4.1-4.4);
+    ``forward``: the yarns' forward scattering k (2,), None for the paper's lobe."""
     weft = layer.weft
     alpha, alpha_m = fabric.roughness, fabric.roughness_multiple
     flattening = _pick(1.0 - alpha * alpha, weft)
@@ -111,10 +112,8 @@ def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleP
     att_in = torch.exp(-thickness * area_in)
     quarter_inv_wi_z = 0.25 * samples.inv_wi_z
     sin2_in = 1.0 - cos2_in
-    # the paper's even azimuth costs nothing where k is 0 and not fitted (every default render)
-    k = fabric.forward_scattering
-    active = k.requires_grad or any(fabric.host(("forward_scattering",))["forward_scattering"])
-    forward = _pick(k, weft) if options.multiple_lobe == "asggx" and active else None
+    if forward is not None:
+        forward = _pick(forward, weft)
 
     def lobes(splits, light: LightFactors, same_side: bool) -> LayerLobes:
         cos_out = on_fiber(splits.out)
@@ -172,7 +171,8 @@ def eval_projected(samples: SampleProjections, fabric: ParamTensors,
     Radiance = cosine-weighted BSDF * intensity / distance^2 (glow excluded: it is per pixel).
     """
     layers = samples.layers
-    optics = [layer_optics(layer, fabric, samples, options) for layer in layers]
+    forward = forward_scattering(fabric, options)
+    optics = [layer_optics(layer, fabric, samples, options, forward) for layer in layers]
     irr_front, irr_back = samples.front.irradiance, samples.back.irradiance
     reflection, transmission = _Slots(), _Slots()
     reflection.add(layers[0], optics[0].front, irr_front)
@@ -206,6 +206,14 @@ def eval_projected(samples: SampleProjections, fabric: ParamTensors,
                 ColourTerms(torch.stack(colours + [fabric.diffuse_transmission], 1), torch.stack(weights_t)))
     return ColourTerms(torch.stack(colours, 1), torch.stack(weights_r)), \
         ColourTerms(torch.stack(colours, 1), torch.stack(weights_t))
+
+
+def forward_scattering(fabric: ParamTensors, options: RenderOptions) -> torch.Tensor | None:
+    """The yarns' k of :func:`backend.model.asggx.forward_peak`, or None where the lobe is the paper's: the
+    ASGGX lobe with k 0 and not fitted (every default render, which the term would only slow)."""
+    k = fabric.forward_scattering
+    active = k.requires_grad or any(fabric.host(("forward_scattering",))["forward_scattering"])
+    return k if options.multiple_lobe == "asggx" and active else None
 
 
 def diffuse_weight(weight: torch.Tensor, light: LightFactors, c: torch.Tensor) -> torch.Tensor:
