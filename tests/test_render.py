@@ -17,7 +17,8 @@ from backend.core.params import PARAMETERS, FabricParams
 from backend.core.rig import DEFAULT_RIG, CaptureRig
 from backend.model import imaging
 from backend.model import render as render_module
-from backend.model.bsdf import eval_pair
+from backend.model.bsdf import eval_projected
+from backend.model.bsdf_gradient import eval_with_hand_gradient
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.imaging import display_transform, gaussian_blur, subpixel_blur
@@ -53,23 +54,29 @@ def random_params(rng: random.Random, pattern: str, extreme: bool = False) -> Fa
     return FabricParams(pattern=pattern, **values)
 
 
-def fast_points(params: FabricParams, xs, ys, options: RenderOptions, tensors: ParamTensors, rig=DEFAULT_RIG):
+def fast_points(params: FabricParams, xs, ys, options: RenderOptions, tensors: ParamTensors, rig=DEFAULT_RIG,
+                evaluate=eval_with_hand_gradient):
+    """The renderer's evaluation at world points: ``evaluate`` is the eager path's (the hand-written
+    gradient where it applies) or ``eval_projected`` (autograd's, what the compiled graph fuses)."""
     camera = CameraSamples(rig, 512, 1, dtype=torch.float64)
     chunk = camera.at_points(torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64))
     key = GeometryKey(params.pattern, params.tiles, params.gap_scale, params.twist_deg, 0.0, options.tension,
                       options.layers)
     geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), rig, key, torch.float64)
-    r, t = eval_pair(chunk, geometry, tensors, options)
+    r, t = evaluate(project(chunk, geometry), tensors, options)
     return r.radiance(), t.radiance(), geometry.no_yarn
 
 
+@pytest.mark.parametrize("gradient", ["hand", "autograd"])
 @pytest.mark.parametrize("variant", list(VARIANTS))
 @pytest.mark.parametrize("pattern", ["plain", "twill0", "twill1", "satin0", "satin1"])
-def test_fast_path_matches_the_literal_reference(pattern, variant):
+def test_fast_path_matches_the_literal_reference(pattern, variant, gradient):
     rng = random.Random(zlib.crc32(f"{pattern}/{variant}".encode()))  # the same draw in every process
     options = RenderOptions.from_flags(VARIANTS[variant])
     params = random_params(rng, pattern).replace(gap_scale=(rng.uniform(0.6, 1.0), rng.uniform(0.6, 1.0)))
-    assert_fast_path_matches_reference(params, options, rng, 150)
+    evaluate = eval_with_hand_gradient if gradient == "hand" else eval_projected
+    assert_fast_path_matches_reference(params, options, rng, 150,
+                                       points=lambda *args: fast_points(*args, evaluate=evaluate))
 
 
 def assert_fast_path_matches_reference(params: FabricParams, options: RenderOptions, rng: random.Random, count: int,

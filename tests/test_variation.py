@@ -20,11 +20,12 @@ from backend.core.options import RenderOptions
 from backend.core.params import SPECS, FabricParams
 from backend.core.rig import DEFAULT_RIG
 from backend.model import variation
-from backend.model.bsdf import eval_pair
+from backend.model.bsdf_gradient import eval_with_hand_gradient
 from backend.model.camera import CameraSamples
 from backend.model.geometry import GeometryKey, sample_geometry
 from backend.model.layers import WeaveLookup
 from backend.model.param_tensors import ParamTensors
+from backend.model.projections import project
 from backend.model.render import Renderer, render_pair
 
 
@@ -163,7 +164,8 @@ VARIED = dict(width_variation=(0.25, 0.2), width_variation_length=(1.0, 3.0), th
 
 
 def _points(params: FabricParams, xs, ys, options, tensors):
-    """The fast path's radiance at world points, its geometry state with the params' variation."""
+    """The fast path's radiance at world points, its geometry state with the params' variation (the eager
+    renderer's evaluation: its gradient by hand where it applies)."""
     camera = CameraSamples(DEFAULT_RIG, 512, 1, dtype=torch.float64)
     chunk = camera.at_points(torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64))
     settings = variation.VariationSettings.of(lambda n: getattr(params, n))
@@ -171,7 +173,7 @@ def _points(params: FabricParams, xs, ys, options, tensors):
                       options.layers, settings)
     geometry = sample_geometry(chunk, WeaveLookup(params.resolved_weave, dtype=torch.float64), DEFAULT_RIG, key,
                                torch.float64)
-    r, t = eval_pair(chunk, geometry, tensors, options)
+    r, t = eval_with_hand_gradient(project(chunk, geometry), tensors, options)
     return r.radiance(), t.radiance(), geometry.no_yarn
 
 

@@ -50,8 +50,15 @@ def half_sin2(cos_in: torch.Tensor, cos_out: torch.Tensor,
         sin2_in = 1.0 - cos_in * cos_in
     if sin2_out is None:
         sin2_out = 1.0 - cos_out * cos_out
-    cross = safe_sqrt(sin2_in * sin2_out, eps=1e-14)
-    return (0.5 * (1.0 + cos_in * cos_out - cross)).clamp(0.0, 1.0)
+    return half_sin2_with_cross(cos_in, cos_out, sin2_in * sin2_out)[0]
+
+
+def half_sin2_with_cross(cos_in: torch.Tensor, cos_out: torch.Tensor, across2: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(sin^2 th, sqrt((1 - ci^2)(1 - co^2))) from ci, co and ``across2`` = (1 - ci^2)(1 - co^2): the
+    hand-written gradient (:mod:`backend.model.bsdf_gradient`) reads the root again."""
+    cross = safe_sqrt(across2, eps=1e-14)
+    return (0.5 * (1.0 + cos_in * cos_out - cross)).clamp(0.0, 1.0), cross
 
 
 def lobe(cos_in: torch.Tensor, cos_out: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
@@ -61,11 +68,20 @@ def lobe(cos_in: torch.Tensor, cos_out: torch.Tensor, alpha: torch.Tensor) -> to
 
 def forward_peak(cos_in: torch.Tensor, cos_out: torch.Tensor, sin2_in: torch.Tensor, sin2_out: torch.Tensor,
                  cos_in_out: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """A_k(phi) from ci = wi . o, co = wo . o, their 1 - c^2 and wi . wo (module docstring); where wi or
-    wo lies along the fiber the azimuth is undefined and cos phi is taken as 0 (A_k there is between
-    its extremes, and the lobe's G vanishes at the fiber anyway)."""
-    across2 = sin2_in * sin2_out
+    """A_k(phi) from ci = wi . o, co = wo . o, their 1 - c^2 and wi . wo (module docstring)."""
+    return peak_at(forward_azimuth(cos_in, cos_out, sin2_in * sin2_out, cos_in_out), k)
+
+
+def forward_azimuth(cos_in: torch.Tensor, cos_out: torch.Tensor, across2: torch.Tensor,
+                    cos_in_out: torch.Tensor) -> torch.Tensor:
+    """cos phi from ci, co, ``across2`` = (1 - ci^2)(1 - co^2) and wi . wo; where wi or wo lies along the
+    fiber the azimuth is undefined and cos phi is taken as 0 (A_k there is between its extremes, and
+    the lobe's G vanishes at the fiber anyway)."""
     cos_phi = -(cos_in_out - cos_in * cos_out) * torch.rsqrt(across2.clamp_min(1e-14))
-    cos_phi = torch.where(across2 > 1e-14, cos_phi.clamp(-1.0, 1.0), torch.zeros_like(cos_phi))
+    return torch.where(across2 > 1e-14, cos_phi.clamp(-1.0, 1.0), torch.zeros_like(cos_phi))
+
+
+def peak_at(cos_phi: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """A_k(phi) = (1 - k^2) / (1 + k^2 - 2 k cos phi)."""
     k2 = k * k
     return (1.0 - k2) / (1.0 + k2 - 2.0 * k * cos_phi)

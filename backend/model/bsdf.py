@@ -33,11 +33,9 @@ import torch
 
 from ..core.options import RenderOptions
 from . import asggx, sggx
-from .camera import SampleChunk
-from .geometry import SampleGeometry
 from .param_tensors import ParamTensors
-from .projections import LayerProjections, LightFactors, SampleProjections, Split, project
-from .spongecake import slab_g_from
+from .projections import LayerProjections, LightFactors, SampleProjections, Split
+from .spongecake import one_minus_exp_over
 
 
 def multiple_albedo(specular_albedo: torch.Tensor, multiple_weight: torch.Tensor) -> torch.Tensor:
@@ -48,6 +46,57 @@ def multiple_albedo(specular_albedo: torch.Tensor, multiple_weight: torch.Tensor
 
 
 @dataclass
+class YarnConstants:
+    """The per-yarn (2,) constants the lobes read, formed once per evaluation from the parameters
+    (:meth:`of`); the hand-written gradient (:mod:`backend.model.bsdf_gradient`) differentiates the
+    BSDF with respect to these."""
+
+    flattening: torch.Tensor     # 1 - alpha^2
+    ndf_shape: torch.Tensor      # 1 / alpha^2 - 1
+    ndf_scale: torch.Tensor      # 1 / (pi alpha)
+    ndf_shape_m: torch.Tensor    # the same of alpha_m
+    ndf_scale_m: torch.Tensor
+    thickness: torch.Tensor      # T
+    thickness_m: torch.Tensor    # T_m
+    height: torch.Tensor         # beta
+    forward: torch.Tensor | None  # k (asggx.forward_peak); None: the paper's lobe
+    flattening_m: torch.Tensor | None = None  # 1 - alpha_m^2, for the ablation's lobe only
+
+    @classmethod
+    def of(cls, fabric: ParamTensors, options: RenderOptions) -> "YarnConstants":
+        alpha, alpha_m = fabric.roughness, fabric.roughness_multiple
+        return cls(1.0 - alpha * alpha, 1.0 / (alpha * alpha) - 1.0, 1.0 / (torch.pi * alpha),
+                   1.0 / (alpha_m * alpha_m) - 1.0, 1.0 / (torch.pi * alpha_m), fabric.thickness,
+                   fabric.thickness_multiple, fabric.height_scale, forward_scattering(fabric, options),
+                   None if options.multiple_lobe == "asggx" else 1.0 - alpha_m * alpha_m)
+
+
+@dataclass
+class LobeParts:
+    """The intermediate values of one layer's lobes under one light that the hand-written gradient
+    reads (:mod:`backend.model.bsdf_gradient`); the names follow :func:`layer_optics`."""
+
+    cos_out: torch.Tensor       # co = wo . o
+    cos_half: torch.Tensor      # ch = h . o
+    sigma_out: torch.Tensor     # sigma(wo)
+    area_out: torch.Tensor      # A_o = sigma(wo) / wo_z (signed)
+    ndf: torch.Tensor           # D(h) = scale / denom^2
+    denom: torch.Tensor         # 1 + shape ch^2
+    half_sin2: torch.Tensor     # sin^2 th of the ASGGX lobe
+    cross: torch.Tensor         # sqrt((1 - ci^2)(1 - co^2))
+    ndf_m: torch.Tensor         # D_alpha_m(h'), before the forward scattering's peak
+    denom_m: torch.Tensor
+    cos_phi: torch.Tensor | None  # the forward scattering's azimuth (None: no peak)
+    peak: torch.Tensor | None     # A_k
+    phi: torch.Tensor           # phi(T E) of G, E = A_i + A_o (|A_i + A_o| across the layer)
+    phi_m: torch.Tensor         # phi(T_m E)
+    near: torch.Tensor | None   # across the layer: max(att(wi), att(wo)), exp(-T_m min(A_i, -A_o))
+    near_m: torch.Tensor | None
+    g: torch.Tensor
+    g_m: torch.Tensor
+
+
+@dataclass
 class LayerLobes:
     """What the composition needs from one layer, for one light."""
 
@@ -55,6 +104,7 @@ class LayerLobes:
     multiple: torch.Tensor    # (S,) f_m / k_m
     att_out: torch.Tensor     # (S,) att(wo)
     cos_normal: torch.Tensor  # (S,) wo . n
+    parts: LobeParts | None = None  # the asggx lobe's intermediates
 
 
 @dataclass
@@ -62,6 +112,13 @@ class LayerOptics:
     att_in: torch.Tensor      # (S,) att(wi)
     front: LayerLobes
     back: LayerLobes
+    # per sample: the yarn's constants picked, and the intermediates of wi the gradient reads
+    picked: dict[str, torch.Tensor] | None = None
+    cos_in: torch.Tensor | None = None
+    sigma_in: torch.Tensor | None = None
+    area_in: torch.Tensor | None = None
+    inv_fiber: torch.Tensor | None = None
+    inv_normal: torch.Tensor | None = None
 
 
 @dataclass
@@ -85,18 +142,16 @@ def _pick(per_yarn: torch.Tensor, weft: torch.Tensor) -> torch.Tensor:
     return torch.lerp(per_yarn[0], per_yarn[1], weft)
 
 
-def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleProjections,
-                 options: RenderOptions, forward: torch.Tensor | None = None) -> LayerOptics:
-    """att(wi), and f_s, f_m, att(wo), wo . n for both lights, of one layer (spec 3.3, 4.1-4.4);
-    ``forward``: the yarns' forward scattering k (2,), None for the paper's lobe."""
+def layer_optics(layer: LayerProjections, yarns: YarnConstants, samples: SampleProjections,
+                 options: RenderOptions) -> LayerOptics:
+    """att(wi), and f_s, f_m, att(wo), wo . n for both lights, of one layer (spec 3.3, 4.1-4.4)."""
     weft = layer.weft
-    alpha, alpha_m = fabric.roughness, fabric.roughness_multiple
-    flattening = _pick(1.0 - alpha * alpha, weft)
-    ndf_shape, ndf_scale = _pick(1.0 / (alpha * alpha) - 1.0, weft), _pick(1.0 / (torch.pi * alpha), weft)
-    ndf_shape_m, ndf_scale_m = _pick(1.0 / (alpha_m * alpha_m) - 1.0, weft), _pick(1.0 / (torch.pi * alpha_m), weft)
-    thickness = _pick(fabric.thickness, weft) * layer.thickness_scale
-    thickness_m = _pick(fabric.thickness_multiple, weft) * layer.thickness_scale
-    beta = _pick(fabric.height_scale, weft)
+    flattening = _pick(yarns.flattening, weft)
+    ndf_shape, ndf_scale = _pick(yarns.ndf_shape, weft), _pick(yarns.ndf_scale, weft)
+    ndf_shape_m, ndf_scale_m = _pick(yarns.ndf_shape_m, weft), _pick(yarns.ndf_scale_m, weft)
+    thickness = _pick(yarns.thickness, weft) * layer.thickness_scale
+    thickness_m = _pick(yarns.thickness_m, weft) * layer.thickness_scale
+    beta = _pick(yarns.height, weft)
     if layer.height_offset is not None:
         beta = (beta + layer.height_offset).clamp_min(0.01)
     beta2 = beta * beta
@@ -108,43 +163,62 @@ def layer_optics(layer: LayerProjections, fabric: ParamTensors, samples: SampleP
 
     cos_in = on_fiber(layer.wi)
     cos2_in = cos_in * cos_in
-    area_in = sggx.projected_area_from(cos2_in, flattening) * samples.inv_wi_z
+    sigma_in = sggx.projected_area_from(cos2_in, flattening)
+    area_in = sigma_in * samples.inv_wi_z
     att_in = torch.exp(-thickness * area_in)
     quarter_inv_wi_z = 0.25 * samples.inv_wi_z
     sin2_in = 1.0 - cos2_in
-    if forward is not None:
-        forward = _pick(forward, weft)
+    forward = None if yarns.forward is None else _pick(yarns.forward, weft)
+    asggx_lobe = options.multiple_lobe == "asggx"
 
     def lobes(splits, light: LightFactors, same_side: bool) -> LayerLobes:
         cos_out = on_fiber(splits.out)
         cos_half = on_fiber(splits.half)
         cos2_out = cos_out * cos_out
-        area_out = sggx.projected_area_from(cos2_out, flattening) * light.inv_wo_z
+        sigma_out = sggx.projected_area_from(cos2_out, flattening)
+        area_out = sigma_out * light.inv_wo_z
         att_out = torch.exp(-thickness * area_out.abs())
-        ndf = sggx.ndf_from(cos_half * cos_half, ndf_shape, ndf_scale)
-        if options.multiple_lobe == "asggx":
-            ndf_m = sggx.ndf_from(asggx.half_sin2(cos_in, cos_out, sin2_in, 1.0 - cos2_out), ndf_shape_m, ndf_scale_m)
+        denom = 1.0 + ndf_shape * (cos_half * cos_half)
+        ndf = ndf_scale / (denom * denom)
+        cos_phi = peak = near = near_m = None
+        if asggx_lobe:
+            across2 = sin2_in * (1.0 - cos2_out)
+            half_sin2, cross = asggx.half_sin2_with_cross(cos_in, cos_out, across2)
+            denom_m = 1.0 + ndf_shape_m * half_sin2
+            ndf_m = ndf_scale_m / (denom_m * denom_m)
             area_in_m, area_out_m = area_in, area_out
+            lobe_m = ndf_m
+            if forward is not None and not same_side:  # light crossing the layer: asggx.forward_peak
+                cos_phi = asggx.forward_azimuth(cos_in, cos_out, across2, light.cos_in_out)
+                peak = asggx.peak_at(cos_phi, forward)
+                lobe_m = ndf_m * peak
         else:  # the ablation: the single-scattering lobe with alpha_m, T_m
-            ndf_m = sggx.ndf_from(cos_half * cos_half, ndf_shape_m, ndf_scale_m)
-            flattening_m = _pick(1.0 - alpha_m * alpha_m, weft)
+            lobe_m = sggx.ndf_from(cos_half * cos_half, ndf_shape_m, ndf_scale_m)
+            flattening_m = _pick(yarns.flattening_m, weft)
             area_in_m = sggx.projected_area_from(cos2_in, flattening_m) * samples.inv_wi_z
             area_out_m = sggx.projected_area_from(cos2_out, flattening_m) * light.inv_wo_z
-        if forward is not None and not same_side:  # light crossing the layer: asggx.forward_peak
-            ndf_m = ndf_m * asggx.forward_peak(cos_in, cos_out, sin2_in, 1.0 - cos2_out, light.cos_in_out, forward)
         if same_side:  # A_i, A_o > 0: min(p, q) = 0, |q - p| = A_i + A_o
-            g = slab_g_from(thickness, area_in + area_out)
-            g_m = slab_g_from(thickness_m, area_in_m + area_out_m)
+            spread, spread_m = area_in + area_out, area_in_m + area_out_m
         else:  # A_o < 0 < A_i: min(p, q) = min(A_i, |A_o|), |q - p| = |A_i + A_o|
-            g = slab_g_from(thickness, (area_in + area_out).abs(), torch.maximum(att_in, att_out))
-            near_m = torch.minimum(area_in_m, -area_out_m)
-            g_m = slab_g_from(thickness_m, (area_in_m + area_out_m).abs(), torch.exp(-thickness_m * near_m))
-        lobe_factor = 2.0 if options.multiple_lobe == "asggx" else 1.0  # 1 / (2 |wi_z|) vs 1 / (4 |wi_z|)
+            spread, spread_m = (area_in + area_out).abs(), (area_in_m + area_out_m).abs()
+            near = torch.maximum(att_in, att_out)
+            near_m = torch.exp(-thickness_m * torch.minimum(area_in_m, -area_out_m))
+        phi = one_minus_exp_over(thickness * spread)
+        phi_m = one_minus_exp_over(thickness_m * spread_m)
+        g, g_m = thickness * phi, thickness_m * phi_m
+        if near is not None:
+            g, g_m = g * near, g_m * near_m
+        lobe_factor = 2.0 if asggx_lobe else 1.0  # 1 / (2 |wi_z|) vs 1 / (4 |wi_z|)
         cos_normal = torch.addcmul(splits.normal.z, beta, splits.normal.plane) * inv_normal
-        return LayerLobes(ndf * g * quarter_inv_wi_z, ndf_m * g_m * (lobe_factor * quarter_inv_wi_z),
-                          att_out, cos_normal)
+        parts = LobeParts(cos_out, cos_half, sigma_out, area_out, ndf, denom, half_sin2, cross, ndf_m, denom_m,
+                          cos_phi, peak, phi, phi_m, near, near_m, g, g_m) if asggx_lobe else None
+        return LayerLobes(ndf * g * quarter_inv_wi_z, lobe_m * g_m * (lobe_factor * quarter_inv_wi_z),
+                          att_out, cos_normal, parts)
 
-    return LayerOptics(att_in, lobes(layer.front, samples.front, True), lobes(layer.back, samples.back, False))
+    picked = {"flattening": flattening, "ndf_shape": ndf_shape, "ndf_shape_m": ndf_shape_m,
+              "thickness": thickness, "thickness_m": thickness_m, "height": beta, "forward": forward}
+    return LayerOptics(att_in, lobes(layer.front, samples.front, True), lobes(layer.back, samples.back, False),
+                       picked, cos_in, sigma_in, area_in, inv_fiber, inv_normal)
 
 
 class _Slots:
@@ -170,9 +244,17 @@ def eval_projected(samples: SampleProjections, fabric: ParamTensors,
 
     Radiance = cosine-weighted BSDF * intensity / distance^2 (glow excluded: it is per pixel).
     """
+    yarns = YarnConstants.of(fabric, options)
+    optics = [layer_optics(layer, yarns, samples, options) for layer in samples.layers]
+    weights_r, weights_t = weights(samples, optics, fabric.diffuse_normal_weight, options)
+    return colour_terms(fabric, options, weights_r, weights_t)
+
+
+def weights(samples: SampleProjections, optics: list[LayerOptics], diffuse_normal_weight: torch.Tensor,
+            options: RenderOptions) -> tuple[torch.Tensor, torch.Tensor]:
+    """The layers' lobes composed into the (K, S) weights of :class:`ColourTerms`, reflection and
+    transmission (the module docstring's formulas)."""
     layers = samples.layers
-    forward = forward_scattering(fabric, options)
-    optics = [layer_optics(layer, fabric, samples, options, forward) for layer in layers]
     irr_front, irr_back = samples.front.irradiance, samples.back.irradiance
     reflection, transmission = _Slots(), _Slots()
     reflection.add(layers[0], optics[0].front, irr_front)
@@ -183,29 +265,39 @@ def eval_projected(samples: SampleProjections, fabric: ParamTensors,
         transmission.add(layers[1], optics[1].back, irr_back * att0_in)
     else:
         transmission.add(layers[0], optics[0].back, irr_back)
+    weights_r, weights_t = reflection.weights, transmission.weights
+    if options.diffuse:
+        c_front, c_back = diffuse_cosines(layers, optics)
+        weights_r = weights_r + [diffuse_weight(diffuse_normal_weight, samples.front, c_front)]
+        weights_t = weights_t + [diffuse_weight(diffuse_normal_weight, samples.back, c_back)]
+    return torch.stack(weights_r), torch.stack(weights_t)
 
+
+def diffuse_cosines(layers: list[LayerProjections], optics: list[LayerOptics]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The diffuse term's c of the front light and of the back light (the module docstring)."""
+    c_front = optics[0].front.cos_normal.clamp_min(0)
+    if len(layers) == 2:  # the back layer's normal where the front is a gap
+        c_front = torch.lerp(optics[1].front.cos_normal.clamp_min(0), c_front, layers[0].yarn)
+    else:
+        c_front = c_front * layers[0].yarn
+    c_back = None
+    for layer, layer_optics_ in zip(layers, optics):
+        factor = torch.lerp(torch.ones((), dtype=c_front.dtype, device=c_front.device),
+                            (-layer_optics_.back.cos_normal).clamp_min(0), layer.yarn)
+        c_back = factor if c_back is None else c_back * factor
+    return c_front, c_back
+
+
+def colour_terms(fabric: ParamTensors, options: RenderOptions, weights_r: torch.Tensor,
+                 weights_t: torch.Tensor) -> tuple[ColourTerms, ColourTerms]:
+    """The (reflection, transmission) :class:`ColourTerms` of the weights: the albedos as colours."""
     ks = fabric.specular_albedo
     km = multiple_albedo(ks, fabric.multiple_weight)
     colours = [ks[0], ks[1], km[0], km[1]]
-    weights_r, weights_t = reflection.weights, transmission.weights
     if options.diffuse:
-        c_front = optics[0].front.cos_normal.clamp_min(0)
-        if len(layers) == 2:  # the back layer's normal where the front is a gap
-            c_front = torch.lerp(optics[1].front.cos_normal.clamp_min(0), c_front, layers[0].yarn)
-        else:
-            c_front = c_front * layers[0].yarn
-        c_back = None
-        for layer, layer_optics_ in zip(layers, optics):
-            factor = torch.lerp(torch.ones((), dtype=c_front.dtype, device=c_front.device),
-                                (-layer_optics_.back.cos_normal).clamp_min(0), layer.yarn)
-            c_back = factor if c_back is None else c_back * factor
-        w = fabric.diffuse_normal_weight
-        weights_r = weights_r + [diffuse_weight(w, samples.front, c_front)]
-        weights_t = weights_t + [diffuse_weight(w, samples.back, c_back)]
-        return (ColourTerms(torch.stack(colours + [fabric.diffuse_reflection], 1), torch.stack(weights_r)),
-                ColourTerms(torch.stack(colours + [fabric.diffuse_transmission], 1), torch.stack(weights_t)))
-    return ColourTerms(torch.stack(colours, 1), torch.stack(weights_r)), \
-        ColourTerms(torch.stack(colours, 1), torch.stack(weights_t))
+        return (ColourTerms(torch.stack(colours + [fabric.diffuse_reflection], 1), weights_r),
+                ColourTerms(torch.stack(colours + [fabric.diffuse_transmission], 1), weights_t))
+    return ColourTerms(torch.stack(colours, 1), weights_r), ColourTerms(torch.stack(colours, 1), weights_t)
 
 
 def forward_scattering(fabric: ParamTensors, options: RenderOptions) -> torch.Tensor | None:
@@ -219,9 +311,3 @@ def forward_scattering(fabric: ParamTensors, options: RenderOptions) -> torch.Te
 def diffuse_weight(weight: torch.Tensor, light: LightFactors, c: torch.Tensor) -> torch.Tensor:
     """((1 - w) |wo_z| + w c) / pi times the irradiance where some layer is a yarn; multiplies k_d."""
     return (1.0 - weight) * light.diffuse_flat + weight * (light.diffuse_normal * c)
-
-
-def eval_pair(chunk: SampleChunk, geometry: SampleGeometry, fabric: ParamTensors,
-              options: RenderOptions) -> tuple[ColourTerms, ColourTerms]:
-    """:func:`eval_projected` from camera samples and geometry (projects them first)."""
-    return eval_projected(project(chunk, geometry), fabric, options)

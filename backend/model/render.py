@@ -76,6 +76,7 @@ from ..core.options import RenderOptions
 from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG, CaptureRig
 from .bsdf import eval_projected
+from .bsdf_gradient import eval_with_hand_gradient
 from .camera import CameraSamples, SampleChunk
 from .compile_cache import allow_cached_custom_gradients, use_persistent_compile_cache
 from .geometry import GeometryKey, TileBands, sample_geometry, tile_bands, twisted_fibers
@@ -348,7 +349,7 @@ class Renderer:
         rows = samples.no_yarn.shape[0] // (self.size * self.spp)
         step = max(1, EAGER_BLOCK_SAMPLES // (self.size * self.spp))
         if step >= rows:
-            return self._pixels(samples, self._terms(samples, fabric), glow, fine)
+            return self._pixels(samples, self._terms(samples, fabric, hand_gradient=True), glow, fine)
         scale = 2 if fine else 1  # glow rows per film row
         share = self._gradient_share if torch.is_grad_enabled() else None
         pieces = []
@@ -357,18 +358,21 @@ class Renderer:
             block_glow = None if glow is None else glow[scale * r0:scale * (r0 + step)]
             carries = share is None or share.carries(index)
             with contextlib.nullcontext() if carries else torch.no_grad():
-                piece = self._pixels(block, self._terms(block, fabric), block_glow, fine)
+                piece = self._pixels(block, self._terms(block, fabric, hand_gradient=True), block_glow, fine)
             pieces.append(tuple(map(share.scaled, piece)) if share is not None and carries else piece)
         return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 
-    def _terms(self, samples: SampleProjections, fabric: ParamTensors) -> tuple[torch.Tensor, ...]:
+    def _terms(self, samples: SampleProjections, fabric: ParamTensors,
+               hand_gradient: bool = False) -> tuple[torch.Tensor, ...]:
         """The BSDF of every sample as colour terms (:class:`backend.model.bsdf.ColourTerms`):
         (reflection colours (3, K), weights (K, S), transmission colours, weights). This is what
         the compiled graph fuses; the average over each pixel's samples stays outside it, because
         with fewer samples per pixel than a vector register holds (4 at 512 px) the backward of that
         average, fused in, indexes sample s at pixel s // spp and inductor falls back to scalar code
-        for the whole BSDF."""
-        reflection, transmission = eval_projected(samples, fabric, self.options)
+        for the whole BSDF. ``hand_gradient``: differentiated by :mod:`.bsdf_gradient` (the eager path),
+        else by autograd (what the compiled graph fuses)."""
+        evaluate = eval_with_hand_gradient if hand_gradient else eval_projected
+        reflection, transmission = evaluate(samples, fabric, self.options)
         return reflection.colours, reflection.weights, transmission.colours, transmission.weights
 
     def _pixels(self, samples: SampleProjections, terms: tuple[torch.Tensor, ...], glow: torch.Tensor | None,

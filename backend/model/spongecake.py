@@ -40,8 +40,19 @@ class _OneMinusExpOver(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         y, exp_m1, phi = ctx.saved_tensors
-        slope = torch.where(y < 1e-4, y * (1.0 / 3.0) - 0.5, (exp_m1 + 1.0 - phi) / y)
-        return grad * slope
+        return grad * _slope(y, exp_m1, phi)
+
+
+def _slope(y: torch.Tensor, exp_m1: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+    """phi'(y) from y (> 0), expm1(-y) and phi(y) (:class:`_OneMinusExpOver`)."""
+    return torch.where(y < 1e-4, y * (1.0 / 3.0) - 0.5, (exp_m1 + 1.0 - phi) / y)
+
+
+def one_minus_exp_over_slope(y: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+    """phi'(y) at y >= 0 where phi(y) is known (the hand-written gradient of
+    :mod:`backend.model.bsdf_gradient`): exp(-y) - 1 = -y phi(y), as exact as expm1 where the series
+    is not taken."""
+    return _slope(y, -y * phi, phi)
 
 
 def one_minus_exp_over(y: torch.Tensor) -> torch.Tensor:
