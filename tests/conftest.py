@@ -20,6 +20,10 @@ if _WORKERS > 1:
     _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     os.environ.setdefault("OMP_NUM_THREADS", str(max(1, _CORES // _WORKERS)))
 
+# No fit in the tests compiles the renderer or starts a background compile of its kernels
+# (backend.app.environment): the tests that compile build their renderer so, and say so.
+os.environ.setdefault("WFC_COMPILE", "0")
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 if str(ROOT) not in sys.path:

@@ -57,6 +57,7 @@ from ..model.spacing_warp import SpacingWarp
 from .cli.common import InputError, device
 from .environment import renderer_compiles
 from .report import write_report
+from .warm_compile import start_warming
 
 EXAMPLE_PARAMS = ("twill1_R_0.72,0.55_S_1.3,1.6_T_2.4,2.9_N_0.0_UV_92.0,131.0_Kd_0.32,0.18,0.11,0.26,0.14,0.08"
                   "_G_0.88,0.9_Rm_0.7,0.45_Tm_2.2,2.6_W_0.6,0.9_Ks_0.62,0.38,0.25,0.55,0.33,0.22_Psi_-30.0,-30.0")
@@ -89,7 +90,7 @@ def fit_settings(options: FolderFitOptions, rig: CaptureRig) -> FitSettings:
     for name, rig_value in (("camera_blur", rig.camera_blur_px), ("sample_rotation", rig.sample_rotation_deg)):
         if values[name] is None and rig_value != 0:
             values[name] = rig_value
-    return FitSettings(**values, compile=renderer_compiles())
+    return FitSettings(**values, compile=renderer_compiles(device=values["device"]))
 
 
 def make_example(folder: Path, rig: CaptureRig = DEFAULT_RIG) -> tuple[Path, Path, FabricParams]:
@@ -190,6 +191,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     reporter.progress("load", 1, 1)
 
     settings = fit_settings(options, rig)
+    if not settings.compile:  # where only the kernels' being cold keeps it eager, they are made for later fits
+        start_warming(device=settings.device)
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=reporter.progress,

@@ -25,12 +25,16 @@ default, but its compiled steps are slower.
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 from pathlib import Path
 
 APP_FOLDER = "woven-fabric-capture"
 ENV = "TORCHINDUCTOR_CACHE_DIR"
+# The record, in the cache folder, of the kernels made ahead of the fits (backend.app.warm_compile).
+WARM_RECORD = "warm.json"
 
 
 def user_cache_root(platform: str = sys.platform, environ=os.environ, home: Path | None = None) -> Path:
@@ -78,3 +82,43 @@ def allow_cached_custom_gradients() -> None:
 
     if hasattr(config, "autograd_cache_allow_custom_autograd_functions"):
         config.autograd_cache_allow_custom_autograd_functions = True
+
+
+def cache_folder(environ=os.environ, platform: str = sys.platform, home: Path | None = None) -> Path:
+    """The folder torch.compile keeps its kernels in for this app: the user's ``TORCHINDUCTOR_CACHE_DIR``
+    where set, else :func:`compile_cache_dir`."""
+    own = environ.get(ENV)
+    return Path(own) if own else compile_cache_dir(platform, environ, home)
+
+
+def kernels_key() -> str:
+    """What warm kernels were compiled from: torch's version and a digest of the model's code (the
+    graph the renderer compiles is traced from these modules), so an upgrade of either is cold."""
+    import torch
+
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return f"{torch.__version__}/{digest.hexdigest()[:20]}"
+
+
+def kernels_warm(environ=os.environ, platform: str = sys.platform, home: Path | None = None) -> bool:
+    """Whether the cache folder holds this torch's and this code's kernels (:func:`mark_warm` wrote
+    their record there)."""
+    try:
+        record = json.loads((cache_folder(environ, platform, home) / WARM_RECORD).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(record, dict) and record.get("key") == kernels_key()
+
+
+def mark_warm(environ=os.environ, platform: str = sys.platform, home: Path | None = None) -> Path:
+    """Records that the cache folder holds the kernels of :func:`kernels_key` (written whole: a
+    reader never sees half a record)."""
+    folder = cache_folder(environ, platform, home)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / WARM_RECORD
+    partial = path.with_suffix(f".{os.getpid()}.tmp")
+    partial.write_text(json.dumps({"key": kernels_key()}) + "\n")
+    os.replace(partial, path)
+    return path

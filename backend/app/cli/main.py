@@ -4,6 +4,7 @@
     render-cases CASES.json --out DIR [...]      (backend/app/cli/render.py)
     fit REFLECTION TRANSMISSION --out DIR [...]  (backend/app/cli/fit.py)
     batch PHOTOS/ --out DIR [...]                (backend/app/cli/batch.py; needs Ray, the cluster extra)
+    warm-compile                                 (backend/app/warm_compile.py; the fit command starts it)
 
 The developer commands (dataset, train, photolike, bench, ...) are ``python -m devtools``'s.
 
@@ -16,6 +17,7 @@ import argparse
 import sys
 
 from ...core.protocol import EXIT_CANCELLED, EXIT_INPUT
+from .. import warm_compile
 from . import batch, fit, render
 from .common import INPUT_ERRORS, input_error_message
 
@@ -26,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_parsers(sub)
     fit.add_parser(sub)
     batch.add_parser(sub)
+    warm_compile.add_parser(sub)
     return parser
 
 
