@@ -16,9 +16,8 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Mapping
-
-import torch
 
 from ..core.params import FabricParams
 from ..core.rig import DEFAULT_RIG
@@ -70,11 +69,22 @@ def start_warming(environ: Mapping[str, str] = os.environ, device: str = "cpu") 
     return True
 
 
-def run_warm(args) -> int:
-    """The command: at the lowest priority, compiles the kernels and records them; the lock goes at the end."""
+def lowest_priority() -> None:
+    """This process at the lowest CPU priority. On Linux with autogroups (most desktops) the scheduler
+    weighs sessions against each other before processes, so a process in a session of its own (as
+    :func:`start_warming` starts it) also lowers its session's: nice alone left it half the CPU."""
     if hasattr(os, "nice"):
         os.nice(19)
-    torch.set_num_threads(1)  # one core: the other stays the user's
+    if os.name == "posix" and os.getsid(0) == os.getpid():  # a session's leader: the session is only its own
+        try:
+            Path("/proc/self/autogroup").write_text("19")
+        except OSError:  # no autogroups here: nice is enough
+            pass
+
+
+def run_warm(args) -> int:
+    """The command: at the lowest priority, compiles the kernels and records them; the lock goes at the end."""
+    lowest_priority()  # with the fits' thread count: inductor's kernels are made (and cached) for it
     try:
         warm_kernels()
     finally:
