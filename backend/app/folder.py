@@ -191,8 +191,6 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
     reporter.progress("load", 1, 1)
 
     settings = fit_settings(options, rig)
-    if not settings.compile:  # where only the kernels' being cold keeps it eager, they are made for later fits
-        start_warming(device=settings.device)
     initial_for = fit_initialiser(options.init, photos.reflection, photos.transmission, rig, reporter.warning)
     result = fit(photos.reflection, photos.transmission, rig, settings,
                  progress=reporter.progress,
@@ -262,6 +260,8 @@ def fit_to_folder(reflection: str | Path | None, transmission: str | Path | None
         if report is not None:
             written["report"] = str(report)
     reporter.progress("report", 1, 1)
+    if not settings.compile:  # where only the kernels' being cold kept it eager, they are made for later fits,
+        start_warming(device=settings.device)  # after this one: beside a fit the warm-up slowed it more than a compile
     reporter.info(f"wrote {out}: {', '.join(Path(path).name for path in written.values())}")
     reporter.result(out_dir=str(out), params=written["params"], files=dict(written), metrics=metrics or {})
     return 0

@@ -2,8 +2,10 @@
 
 A fit compiles the renderer on the CPU only where its kernels are in the disk cache already
 (:func:`backend.app.environment.renderer_compiles`). Where a compiler is found and the cache is cold,
-the fit command runs eager and starts this in a background process at the lowest priority
-(:func:`start_warming`): it compiles the graphs a fit's renderer compiles, its BSDF with the
+the fit command runs eager and, once its results are written, starts this in a background process at
+the lowest priority (:func:`start_warming`; beside a running fit, even at that priority, the compile
+slowed the fit by more than a compile in the fit costs: the compiler's work shares the caches the
+eager renderer's speed rests on). It compiles the graphs a fit's renderer compiles, its BSDF with the
 gradient of every optimised parameter over one chunk of 2^20 samples (512 px at 4 spp and 256 px at
 16: the working sizes' chunks), once without and once with a yarn variation's per-sample albedo
 (the variation stage's), and then records them as warm (:func:`backend.model.compile_cache.mark_warm`).
