@@ -3,6 +3,7 @@
 import os
 import stat
 import time
+import types
 
 import pytest
 
@@ -77,7 +78,8 @@ def test_a_cold_fit_starts_one_background_warm_up_at_a_time(machine, monkeypatch
     monkeypatch.setattr(warm_compile.subprocess, "Popen", lambda argv, **kwargs: started.append((argv, kwargs)))
     assert warm_compile.start_warming(machine)
     argv, kwargs = started[0]
-    assert argv[1:] == ["-m", "backend", "warm-compile"] and kwargs["stdin"] == warm_compile.subprocess.DEVNULL
+    assert argv[-3:] == ["-m", "backend", "warm-compile"] and kwargs["stdin"] == warm_compile.subprocess.DEVNULL
+    assert argv[1:-3] == warm_compile.interpreter_flags()
     assert kwargs.get("start_new_session") or kwargs.get("creationflags")  # its own session: it outlives no one's
     assert not warm_compile.start_warming(machine)  # one is running: its lock is fresh
     lock = compile_cache.cache_folder(machine) / warm_compile.LOCK
@@ -114,6 +116,12 @@ def test_the_warm_up_compiles_the_fit_renderer_s_graphs_then_records_them(machin
     assert warm_compile.WARM_FABRIC.brightness_variation == (0.0, 0.0) != warm_compile.WARM_VARIED.brightness_variation
     assert kernels_warm(machine)
     assert warm_compile.warm_kernels.__defaults__ == (512, 4)  # 512 px x 4 spp: one chunk of 2^20 samples
+
+
+def test_the_warm_up_runs_with_the_fit_s_isolation_flags():
+    blender = types.SimpleNamespace(no_site=1, no_user_site=0, safe_path=True)  # the add-on's -S -P
+    assert warm_compile.interpreter_flags(blender) == ["-S", "-P"]
+    assert warm_compile.interpreter_flags(types.SimpleNamespace(no_site=0, no_user_site=0)) == []
 
 
 def test_cxx_names_the_compiler(tmp_path):

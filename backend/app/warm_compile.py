@@ -66,7 +66,7 @@ def start_warming(environ: Mapping[str, str] = os.environ, device: str = "cpu") 
         return False
     options = {"start_new_session": True} if os.name == "posix" else {
         "creationflags": subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.BELOW_NORMAL_PRIORITY_CLASS}
-    subprocess.Popen([sys.executable, "-m", "backend", "warm-compile"], stdin=subprocess.DEVNULL,
+    subprocess.Popen([sys.executable, *interpreter_flags(), "-m", "backend", "warm-compile"], stdin=subprocess.DEVNULL,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(environ), **options)
     return True
 
@@ -82,6 +82,14 @@ def lowest_priority() -> None:
             Path("/proc/self/autogroup").write_text("19")
         except OSError:  # no autogroups here: nice is enough
             pass
+
+
+def interpreter_flags(flags=sys.flags) -> list[str]:
+    """This interpreter's isolation flags, for the warm-up to import what the fit imported: the add-on
+    runs the backend in Blender's Python with ``-S -P`` and its packages on PYTHONPATH
+    (``blender_addon.core.backend_bridge.Backend``), which the warm-up inherits."""
+    return [flag for flag, on in (("-S", flags.no_site), ("-s", flags.no_user_site),
+                                  ("-P", getattr(flags, "safe_path", False))) if on]
 
 
 def run_warm(args) -> int:
