@@ -84,15 +84,13 @@ def test_the_ablations_keep_autograd_s_gradient(flags):
         assert (ours[1][name] is None and theirs[1][name] is None) or torch.equal(ours[1][name], theirs[1][name]), name
 
 
-def test_the_eager_renderer_s_gradient_is_autograd_s(monkeypatch):
+def test_the_eager_renderer_s_gradient_is_autograd_s():
     """A whole render's gradient (pixel means, glow, blur) through the eager path, against the same
     render with autograd's evaluation of the BSDF (float32, as fits run)."""
-    from backend.model import bsdf_gradient
     params = CASES["forward scattering"]
     grads = []
     for hand in (True, False):
-        monkeypatch.setattr(bsdf_gradient, "supported", lambda options, hand=hand: hand)
-        renderer = Renderer(size=32, spp=4)
+        renderer = Renderer(size=32, spp=4, hand_gradient=hand)
         fabric = ParamTensors.from_params(params, requires_grad=OPTIMISED)
         reflection, transmission = renderer.blurred(fabric, camera_blur_px=1.5)
         (reflection.square().mean() + transmission.mean()).backward()

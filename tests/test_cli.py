@@ -89,7 +89,8 @@ def test_bench_prints_one_json_line_with_the_figures():
                  env={**os.environ, "WFC_COMPILE": "0"}, program="devtools")
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout.strip().splitlines()[-1])
-    for key in ("forward_s", "backward_s", "eager_forward_s", "peak_mb"):
+    for key in ("forward_s", "backward_s", "eager_forward_s", "peak_mb", "autograd_backward_s",
+                "hand_gradient_speedup"):
         assert figures[key] > 0
     assert figures["size"] == 32 and figures["spp"] == 1 and figures["compiled"] is False
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 from oracles import reference
 
-from backend.app.environment import renderer_compiles
+from backend.app.environment import compiler_found
 from backend.core import variation as yarn_variation
 from backend.core.options import RenderOptions
 from backend.core.params import PARAMETERS, FabricParams
@@ -235,7 +235,7 @@ def test_jitter_is_stratified():
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not renderer_compiles(), reason="torch.compile needs a C++ compiler, none found")
+@pytest.mark.skipif(not compiler_found(), reason="torch.compile needs a C++ compiler, none found")
 def test_compiled_renderer_matches_eager_and_is_kept_in_the_disk_cache():
     params = FabricParams.from_interchange(
         "plain_R_0.49,0.49_S_1.5,1.5_T_1.48,1.48_N_0.0_UV_150.6,150.6_Kd_0.077,0.282,0.077,0.147,0.245,0.205"

@@ -59,6 +59,8 @@ Parameters of :class:`Renderer`:
     gradient_inputs     names (None)          the parameters a fit differentiates; None: those of
                                               the last render with gradients
     warp                SpacingWarp (None)    the photos' uneven yarn spacing (:mod:`.spacing_warp`)
+    hand_gradient       bool (True)           the eager path's BSDF gradient by hand
+                                              (:mod:`.bsdf_gradient`), else autograd's (benches)
     ==================  ====================  ==================================================
 """
 from __future__ import annotations
@@ -138,8 +140,10 @@ class Renderer:
                  options: RenderOptions = RenderOptions(), device="cpu", dtype=torch.float32,
                  max_chunk_samples: int = 1 << 20, cache_samples: int = 1 << 21, geometry_cache: int = 4,
                  compile: bool = False, subpixel_blur: bool | None = False,
-                 gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None):
+                 gradient_inputs: tuple[str, ...] | None = None, warp: SpacingWarp | None = None,
+                 hand_gradient: bool = True):
         self.rig, self.options, self.device, self.dtype = rig, options, torch.device(device), dtype
+        self.hand_gradient = hand_gradient
         if self.device.type == "cuda":
             full_precision_convolutions()
         self.camera = CameraSamples(rig, size, spp, seed, self.device, dtype, warp)
@@ -349,7 +353,7 @@ class Renderer:
         rows = samples.no_yarn.shape[0] // (self.size * self.spp)
         step = max(1, EAGER_BLOCK_SAMPLES // (self.size * self.spp))
         if step >= rows:
-            return self._pixels(samples, self._terms(samples, fabric, hand_gradient=True), glow, fine)
+            return self._pixels(samples, self._terms(samples, fabric, self.hand_gradient), glow, fine)
         scale = 2 if fine else 1  # glow rows per film row
         share = self._gradient_share if torch.is_grad_enabled() else None
         pieces = []
@@ -358,7 +362,7 @@ class Renderer:
             block_glow = None if glow is None else glow[scale * r0:scale * (r0 + step)]
             carries = share is None or share.carries(index)
             with contextlib.nullcontext() if carries else torch.no_grad():
-                piece = self._pixels(block, self._terms(block, fabric, hand_gradient=True), block_glow, fine)
+                piece = self._pixels(block, self._terms(block, fabric, self.hand_gradient), block_glow, fine)
             pieces.append(tuple(map(share.scaled, piece)) if share is not None and carries else piece)
         return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 

@@ -9,6 +9,9 @@ all continuous parameters requiring gradients):
   :mod:`backend.model.render`);
 - backward_s: median time of a render plus the backward pass of a scalar loss (forward + backward);
 - the same two for the eager (uncompiled) renderer, measured in the same run, and their ratio;
+- autograd_backward_s: the eager forward + backward with autograd's gradient of the BSDF instead of
+  the hand-written one (:mod:`backend.model.bsdf_gradient`), timed in turns with it (the same
+  machine state), and hand_gradient_speedup, their ratio;
 - compile_s: the first compiled call (compilation, cached on disk for later runs);
 - cold_s: a render from nothing (camera samples, weave geometry, BSDF; eager, no cache);
 - peak_mb: the process's peak resident memory (CPU) or peak allocated memory (CUDA) after the
@@ -67,6 +70,21 @@ def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dic
             "warmup_s": warm}
 
 
+def _in_turns(renderers: list[Renderer], fabric: ParamTensors, runs: int, device) -> list[float]:
+    """Median forward + backward time of each renderer, taking turns ``runs`` times (after a warm-up)."""
+    def step(renderer):
+        pair = renderer.render(fabric)
+        (pair.reflection.mean() + pair.transmission.mean()).backward()
+
+    times = [[] for _ in renderers]
+    for renderer in renderers:
+        step(renderer)
+    for _ in range(runs):
+        for renderer, kept in zip(renderers, times):
+            kept.append(_time(lambda: step(renderer), 1, device))
+    return [statistics.median(kept) for kept in times]
+
+
 def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = False,
                  device=torch.device("cpu"), ledger: Ledger = NOT_RECORDED) -> int:
     params = FabricParams.from_interchange(EXAMPLE)
@@ -81,11 +99,14 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
 
     # The compiled path first: the process peak after it is its own (the eager path keeps far more
     # tensors for the backward pass, and a peak never goes down).
-    compiled_renderer = Renderer(size=size, spp=spp, device=device, compile=renderer_compiles())
+    compiled_renderer = Renderer(size=size, spp=spp, device=device, compile=renderer_compiles(device=str(device)))
     fast = _measure(compiled_renderer, fabric, runs, device) if compiled_renderer.compiled else None
     fast_peak = peak_memory_mb(device)
     del compiled_renderer  # free its caches before the eager run
-    eager = _measure(Renderer(size=size, spp=spp, device=device, compile=False), fabric, runs, device)
+    eager_renderer = Renderer(size=size, spp=spp, device=device, compile=False)
+    eager = _measure(eager_renderer, fabric, runs, device)
+    by_hand, by_autograd = _in_turns([eager_renderer, Renderer(size=size, spp=spp, device=device, compile=False,
+                                                               hand_gradient=False)], fabric, runs, device)
     compiled = fast is not None
     fast = fast or eager
     result = {
@@ -98,6 +119,8 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
         "eager_forward_s": round(eager["forward_s"], 4),
         "eager_backward_s": round(eager["backward_s"], 4),
         "speedup_forward": round(eager["forward_s"] / fast["forward_s"], 2),
+        "autograd_backward_s": round(by_autograd, 4),
+        "hand_gradient_speedup": round(by_autograd / by_hand, 2),
         "cold_s": round(cold, 3),
         "baseline_mb": round(baseline_mb, 1),
         "size": size, "spp": spp, "runs": runs, "device": str(device), "threads": torch.get_num_threads(),
@@ -110,6 +133,8 @@ def bench_render(size: int = 512, spp: int = 4, runs: int = 5, as_json: bool = F
               f"(eager {result['eager_forward_s'] * 1000:.1f} ms, x{result['speedup_forward']})")
         print(f"  forward+backward  {result['backward_s'] * 1000:8.1f} ms  "
               f"(eager {result['eager_backward_s'] * 1000:.1f} ms)")
+        print(f"  gradient by hand  x{result['hand_gradient_speedup']:<7} "
+              f"(eager forward+backward with autograd's: {result['autograd_backward_s'] * 1000:.1f} ms, in turns)")
         print(f"  cold render       {result['cold_s'] * 1000:8.1f} ms  (camera samples + geometry + BSDF, eager)")
         if result["compiled"]:
             print(f"  first compiled call {result['compile_s']:.1f} s (compile; cached on disk)")
