@@ -65,7 +65,7 @@ def start_warming(environ: Mapping[str, str] = os.environ, device: str = "cpu") 
     except OSError:  # an unwritable cache: the fits stay eager
         return False
     options = {"start_new_session": True} if os.name == "posix" else {
-        "creationflags": subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.BELOW_NORMAL_PRIORITY_CLASS}
+        "creationflags": subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.IDLE_PRIORITY_CLASS}
     subprocess.Popen([sys.executable, *interpreter_flags(), "-m", "backend", "warm-compile"], stdin=subprocess.DEVNULL,
                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(environ), **options)
     return True
