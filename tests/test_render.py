@@ -219,6 +219,35 @@ def test_a_render_without_gradients_ignores_the_gradient_share(monkeypatch):
     assert renderer._gradient_share is None  # the share holds for its block only
 
 
+def test_the_eager_blocks_merge_only_where_no_gradient_is_taken():
+    from backend.model.render import eager_blocks
+    assert eager_blocks(16, 2, 8, None) == [(0, 8, False), (8, 16, False)]
+    assert eager_blocks(16, 2, 8, lambda k: True) == [(r, r + 2, True) for r in range(0, 16, 2)]
+    share = GradientShare(1, 4)  # blocks 1 and 5 carry, each the same 2 rows as unmerged
+    assert eager_blocks(16, 2, 8, share.carries) == [(0, 2, False), (2, 4, True), (4, 10, False), (10, 12, True),
+                                                     (12, 16, False)]
+    assert eager_blocks(5, 2, 8, None) == [(0, 5, False)]  # a last short block joins too
+
+
+def test_larger_forward_blocks_give_the_same_images_and_gradients(monkeypatch):
+    params = FabricParams(pattern="satin1", tiles=(80.0, 60.0), forward_scattering=(0.3, 0.1))
+    results = []
+    for forward in (32 * 4 * 4, 32 * 4 * 16):  # the forward blocks as small as the others, or 4 of them
+        monkeypatch.setattr(render_module, "EAGER_BLOCK_SAMPLES", 32 * 4 * 4)  # 8 blocks of 4 rows
+        monkeypatch.setattr(render_module, "FORWARD_BLOCK_SAMPLES", forward)
+        renderer = Renderer(size=32, spp=4)
+        with torch.no_grad():
+            plain = renderer.render(params)
+        fabric = ParamTensors.from_params(params, requires_grad=OPTIMISED)
+        with renderer.gradient_share(GradientShare(2, 4)):
+            pair = renderer.render(fabric)
+        (pair.reflection.square().mean() + pair.transmission.mean()).backward()
+        results.append((plain.reflection, plain.transmission, pair.reflection.detach(),
+                        torch.cat([fabric.values[n].grad.flatten() for n in OPTIMISED])))
+    for small, large in zip(*results):
+        assert torch.equal(small, large)
+
+
 def test_fixed_seed_is_deterministic_and_seeds_differ():
     params = FabricParams(pattern="twill1", tiles=(90.0, 120.0))
     a = Renderer(size=32, spp=4, seed=3).render(params).reflection

@@ -123,6 +123,9 @@ COMPILE_OPTIONS = {"max_fusion_size": 256}
 # Samples per block of rows on the eager path: small enough for a block's tensors to stay in the CPU's
 # caches from one operation to the next.
 EAGER_BLOCK_SAMPLES = 1 << 17
+# Samples per block whose gradient is not taken (a render without gradients, the rows outside a
+# gradient share): with no backward pass keeping its tensors, fewer and larger operations are faster.
+FORWARD_BLOCK_SAMPLES = 1 << 19
 
 
 def full_precision_convolutions() -> None:
@@ -349,21 +352,25 @@ class Renderer:
     def _eager(self, samples: SampleProjections, fabric: ParamTensors, glow: torch.Tensor | None,
                fine: bool = False):
         """:meth:`_pixels` in blocks of rows small enough for the CPU's caches: every eager operation
-        reads and writes whole tensors, and a block's tensors stay in cache from one to the next."""
-        rows = samples.no_yarn.shape[0] // (self.size * self.spp)
-        step = max(1, EAGER_BLOCK_SAMPLES // (self.size * self.spp))
-        if step >= rows:
+        reads and writes whole tensors, and a block's tensors stay in cache from one to the next
+        (:func:`eager_blocks`: larger where no gradient is taken)."""
+        per_row = self.size * self.spp
+        rows = samples.no_yarn.shape[0] // per_row
+        gradients = torch.is_grad_enabled() and any(v.requires_grad for v in fabric.values.values())
+        share = self._gradient_share if gradients else None
+        carries = None if not gradients else (lambda index: True) if share is None else share.carries
+        blocks = eager_blocks(rows, max(1, EAGER_BLOCK_SAMPLES // per_row), max(1, FORWARD_BLOCK_SAMPLES // per_row),
+                              carries)
+        if len(blocks) == 1:
             return self._pixels(samples, self._terms(samples, fabric, self.hand_gradient), glow, fine)
         scale = 2 if fine else 1  # glow rows per film row
-        share = self._gradient_share if torch.is_grad_enabled() else None
         pieces = []
-        for index, r0 in enumerate(range(0, rows, step)):
-            block = samples.between(r0 * self.size * self.spp, min(r0 + step, rows) * self.size * self.spp)
-            block_glow = None if glow is None else glow[scale * r0:scale * (r0 + step)]
-            carries = share is None or share.carries(index)
-            with contextlib.nullcontext() if carries else torch.no_grad():
+        for r0, r1, carried in blocks:
+            block = samples.between(r0 * per_row, r1 * per_row)
+            block_glow = None if glow is None else glow[scale * r0:scale * r1]
+            with contextlib.nullcontext() if carried or not gradients else torch.no_grad():
                 piece = self._pixels(block, self._terms(block, fabric, self.hand_gradient), block_glow, fine)
-            pieces.append(tuple(map(share.scaled, piece)) if share is not None and carries else piece)
+            pieces.append(tuple(map(share.scaled, piece)) if share is not None and carried else piece)
         return torch.cat([r for r, _ in pieces], 0), torch.cat([t for _, t in pieces], 0)
 
     def _terms(self, samples: SampleProjections, fabric: ParamTensors,
@@ -452,6 +459,22 @@ class Renderer:
         g, c = self.rig.gamma, self.rig.clamp
         return RenderedPair(display_transform(reflection, g, c, self.vignette),
                             display_transform(transmission, g, c, self.vignette), reflection, transmission)
+
+
+def eager_blocks(rows: int, step: int, forward_step: int, carries) -> list[tuple[int, int, bool]]:
+    """The eager path's blocks of film rows as (first row, end row, whether its gradient is taken): the
+    k-th block of ``step`` rows carries a gradient where ``carries(k)`` (None: no block does), and
+    consecutive blocks that carry none are merged, up to ``forward_step`` rows. The values are the same
+    whatever the blocks (each sample's are its own and whole rows are averaged), and a carrying block
+    is the same block as without the merge (:class:`GradientShare` counts them)."""
+    blocks: list[tuple[int, int, bool]] = []
+    for index, r0 in enumerate(range(0, rows, step)):
+        r1, carried = min(r0 + step, rows), carries is not None and carries(index)
+        if blocks and not carried and not blocks[-1][2] and r1 - blocks[-1][0] <= forward_step:
+            blocks[-1] = (blocks[-1][0], r1, False)
+        else:
+            blocks.append((r0, r1, carried))
+    return blocks
 
 
 @dataclass(frozen=True)
