@@ -42,7 +42,7 @@ def test_the_bundled_command_line_has_the_users_commands_only(unpacked):
     result = subprocess.run([sys.executable, "-m", "backend", "--help"], cwd=unpacked, env=env,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    assert "{render,render-cases,fit,batch}" in result.stdout
+    assert "{render,render-cases,fit,batch,warm-compile}" in result.stdout
     refused = subprocess.run([sys.executable, "-m", "backend", "bench", "render"], cwd=unpacked, env=env,
                              capture_output=True, text=True)
     assert refused.returncode == 2 and "invalid choice: 'bench'" in refused.stderr
