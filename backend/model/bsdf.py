@@ -28,6 +28,7 @@ exp(-T min(A_i, |A_o|)) = max(att(wi), att(wo)) is already at hand for the singl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
@@ -83,7 +84,9 @@ class LobeParts:
     ndf: torch.Tensor           # D(h) = scale / denom^2
     denom: torch.Tensor         # 1 + shape ch^2
     half_sin2: torch.Tensor     # sin^2 th of the ASGGX lobe
-    cross: torch.Tensor         # sqrt((1 - ci^2)(1 - co^2))
+    sin2_out: torch.Tensor      # 1 - co^2
+    across2: torch.Tensor       # (1 - ci^2)(1 - co^2)
+    cross: torch.Tensor         # its root
     ndf_m: torch.Tensor         # D_alpha_m(h'), before the forward scattering's peak
     denom_m: torch.Tensor
     cos_phi: torch.Tensor | None  # the forward scattering's azimuth (None: no peak)
@@ -115,6 +118,7 @@ class LayerOptics:
     # per sample: the yarn's constants picked, and the intermediates of wi the gradient reads
     picked: dict[str, torch.Tensor] | None = None
     cos_in: torch.Tensor | None = None
+    sin2_in: torch.Tensor | None = None
     sigma_in: torch.Tensor | None = None
     area_in: torch.Tensor | None = None
     inv_fiber: torch.Tensor | None = None
@@ -182,7 +186,8 @@ def layer_optics(layer: LayerProjections, yarns: YarnConstants, samples: SampleP
         ndf = ndf_scale / (denom * denom)
         cos_phi = peak = near = near_m = None
         if asggx_lobe:
-            across2 = sin2_in * (1.0 - cos2_out)
+            sin2_out = 1.0 - cos2_out
+            across2 = sin2_in * sin2_out
             half_sin2, cross = asggx.half_sin2_with_cross(cos_in, cos_out, across2)
             denom_m = 1.0 + ndf_shape_m * half_sin2
             ndf_m = ndf_scale_m / (denom_m * denom_m)
@@ -210,15 +215,15 @@ def layer_optics(layer: LayerProjections, yarns: YarnConstants, samples: SampleP
             g, g_m = g * near, g_m * near_m
         lobe_factor = 2.0 if asggx_lobe else 1.0  # 1 / (2 |wi_z|) vs 1 / (4 |wi_z|)
         cos_normal = torch.addcmul(splits.normal.z, beta, splits.normal.plane) * inv_normal
-        parts = LobeParts(cos_out, cos_half, sigma_out, area_out, ndf, denom, half_sin2, cross, ndf_m, denom_m,
-                          cos_phi, peak, phi, phi_m, near, near_m, g, g_m) if asggx_lobe else None
+        parts = LobeParts(cos_out, cos_half, sigma_out, area_out, ndf, denom, half_sin2, sin2_out, across2, cross,
+                          ndf_m, denom_m, cos_phi, peak, phi, phi_m, near, near_m, g, g_m) if asggx_lobe else None
         return LayerLobes(ndf * g * quarter_inv_wi_z, lobe_m * g_m * (lobe_factor * quarter_inv_wi_z),
                           att_out, cos_normal, parts)
 
     picked = {"flattening": flattening, "ndf_shape": ndf_shape, "ndf_shape_m": ndf_shape_m,
               "thickness": thickness, "thickness_m": thickness_m, "height": beta, "forward": forward}
     return LayerOptics(att_in, lobes(layer.front, samples.front, True), lobes(layer.back, samples.back, False),
-                       picked, cos_in, sigma_in, area_in, inv_fiber, inv_normal)
+                       picked, cos_in, sin2_in, sigma_in, area_in, inv_fiber, inv_normal)
 
 
 class _Slots:
@@ -251,9 +256,10 @@ def eval_projected(samples: SampleProjections, fabric: ParamTensors,
 
 
 def weights(samples: SampleProjections, optics: list[LayerOptics], diffuse_normal_weight: torch.Tensor,
-            options: RenderOptions) -> tuple[torch.Tensor, torch.Tensor]:
+            options: RenderOptions, cosines: "DiffuseCosines | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The layers' lobes composed into the (K, S) weights of :class:`ColourTerms`, reflection and
-    transmission (the module docstring's formulas)."""
+    transmission (the module docstring's formulas); ``cosines``: the diffuse term's, where the caller
+    has them (:func:`diffuse_cosines`)."""
     layers = samples.layers
     irr_front, irr_back = samples.front.irradiance, samples.back.irradiance
     reflection, transmission = _Slots(), _Slots()
@@ -267,25 +273,35 @@ def weights(samples: SampleProjections, optics: list[LayerOptics], diffuse_norma
         transmission.add(layers[0], optics[0].back, irr_back)
     weights_r, weights_t = reflection.weights, transmission.weights
     if options.diffuse:
-        c_front, c_back = diffuse_cosines(layers, optics)
-        weights_r = weights_r + [diffuse_weight(diffuse_normal_weight, samples.front, c_front)]
-        weights_t = weights_t + [diffuse_weight(diffuse_normal_weight, samples.back, c_back)]
+        cosines = cosines or diffuse_cosines(layers, optics)
+        weights_r = weights_r + [diffuse_weight(diffuse_normal_weight, samples.front, cosines.front)]
+        weights_t = weights_t + [diffuse_weight(diffuse_normal_weight, samples.back, cosines.back)]
     return torch.stack(weights_r), torch.stack(weights_t)
 
 
-def diffuse_cosines(layers: list[LayerProjections], optics: list[LayerOptics]) -> tuple[torch.Tensor, torch.Tensor]:
-    """The diffuse term's c of the front light and of the back light (the module docstring)."""
+class DiffuseCosines(NamedTuple):
+    """The diffuse term's c of the front light and of the back light (the module docstring), and the
+    back light's factor of each layer (c_back is their product)."""
+
+    front: torch.Tensor
+    back: torch.Tensor
+    back_factors: list[torch.Tensor]
+
+
+def diffuse_cosines(layers: list[LayerProjections], optics: list[LayerOptics]) -> DiffuseCosines:
+    """:class:`DiffuseCosines` of the layers' normals."""
     c_front = optics[0].front.cos_normal.clamp_min(0)
     if len(layers) == 2:  # the back layer's normal where the front is a gap
         c_front = torch.lerp(optics[1].front.cos_normal.clamp_min(0), c_front, layers[0].yarn)
     else:
         c_front = c_front * layers[0].yarn
-    c_back = None
+    c_back, factors = None, []
     for layer, layer_optics_ in zip(layers, optics):
         factor = torch.lerp(torch.ones((), dtype=c_front.dtype, device=c_front.device),
                             (-layer_optics_.back.cos_normal).clamp_min(0), layer.yarn)
         c_back = factor if c_back is None else c_back * factor
-    return c_front, c_back
+        factors.append(factor)
+    return DiffuseCosines(c_front, c_back, factors)
 
 
 def colour_terms(fabric: ParamTensors, options: RenderOptions, weights_r: torch.Tensor,

@@ -41,6 +41,7 @@ import torch
 from ..core.options import RenderOptions
 from .bsdf import (
     ColourTerms,
+    DiffuseCosines,
     LayerLobes,
     LayerOptics,
     YarnConstants,
@@ -85,8 +86,9 @@ class _HandGradient(torch.autograd.Function):
     def forward(ctx, samples: SampleProjections, options: RenderOptions, diffuse_normal_weight, *constants):
         yarns = YarnConstants(**dict(zip(_CONSTANTS, constants)))
         optics = [layer_optics(layer, yarns, samples, options) for layer in samples.layers]
-        weights_r, weights_t = weights(samples, optics, diffuse_normal_weight, options)
-        ctx.samples, ctx.optics, ctx.yarns = samples, optics, yarns
+        cosines = diffuse_cosines(samples.layers, optics)
+        weights_r, weights_t = weights(samples, optics, diffuse_normal_weight, options, cosines)
+        ctx.samples, ctx.optics, ctx.yarns, ctx.cosines = samples, optics, yarns, cosines
         ctx.save_for_backward(diffuse_normal_weight)
         return weights_r, weights_t
 
@@ -94,7 +96,7 @@ class _HandGradient(torch.autograd.Function):
     def backward(ctx, grad_r, grad_t):
         (w,) = ctx.saved_tensors
         samples, optics, yarns = ctx.samples, ctx.optics, ctx.yarns
-        lights, grad_w = _composition_backward(samples, optics, w, grad_r, grad_t)
+        lights, grad_w = _composition_backward(samples, optics, ctx.cosines, w, grad_r, grad_t)
         per_yarn = None
         for layer, layer_optics_, layer_grads in zip(samples.layers, optics, lights):
             found = _layer_backward(layer, layer_optics_, yarns, samples, *layer_grads)
@@ -107,26 +109,28 @@ class _HandGradient(torch.autograd.Function):
                                                        for n in _CONSTANTS))
 
 
-def _slot_backward(layer: LayerProjections, lobes: LayerLobes, factor: torch.Tensor, grad: torch.Tensor):
+def _slot_backward(layer: LayerProjections, lobes: LayerLobes, factor: torch.Tensor, grad: torch.Tensor,
+                   factor_wanted: bool = True):
     """Of ``_Slots.add(layer, lobes, factor)``: the gradients of the single lobe, the multiple lobe and
-    the factor, from the gradient of the light's weights (K, S)."""
+    the factor (None where not ``factor_wanted``: a constant factor), from the gradient of the light's
+    weights (K, S)."""
     weft = layer.weft
     g_single, g_multiple = torch.lerp(grad[0], grad[1], weft), torch.lerp(grad[2], grad[3], weft)
-    g_factor = g_single * lobes.single + g_multiple * lobes.multiple
+    g_factor = g_single * lobes.single + g_multiple * lobes.multiple if factor_wanted else None
     if layer.albedo_scale is not None:
         factor = factor * layer.albedo_scale
-        g_factor = g_factor * layer.albedo_scale
+        g_factor = None if g_factor is None else g_factor * layer.albedo_scale
     return g_single * factor, g_multiple * factor, g_factor
 
 
-def _composition_backward(samples: SampleProjections, optics: list[LayerOptics], w: torch.Tensor,
-                          grad_r: torch.Tensor, grad_t: torch.Tensor):
+def _composition_backward(samples: SampleProjections, optics: list[LayerOptics], cosines: DiffuseCosines,
+                          w: torch.Tensor, grad_r: torch.Tensor, grad_t: torch.Tensor):
     """Of :func:`backend.model.bsdf.weights` (two layers, diffuse): per layer, the gradients
     (single, multiple, att(wo), wo . n) of each light and att(wi)'s; and the diffuse normal weight's."""
     layers = samples.layers
     irr_f, irr_b = samples.front.irradiance, samples.back.irradiance
     o0, o1 = optics
-    s0f, m0f, _ = _slot_backward(layers[0], o0.front, irr_f, grad_r)
+    s0f, m0f, _ = _slot_backward(layers[0], o0.front, irr_f, grad_r, factor_wanted=False)
     s1f, m1f, g_factor = _slot_backward(layers[1], o1.front, irr_f * o0.front.att_out * o0.att_in, grad_r)
     g_att0f, g_att0_in = g_factor * (irr_f * o0.att_in), g_factor * (irr_f * o0.front.att_out)
     s0b, m0b, g_factor = _slot_backward(layers[0], o0.back, irr_b * o1.back.att_out, grad_t)
@@ -134,7 +138,7 @@ def _composition_backward(samples: SampleProjections, optics: list[LayerOptics],
     s1b, m1b, g_factor = _slot_backward(layers[1], o1.back, irr_b * o0.att_in, grad_t)
     g_att0_in = g_att0_in + g_factor * irr_b
 
-    c_front, c_back = diffuse_cosines(layers, optics)
+    c_front, c_back, factors = cosines
     g_wr, g_wt = grad_r[4], grad_t[4]
     front, back = samples.front, samples.back
     grad_w = ((g_wr * (front.diffuse_normal * c_front - front.diffuse_flat)).sum()
@@ -145,8 +149,6 @@ def _composition_backward(samples: SampleProjections, optics: list[LayerOptics],
     g_n0f = torch.where(n0f >= 0, g_c * yarn0, 0.0)
     g_n1f = torch.where(n1f >= 0, g_c * (1.0 - yarn0), 0.0)
     g_cb = g_wt * (w * back.diffuse_normal)
-    factors = [torch.lerp(torch.ones_like(c_back), (-o.back.cos_normal).clamp_min(0), layer.yarn)
-               for layer, o in zip(layers, optics)]
     g_n0b = torch.where(o0.back.cos_normal <= 0, -(g_cb * factors[1] * layers[0].yarn), 0.0)
     g_n1b = torch.where(o1.back.cos_normal <= 0, -(g_cb * factors[0] * layers[1].yarn), 0.0)
     return [((s0f, m0f, g_att0f, g_n0f), (s0b, m0b, None, g_n0b), g_att0_in),
@@ -180,9 +182,8 @@ def _lobe_backward(grads: _Grads, optics: LayerOptics, lobes: LayerLobes, quarte
     p, picked = lobes.parts, optics.picked
     light = "front" if same_side else "back"
     thickness, thickness_m = picked["thickness"], picked["thickness_m"]
-    cos_in, cos_out = optics.cos_in, p.cos_out
-    sin2_in, sin2_out = 1.0 - cos_in * cos_in, 1.0 - cos_out * cos_out
-    across = sin2_in * sin2_out >= 1e-14  # where X = sqrt((1 - ci^2)(1 - co^2)) is not floored
+    cos_in, cos_out, sin2_in, sin2_out = optics.cos_in, p.cos_out, optics.sin2_in, p.sin2_out
+    across = p.across2 >= 1e-14  # where X = sqrt((1 - ci^2)(1 - co^2)) is not floored
     inv_cross = torch.where(across, 1.0 / p.cross, torch.zeros_like(p.cross))
     # single = D G q, multiple = D_m [A_k] G_m 2q
     g_single_q = g_single * quarter_inv_wi_z
