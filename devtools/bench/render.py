@@ -54,13 +54,18 @@ def _time(fn, runs: int, device) -> float:
     return statistics.median(times)
 
 
+def _forward_backward(renderer: Renderer, fabric: ParamTensors) -> None:
+    """A render and the backward pass of a scalar loss of it."""
+    pair = renderer.render(fabric)
+    (pair.reflection.mean() + pair.transmission.mean()).backward()
+
+
 def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dict:
     def forward():
         renderer.render(fabric)
 
     def forward_backward():
-        pair = renderer.render(fabric)
-        (pair.reflection.mean() + pair.transmission.mean()).backward()
+        _forward_backward(renderer, fabric)
 
     start = time.perf_counter()
     forward_backward()  # warm-up: caches, and compilation when enabled
@@ -72,16 +77,12 @@ def _measure(renderer: Renderer, fabric: ParamTensors, runs: int, device) -> dic
 
 def _in_turns(renderers: list[Renderer], fabric: ParamTensors, runs: int, device) -> list[float]:
     """Median forward + backward time of each renderer, taking turns ``runs`` times (after a warm-up)."""
-    def step(renderer):
-        pair = renderer.render(fabric)
-        (pair.reflection.mean() + pair.transmission.mean()).backward()
-
     times = [[] for _ in renderers]
     for renderer in renderers:
-        step(renderer)
+        _forward_backward(renderer, fabric)
     for _ in range(runs):
         for renderer, kept in zip(renderers, times):
-            kept.append(_time(lambda: step(renderer), 1, device))
+            kept.append(_time(lambda: _forward_backward(renderer, fabric), 1, device))
     return [statistics.median(kept) for kept in times]
 
 
