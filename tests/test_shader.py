@@ -282,10 +282,11 @@ def test_fallback_lobes_match_the_backend():
             a, am = pick(p.roughness), pick(p.roughness_multiple)
             T, Tm = torch.tensor(out[f"T{k}"]), torch.tensor(out[f"Tm{k}"])
             o, w_in = torch.tensor(out[f"o{k}"]), torch.tensor(wi)
-            fs, fm, att_in, _ = eval_layer(w_in, torch.tensor(out[f"wo{k}"]), o, a, T, am, Tm)
-            lit = out[f"lit{k}"] > 0.5
-            assert lit[yarn].mean() > 0.9
-            for mine, ref in ((out[f"fs{k}"], fs), (out[f"fm{k}"], fm)):
+            for lobe in ("s", "m"):  # each lobe at the mirror direction about its own leaned normal
+                fs, fm, att_in, _ = eval_layer(w_in, torch.tensor(out[f"wo{lobe}{k}"]), o, a, T, am, Tm)
+                lit = out[f"lit{lobe}{k}"] > 0.5
+                assert lit[yarn].mean() > 0.9
+                mine, ref = out[f"f{lobe}{k}"], fs if lobe == "s" else fm
                 np.testing.assert_allclose(mine[yarn & lit], ref.numpy()[yarn & lit], rtol=1e-6, atol=1e-9)
             np.testing.assert_allclose(out[f"att{k}"], att_in.numpy(), rtol=1e-6)
             _, fm_through, _, _ = eval_layer(w_in, -w_in, o, a, T, am, Tm)

@@ -25,8 +25,8 @@ the dependence on the light direction wo is left to the closures:
 
 - reflection, single (SGGX) and multiple (ASGGX) scattering: an anisotropic GGX Glossy BSDF with
   roughness alpha along the fiber and 1 across, on the normal Nc (the most upward normal
-  perpendicular to the fiber leaned towards z by alpha^2), weighted by (exact lobe / closure) at the
-  mirror direction of wi about Nc;
+  perpendicular to the fiber leaned towards z by the lobe's alpha^2: alpha for the single, alpha_m for
+  the multiple), weighted by (exact lobe / closure) at the mirror direction of wi about the lobe's Nc;
 - transmission, single and multiple: Cycles, a Hair BSDF (transmission, roughness
   r = asin(0.5 alpha / sqrt(1 - alpha^2)), azimuthal roughness 1, tangent = the fiber) weighted so
   that its peak is the exact lobe at the straight-through direction wo = -wi, times the OSL shader's
@@ -167,65 +167,78 @@ def _world(v: str) -> str:
     return f"vadd(vadd(scale(tangent, x({v})), scale(bitangent, y({v}))), scale(Normal, z({v})))"
 
 
-def _ggx(k: str, lobe: str, ax: str) -> str:
-    """Lines giving ``{lobe}{k}_ggx``, what Blender's GGX closure (normal Nc, tangent oc, alpha ax along
-    it and 1 across, no Fresnel) evaluates to at (wi, wo): D(h) G2 / (4 wi . Nc), height-correlated Smith
-    G2, 0 where either direction is below Nc."""
-    p = f"{lobe}{k}_"
+def _ggx(k: int, lobe: str, ax: str) -> str:
+    """Lines giving ``g{lobe}{k}_ggx``, what Blender's GGX closure (normal Nc, tangent oc, alpha ax along
+    it and 1 across, no Fresnel) evaluates to at (wi, wo) of the lobe's mirror direction: D(h) G2 /
+    (4 wi . Nc), height-correlated Smith G2, 0 where either direction is below Nc."""
+    q = f"{lobe}{k}"
+    p = f"g{q}_"
     return f"""
-{p}hx = dot(h{k}, oc{k}) / {ax}
-{p}q = {p}hx * {p}hx + hb{k} * hb{k} + hn{k} * hn{k}
-{p}ti = ({ax} * {ax} * wio{k} * wio{k} + wib{k} * wib{k}) / (cin{k} * cin{k})
-{p}to = ({ax} * {ax} * woo{k} * woo{k} + wob{k} * wob{k}) / (con{k} * con{k})
+{p}hx = dot(h{q}, oc{q}) / {ax}
+{p}q = {p}hx * {p}hx + hb{q} * hb{q} + hn{q} * hn{q}
+{p}ti = ({ax} * {ax} * wio{q} * wio{q} + wib{q} * wib{q}) / (cin{q} * cin{q})
+{p}to = ({ax} * {ax} * woo{q} * woo{q} + wob{q} * wob{q}) / (con{q} * con{q})
 {p}g2 = 1 / (1 + 0.5 * (sqrt(1 + {p}ti) - 1) + 0.5 * (sqrt(1 + {p}to) - 1))
-{p}ggx = lit{k} * {p}g2 / ({math.pi!r} * {ax} * {p}q * {p}q * 4 * cin{k})
+{p}ggx = lit{q} * {p}g2 / ({math.pi!r} * {ax} * {p}q * {p}q * 4 * cin{q})
+"""
+
+
+def _reflection(k: int, lobe: str, rough: str, albedo: str) -> str:
+    """Layer k's glossy closure of one lobe (``s`` single, roughness a; ``m`` multiple, am): its normal Nc
+    leaned from N' towards z by the lobe's roughness squared, the mirror direction of wi about it, the
+    exact lobe there (``fs{k}`` / ``fm{k}``), the closure's value there and the closure's colour,
+    roughness, anisotropy, normal and tangent."""
+    j = 1 - k
+    q = f"{lobe}{k}"
+    behind = "1" if k == 0 else f"att{j} * exp(0 - T{j} * {_sigma(f'dot(wo{q}, o{j})', f'a{j}')} / woz{q})"
+    if lobe == "s":
+        exact = f"""ch{k} = dot(h{q}, o{k})
+fs{k} = {_ndf(f"ch{k} * ch{k}", f"a{k}")} * (1 - exp(0 - T{k} * sr{q})) / sr{q} / (4 * wiz)"""
+    else:
+        exact = f"""across{k} = sqrt(max((1 - ci{k} * ci{k}) * (1 - co{q} * co{q}), 0))
+s2{k} = min(max(0.5 * (1 + ci{k} * co{q} - across{k}), 0), 1)
+fm{k} = {_ndf(f"s2{k}", f"am{k}")} * (1 - exp(0 - Tm{k} * sr{q})) / sr{q} / (2 * wiz)"""
+    return f"""
+Nc{q} = normalize(vadd(Np{k}, scale(vsub(vec(0, 0, 1), Np{k}), {rough} * {rough})))
+oc{q} = normalize(vsub(o{k}, scale(Nc{q}, dot(o{k}, Nc{q}))))
+bc{q} = cross(Nc{q}, oc{q})
+cin{q} = dot(wi, Nc{q})
+wr{q} = vsub(scale(Nc{q}, 2 * cin{q}), wi)
+wo{q} = normalize(vec(x(wr{q}), y(wr{q}), max(z(wr{q}), 0.05)))
+woz{q} = z(wo{q})
+con{q} = dot(wo{q}, Nc{q})
+lit{q} = gt(cin{q}, 0.0001) * gt(con{q}, 0)
+co{q} = dot(wo{q}, o{k})
+Ao{q} = {_sigma(f"co{q}", f"a{k}")} / woz{q}
+h{q} = normalize(vadd(wi, wo{q}))
+hb{q} = dot(h{q}, bc{q})
+hn{q} = dot(h{q}, Nc{q})
+wio{q} = dot(wi, oc{q})
+wib{q} = dot(wi, bc{q})
+woo{q} = dot(wo{q}, oc{q})
+wob{q} = dot(wo{q}, bc{q})
+sr{q} = Ai{k} + Ao{q}
+{exact}
+{_ggx(k, lobe, rough)}
+behind{q} = {behind}
+gloss_{lobe}_color{k} = scale({albedo}, f{lobe}{k} / g{q}_ggx * behind{q})
+gloss_{lobe}_rough{k} = sqrt(sqrt({rough}))
+gloss_{lobe}_aniso{k} = 1 - sqrt({rough})
+gloss_{lobe}_normal{k} = normalize({_world(f"Nc{q}")})
+gloss_{lobe}_tangent{k} = normalize({_world(f"oc{q}")})
 """
 
 
 def _layer(k: int) -> str:
     """Layer k's closure weights (k = 0 front, 1 back; ``j`` the other layer)."""
     j = 1 - k
-    sm = _sigma(f"co{k}", f"a{k}")
-    behind = "1" if k == 0 else f"att{j} * exp(0 - T{j} * {_sigma(f'dot(wo{k}, o{j})', f'a{j}')} / woz{k})"
     return f"""
 n{k} = vec(x(n{k}t), y(n{k}t), z(n{k}t) * mirror)
 o{k} = vec(x(o{k}t), y(o{k}t), z(o{k}t) * mirror)
 np{k} = vadd(vec(0 - x(o{k}) * z(o{k}), 0 - y(o{k}) * z(o{k}), 1 - z(o{k}) * z(o{k})), scale(n{k}, 0.0001))
 Np{k} = normalize(np{k})
-Nc{k} = normalize(vadd(Np{k}, scale(vsub(vec(0, 0, 1), Np{k}), a{k} * a{k})))
-oc{k} = normalize(vsub(o{k}, scale(Nc{k}, dot(o{k}, Nc{k}))))
-bc{k} = cross(Nc{k}, oc{k})
-cin{k} = dot(wi, Nc{k})
-wr{k} = vsub(scale(Nc{k}, 2 * cin{k}), wi)
-wo{k} = normalize(vec(x(wr{k}), y(wr{k}), max(z(wr{k}), 0.05)))
-woz{k} = z(wo{k})
-con{k} = dot(wo{k}, Nc{k})
-lit{k} = gt(cin{k}, 0.0001) * gt(con{k}, 0)
-co{k} = dot(wo{k}, o{k})
-Ao{k} = {sm} / woz{k}
-h{k} = normalize(vadd(wi, wo{k}))
-ch{k} = dot(h{k}, o{k})
-hb{k} = dot(h{k}, bc{k})
-hn{k} = dot(h{k}, Nc{k})
-wio{k} = dot(wi, oc{k})
-wib{k} = dot(wi, bc{k})
-woo{k} = dot(wo{k}, oc{k})
-wob{k} = dot(wo{k}, bc{k})
-sr{k} = Ai{k} + Ao{k}
-fs{k} = {_ndf(f"ch{k} * ch{k}", f"a{k}")} * (1 - exp(0 - T{k} * sr{k})) / sr{k} / (4 * wiz)
-s2{k} = min(max(0.5 * (1 + ci{k} * co{k} - sqrt(max((1 - ci{k} * ci{k}) * (1 - co{k} * co{k}), 0))), 0), 1)
-fm{k} = {_ndf(f"s2{k}", f"am{k}")} * (1 - exp(0 - Tm{k} * sr{k})) / sr{k} / (2 * wiz)
-{_ggx(k, "gs", f"a{k}")}
-{_ggx(k, "gm", f"am{k}")}
-behind{k} = {behind}
-gloss_s_color{k} = scale(ks{k}, fs{k} / gs{k}_ggx * behind{k})
-gloss_m_color{k} = scale(km{k}, fm{k} / gm{k}_ggx * behind{k})
-gloss_s_rough{k} = sqrt(sqrt(a{k}))
-gloss_m_rough{k} = sqrt(sqrt(am{k}))
-gloss_s_aniso{k} = 1 - sqrt(a{k})
-gloss_m_aniso{k} = 1 - sqrt(am{k})
-gloss_normal{k} = normalize({_world(f"Nc{k}")})
-gloss_tangent{k} = normalize({_world(f"oc{k}")})
+{_reflection(k, "s", f"a{k}", f"ks{k}")}
+{_reflection(k, "m", f"am{k}", f"km{k}")}
 th{k} = asin(min(max(ci{k}, -1), 1))
 cth{k} = max(cos(th{k}), 0.0001)
 hair_s_rough{k} = {_hair_roughness(f"a{k}")}

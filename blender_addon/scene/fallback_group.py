@@ -245,7 +245,8 @@ def build_fallback_group(part_nodes: int = PART_NODES):
 
     def glossy(lobe, k):
         node = bsdf("ShaderNodeBsdfAnisotropic", Color=f"gloss_{lobe}_color{k}", Roughness=f"gloss_{lobe}_rough{k}",
-                    Anisotropy=f"gloss_{lobe}_aniso{k}", Normal=f"gloss_normal{k}", Tangent=f"gloss_tangent{k}")
+                    Anisotropy=f"gloss_{lobe}_aniso{k}", Normal=f"gloss_{lobe}_normal{k}",
+                    Tangent=f"gloss_{lobe}_tangent{k}")
         node.distribution = "GGX"
         return node
 
