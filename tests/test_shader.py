@@ -329,6 +329,28 @@ def test_eevee_normals_are_bent_towards_the_view_across_the_fiber():
     assert ((translucent * wi).sum(0) > wi[2]).all() and (translucent[2] > 0).all()
 
 
+def test_eevees_glossy_normal_is_its_lobes_weighted_normal():
+    """EEVEE's one Glossy sits on the front yarn's lobes' normals weighted by their colours: the single
+    lobe's where the multiple has next to no albedo (k_m = k_s^(1 / multiple_weight)), nearer the
+    multiple's (leaned by its own roughness) where that lobe carries most of the light."""
+    rng = np.random.default_rng(7)
+    x, y, wi = rig_points(rng, 2000)
+    tall = dict(FALLBACK_PARAMS, height_scale=(2.0, 2.0), roughness=(0.3, 0.3), roughness_multiple=(1.0, 1.0))
+
+    def normals(albedo, multiple_weight):
+        params = FabricParams(pattern="twill1", specular_albedo=((albedo,) * 3, (albedo,) * 3),
+                              multiple_weight=multiple_weight, **tall)
+        out = shader_fallback.run(NumpyBuilder(), fallback_env(params, x, y, wi))
+        front = (out["y0w"] + out["y0f"] > 0.5) & (out["coverage"] > 0.5)
+        return [out[k][:, front] for k in ("gloss_flat_normal", "gloss_s_normal0", "gloss_m_normal0")]
+
+    flat, single, multiple = normals(0.5, 0.01)   # k_m = 0.5^100
+    assert np.abs(single - multiple).max() > 0.2  # tall yarns: the lobes' own leans differ
+    assert ((flat * single).sum(0) > 0.9999).all()
+    flat_m, single, multiple = normals(0.01, 2.0)  # k_m = 0.1, k_s = 0.01
+    assert ((flat_m * multiple).sum(0) > (flat_m * single).sum(0)).mean() > 0.9
+
+
 def cycles_hair_transmission(wi, wo, fiber, r, rv=1.0):
     """Cycles' hair transmission closure, cosine-weighted, azimuthal roughness rv, no offset (Blender's
     intern/cycles/kernel/closure/bsdf_hair.h): a Cauchy of width r in theta_h = (theta_i + theta_o) / 2

@@ -7,7 +7,8 @@ weights (core/shader_fallback.py):
 
 - Diffuse: k_d^r on the normal mix (1 - w) N + w n (its length the weight), n the front yarn's;
 - Glossy: the sum of the four lobes' colours (both layers, single and multiple scattering), their
-  roughness the colour-weighted mean of theirs;
+  roughness the colour-weighted mean of theirs, on the front layer's colour-weighted mean of its two
+  lobes' normals (each leaned by its own roughness) where it is a yarn, else the back layer's;
 - Translucent: each hair closure's share as the lesser of its energy (its weight: the closure is a
   normalised density) and the weight whose value at wo = -wi is its peak (pi f / |wi_z|), plus the
   multiple lobe's glow and the diffuse transmission; the colour is the square root of that sum. The
@@ -73,7 +74,9 @@ gw_s1 = dot(gloss_s_color1, vec(1, 1, 1))
 gw_m1 = dot(gloss_m_color1, vec(1, 1, 1))
 gw_rough = gw_s0 * gloss_s_rough0 + gw_m0 * gloss_m_rough0 + gw_s1 * gloss_s_rough1 + gw_m1 * gloss_m_rough1
 eevee_gloss_rough = pow(gw_rough / (gw_s0 + gw_m0 + gw_s1 + gw_m1), {rough_power!r})
-gloss_flat_normal = normalize(vadd(scale(gloss_s_normal0, y0), scale(gloss_s_normal1, 1 - y0)))
+gloss_n0 = normalize(vadd(scale(gloss_s_normal0, gw_s0 + 0.000001), scale(gloss_m_normal0, gw_m0)))
+gloss_n1 = normalize(vadd(scale(gloss_s_normal1, gw_s1 + 0.000001), scale(gloss_m_normal1, gw_m1)))
+gloss_flat_normal = normalize(vadd(scale(gloss_n0, y0), scale(gloss_n1, 1 - y0)))
 eevee_fiber = normalize(vadd(vadd(scale(fiber0, y0), scale(fiber1, 1 - y0)), scale(Normal, 0.0001)))
 view_across = vsub(Incoming, scale(eevee_fiber, dot(Incoming, eevee_fiber)))
 eevee_across = normalize(vadd(view_across, scale(Normal, 0.0001)))
