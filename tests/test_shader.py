@@ -592,6 +592,16 @@ def test_eevee_renders_the_fallback(tmp_path):
     assert result["difference"] > 1e-3
 
 
+def validated(tmp_path, *args) -> dict:
+    """The figures of ``tools/validate_shader.py *args`` on one render thread, with its own Blender user folder."""
+    out = tmp_path / "figures.json"
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), *args, "--threads", "1",
+                           "--json", str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    return json.loads(out.read_text())
+
+
 @pytest.mark.blender
 @pytest.mark.slow
 def test_cheap_validation_against_the_backend(tmp_path):
@@ -599,14 +609,8 @@ def test_cheap_validation_against_the_backend(tmp_path):
     OSL shader's figures; the fallback in Cycles tracks the OSL shader (the same closures and weights), and
     in EEVEE keeps its transmission within a bound (before the fallback carried the OSL shader's weights,
     its transmission L1 here was 0.046 in Cycles and 0.093 in EEVEE)."""
-    out = tmp_path / "figures.json"
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), "--cases", "example_twill1",
-                           "--size", "64", "--samples", "16", "--backend-spp", "4", "--threads", "1",
-                           "--engines", "osl,fallback,eevee", "--out", str(tmp_path / "images"), "--json", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    figures = json.loads(out.read_text())
+    figures = validated(tmp_path, "--cases", "example_twill1", "--size", "64", "--samples", "16", "--backend-spp",
+                        "4", "--engines", "osl,fallback,eevee", "--out", str(tmp_path / "images"))
     case = figures["engines"]["osl"]["cases"][0]  # Cycles with the OSL shader
     assert case["R_l1"] < 0.06 and case["T_l1"] < 0.06, case
     assert case["R_corr"] > 0.2 and case["T_corr"] > 0.2, case
@@ -628,14 +632,9 @@ def test_the_multiple_reflection_closure_leans_by_its_own_roughness(tmp_path):
                                specular_albedo=((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)),
                                diffuse_reflection=(0.0, 0.0, 0.0), diffuse_transmission=(0.0, 0.0, 0.0))
     (tmp_path / "params.json").write_text(tall.to_json(rig={}, fit={}))
-    out = tmp_path / "figures.json"
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), "--set", "fits", "--params",
-                           str(tmp_path / "params.json"), "--size", "48", "--samples", "16", "--backend-spp", "4",
-                           "--threads", "1", "--engines", "osl", "--cache", str(tmp_path / "cache"),
-                           "--json", str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    [case] = json.loads(out.read_text())["engines"]["osl"]["cases"]
+    figures = validated(tmp_path, "--set", "fits", "--params", str(tmp_path / "params.json"), "--size", "48",
+                        "--samples", "16", "--backend-spp", "4", "--engines", "osl", "--cache", str(tmp_path / "cache"))
+    [case] = figures["engines"]["osl"]["cases"]
     assert case["R_l1"] < 0.025, case
 
 
@@ -653,14 +652,10 @@ def test_validation_renders_a_fits_yarn_variation_in_both_renderers(tmp_path):
         (tmp_path / name).mkdir()
         (tmp_path / name / "params.json").write_text(params.to_json(rig={}, fit={}))  # as a fit writes it
         paths.append(str(tmp_path / name / "params.json"))
-    out, cache = tmp_path / "figures.json", tmp_path / "cache"
-    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender_user"))
-    done = subprocess.run([sys.executable, str(ROOT / "tools" / "validate_shader.py"), "--set", "fits", "--params",
-                           *paths, "--size", "48", "--samples", "16", "--backend-spp", "4", "--threads", "1",
-                           "--engines", "osl", "--cache", str(cache), "--out", str(tmp_path / "images"),
-                           "--json", str(out)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-    figures = json.loads(out.read_text())
+    cache = tmp_path / "cache"
+    figures = validated(tmp_path, "--set", "fits", "--params", *paths, "--size", "48", "--samples", "16",
+                        "--backend-spp", "4", "--engines", "osl", "--cache", str(cache),
+                        "--out", str(tmp_path / "images"))
     assert figures["sample"] == "out-of-sample"
     cases = {case["case"]: case for case in figures["engines"]["osl"]["cases"]}
     assert cases["varied"]["params"]["brightness_variation"] == [0.4, 0.4]
