@@ -29,6 +29,8 @@ from backend.fit.search import (
     BLUR_ALLOWANCE_PX,
     BLUR_SCAN,
     COVERAGE_MARGIN,
+    NEAR_LATTICE,
+    NEARBY,
     BlurRange,
     Trial,
     blur_range,
@@ -37,6 +39,7 @@ from backend.fit.search import (
     family_lattices,
     rated_candidates,
     samples_per_pixel,
+    trial_plan,
     working_size,
 )
 from backend.fit.settings import FitResult, FitSettings
@@ -805,6 +808,35 @@ def test_a_weave_and_its_face_twin_alone_get_no_trial_steps_where_the_winner_res
     assert [len(t.run.history) for t in trials_of(diagonals)] == [2, 2, 0]
     other_lattice = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0m", (TWILL.tiles[0] * 1.5, TWILL.tiles[1]))]
     assert [len(t.run.history) for t in trials_of(other_lattice)] == [2, 2]
+
+
+def test_one_weave_on_nearby_lattices_gets_one_trial_the_better_starts():
+    """A weave shortlisted on two lattices within NEAR_LATTICE (shortlist order: lowest starting loss
+    first) has one trial, on the first; the other takes no steps and cannot win, whatever its
+    selection. Lattices farther apart, other weaves, and a nearby lattice whose first candidate the
+    coverage rules out keep their trials."""
+    def cand(pattern, tiles):
+        return search.Candidate(pattern, tiles, 1.0)
+
+    lattice_ = (40.0, 42.0)
+    near = (lattice_[0] * (1 + 0.8 * NEAR_LATTICE), lattice_[1])
+    far = (lattice_[0] * (1 + 1.5 * NEAR_LATTICE), lattice_[1])
+    shortlist = [cand("satin0", lattice_), cand("satin0m", lattice_), cand("satin0", near), cand("satin0m", far)]
+    assert trial_plan(shortlist, [0.6] * 4, restarted=True) == [(True, None), (True, None), (False, NEARBY),
+                                                                 (True, None)]
+    # the first on the lattice makes too little of the photos' peaks: the nearby one is the weave's trial
+    assert trial_plan(shortlist[:3], [0.2, 0.6, 0.6], restarted=True) == [
+        (False, fit_search.FEW_PEAKS), (True, None), (True, None)]
+    # where the nearby one leaves a lone eligible candidate and the winner restarts, neither takes steps;
+    # at the base size the lone trial's steps go on in the fit
+    assert trial_plan(shortlist[::2], [0.6, 0.6], restarted=True) == [(False, None), (False, NEARBY)]
+    assert trial_plan(shortlist[::2], [0.6, 0.6], restarted=False) == [(True, None), (False, NEARBY)]
+
+    def trial(candidate, selection, nearby=False):
+        return Trial(fit_search.Start(0.0, 0, candidate, None), None, {}, selection, 0.6, nearby)
+
+    first, other = trial(shortlist[0], 2.0), trial(shortlist[1], 2.1)
+    assert chosen([first, other, trial(shortlist[2], 1.0, nearby=True)]) is first
 
 
 def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on_its_lattice():

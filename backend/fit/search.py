@@ -25,7 +25,9 @@ the trials, and hands the numbers to these functions, which never call back.
    coarse would not be charged for the photo's odd harmonics; the spectrum sees every peak. Only
    trials whose lattice makes nearly as much of the photos' peak strength as the best trial's are
    eligible (:func:`chosen`): a lattice too fine on one axis compares fewer, easier harmonics, and
-   its trial can end lowest while the photos' strongest peak is none of its harmonics.
+   its trial can end lowest while the photos' strongest peak is none of its harmonics. A weave
+   shortlisted on two lattices within NEAR_LATTICE of each other (the proposals of one photo peak)
+   has one trial, on the lattice of the lower starting loss (:func:`trial_plan`).
 """
 from __future__ import annotations
 
@@ -55,10 +57,14 @@ BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 BLUR_ALLOWANCE_PX = 1.0
 COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
 LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
+# one weave on two lattices this close (relative, both axes) has one trial, the better start's (trial_plan):
+# the trial steps never move the lattice, and at this distance the starting loss ranks them as the trials do
+NEAR_LATTICE = 0.03
 
 # Why a shortlisted start gets no trial steps (its summary's "skipped"; trial_plan)
 FEW_PEAKS = "its lattice makes far less of the photos' peaks than the best start's"
 FACE_TWINS = "a weave and its face twin: the duel at the working size chooses"
+NEARBY = "the same weave on a nearby lattice starts lower: its trial stands for both"
 
 
 @dataclass
@@ -76,6 +82,7 @@ class Trial:
     summary: dict           # what params.json's fit.candidates records for it
     selection: float        # trial loss + spectrum mismatch: the lowest eligible one wins
     coverage: float         # the share of the photos' peak strength its lattice makes (lattice.peak_coverage)
+    nearby: bool = False    # its weave's trial on a nearby lattice stands for it (NEARBY): it cannot win
 
 
 def working_size(candidates: list[Candidate], photo_size: int, rig: CaptureRig) -> int:
@@ -125,8 +132,8 @@ def family_lattices(found: list[Candidate], rig: CaptureRig) -> list[Candidate]:
     return shared
 
 
-def same_lattice(tiles, other) -> bool:
-    return all(abs(t - o) <= LATTICE_MATCH * max(t, o) for t, o in zip(tiles, other))
+def same_lattice(tiles, other, tolerance: float = LATTICE_MATCH) -> bool:
+    return all(abs(t - o) <= tolerance * max(t, o) for t, o in zip(tiles, other))
 
 
 def rated_candidates(shared: list[Candidate], probabilities: list[float], coverages: list[float], threshold: float
@@ -276,21 +283,38 @@ def shortlisted(starts: list[Start], trials: int) -> list[Start]:
 
 def trial_plan(candidates: list[Candidate], coverages: list[float], restarted: bool
                ) -> list[tuple[bool, str | None]]:
-    """Per shortlisted candidate (with its lattice's peak coverage): (whether its trial takes
-    steps, why not where the summary says so: FEW_PEAKS, FACE_TWINS or None).
+    """Per shortlisted candidate, in the shortlist's order (lowest starting loss first), with its
+    lattice's peak coverage: (whether its trial takes steps, why not where the summary says so:
+    FEW_PEAKS, NEARBY, FACE_TWINS or None).
 
     A trial chooses; its steps also go on in the fit at BASE_SIZE, while above it (``restarted``)
     the winner starts again at the working size. A candidate that :func:`chosen` would rule out
     gets no steps: the coverage does not depend on them, so the winner is that of a search that ran
-    it. Where that leaves one eligible candidate and the winner restarts, it gets none either. Where
-    the winner restarts and the eligible ones are a weave and its face twin on one lattice
+    it. Nor does one whose weave an eligible candidate before it has on a lattice within
+    NEAR_LATTICE (:func:`_nearby`): that trial stands for both, and it cannot win. Where that
+    leaves one eligible candidate and the winner restarts, it gets none either. Where the winner
+    restarts and the eligible ones are a weave and its face twin on one lattice
     (:func:`_face_twins`), neither gets steps: the trials at BASE_SIZE cannot tell them apart
     (:func:`rival`), the duel at the working size chooses, and the one with the lower starting loss
     is the one the twin must beat."""
-    eligible = _within_coverage_margin(coverages)
+    covered = _within_coverage_margin(coverages)
+    nearby = _nearby(candidates, covered)
+    eligible = [kept and not near for kept, near in zip(covered, nearby)]
     twins = restarted and _face_twins([c for c, kept in zip(candidates, eligible) if kept])
     compare = not twins and (sum(eligible) > 1 or (len(candidates) > 1 and not restarted))
-    return [(compare and kept, FEW_PEAKS if not kept else FACE_TWINS if twins else None) for kept in eligible]
+    return [(compare and kept, FEW_PEAKS if not cover else NEARBY if near else FACE_TWINS if twins else None)
+            for kept, cover, near in zip(eligible, covered, nearby)]
+
+
+def _nearby(candidates: list[Candidate], eligible: list[bool]) -> list[bool]:
+    """Per candidate, whether an eligible candidate before it, not itself nearby, is of its weave on a
+    lattice within NEAR_LATTICE of its own."""
+    nearby: list[bool] = []
+    for k, cand in enumerate(candidates):
+        nearby.append(any(eligible[j] and not nearby[j] and other.pattern == cand.pattern
+                          and same_lattice(other.tiles, cand.tiles, NEAR_LATTICE)
+                          for j, other in enumerate(candidates[:k])))
+    return nearby
 
 
 def trial(start: Start, run: Run, coverage: float, similarity: float | None, probability: float | None,
@@ -306,7 +330,7 @@ def trial(start: Start, run: Run, coverage: float, similarity: float | None, pro
                "peak_coverage": coverage, "selection": selection, "probability": probability}
     if skipped is not None:
         summary["skipped"] = skipped
-    return Trial(start, run, summary, selection, coverage)
+    return Trial(start, run, summary, selection, coverage, nearby=skipped == NEARBY)
 
 
 def _face_twins(candidates: list[Candidate]) -> bool:
@@ -320,8 +344,9 @@ def _face_twins(candidates: list[Candidate]) -> bool:
 def chosen(trials: list[Trial]) -> Trial:
     """The trial with the lowest selection among the eligible ones: those whose lattice's peak
     coverage is within COVERAGE_MARGIN of the best trial's (a trial on a wrong lattice makes far
-    less of the photos' peaks)."""
-    return min(_eligible(trials), key=lambda t: (t.selection, trials.index(t)))
+    less of the photos' peaks), and that no trial of their weave on a nearby lattice stands for
+    (``Trial.nearby``)."""
+    return min((t for t in _eligible(trials) if not t.nearby), key=lambda t: (t.selection, trials.index(t)))
 
 
 def _eligible(trials: list[Trial]) -> list[Trial]:
