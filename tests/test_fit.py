@@ -808,6 +808,9 @@ def test_a_weave_and_its_face_twin_alone_get_no_trial_steps_where_the_winner_res
     assert [len(t.run.history) for t in trials_of(diagonals)] == [2, 2, 0]
     other_lattice = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0m", (TWILL.tiles[0] * 1.5, TWILL.tiles[1]))]
     assert [len(t.run.history) for t in trials_of(other_lattice)] == [2, 2]
+    nearby = [start(0, 2.0, "twill1"), start(1, 1.5, "twill0m", (TWILL.tiles[0] * (1 + 0.8 * NEAR_LATTICE),
+                                                                  TWILL.tiles[1]))]
+    assert [len(t.run.history) for t in trials_of(nearby)] == [0, 0]   # twins on a nearby lattice: the duel
 
 
 def test_one_weave_on_nearby_lattices_gets_one_trial_the_better_starts():
@@ -850,6 +853,8 @@ def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on
     twin = trial("twill0m", near, 2.24)                        # within LATTICE_MATCH: the same lattice
     assert rival([winner, trial("twill0", lattice_, 2.2), twin], winner) is twin   # not another twill
     assert rival([winner, trial("twill0m", other, 2.2)], winner) is None          # not on another lattice
+    nearby = (42.8 * (1 + 0.8 * NEAR_LATTICE), 27.7)                # nor on a nearby one: its own is ruled out
+    assert rival([winner, trial("twill0m", nearby, 2.2)], winner) is None
     assert rival([winner, trial("twill0m", lattice_, 2.2, coverage=0.9 - COVERAGE_MARGIN - 0.01)], winner) is None
     plain = trial("plain", (140.0, 140.0), 1.0)
     assert rival([plain, trial("plain", (140.0, 140.0), 1.1)], plain) is None     # plain is its own twin

@@ -57,8 +57,9 @@ BLUR_SCAN = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # film pixels
 BLUR_ALLOWANCE_PX = 1.0
 COVERAGE_MARGIN = 0.3  # eligible: a peak coverage at most this far below the best trial's (chosen)
 LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one lattice
-# one weave on two lattices this close (relative, both axes) has one trial, the better start's (trial_plan):
-# the trial steps never move the lattice, and at this distance the starting loss ranks them as the trials do
+# one weave on two lattices this close (relative, both axes) has one trial, the better start's, and a weave
+# and its face twin this close none (trial_plan): the trial steps never move the lattice, and at this
+# distance the starting loss ranks the lattices as the trials do
 NEAR_LATTICE = 0.03
 
 # Why a shortlisted start gets no trial steps (its summary's "skipped"; trial_plan)
@@ -293,14 +294,14 @@ def trial_plan(candidates: list[Candidate], coverages: list[float], restarted: b
     it. Nor does one whose weave an eligible candidate before it has on a lattice within
     NEAR_LATTICE (:func:`_nearby`): that trial stands for both, and it cannot win. Where that
     leaves one eligible candidate and the winner restarts, it gets none either. Where the winner
-    restarts and the eligible ones are a weave and its face twin on one lattice
-    (:func:`_face_twins`), neither gets steps: the trials at BASE_SIZE cannot tell them apart
-    (:func:`rival`), the duel at the working size chooses, and the one with the lower starting loss
-    is the one the twin must beat."""
+    restarts and the eligible ones are a weave and its face twin on one lattice or two within
+    NEAR_LATTICE (:func:`_face_twins`), neither gets steps: the trials at BASE_SIZE cannot tell them
+    apart (:func:`rival`), the duel at the working size chooses (its twin is the one on the
+    winner's own lattice), and the one with the lower starting loss is the one the twin must beat."""
     covered = _within_coverage_margin(coverages)
     nearby = _nearby(candidates, covered)
     eligible = [kept and not near for kept, near in zip(covered, nearby)]
-    twins = restarted and _face_twins([c for c, kept in zip(candidates, eligible) if kept])
+    twins = restarted and _face_twins([c for c, kept in zip(candidates, eligible) if kept], NEAR_LATTICE)
     compare = not twins and (sum(eligible) > 1 or (len(candidates) > 1 and not restarted))
     return [(compare and kept, FEW_PEAKS if not cover else NEARBY if near else FACE_TWINS if twins else None)
             for kept, cover, near in zip(eligible, covered, nearby)]
@@ -333,12 +334,13 @@ def trial(start: Start, run: Run, coverage: float, similarity: float | None, pro
     return Trial(start, run, summary, selection, coverage, nearby=skipped == NEARBY)
 
 
-def _face_twins(candidates: list[Candidate]) -> bool:
-    """Whether ``candidates`` are two: a weave and its face twin (:func:`face_twin`) on one lattice."""
+def _face_twins(candidates: list[Candidate], tolerance: float = LATTICE_MATCH) -> bool:
+    """Whether ``candidates`` are two: a weave and its face twin (:func:`face_twin`) on one lattice
+    (tiles within ``tolerance``)."""
     if len(candidates) != 2:
         return False
     first, second = candidates
-    return face_twin(first) == second.pattern and same_lattice(first.tiles, second.tiles)
+    return face_twin(first) == second.pattern and same_lattice(first.tiles, second.tiles, tolerance)
 
 
 def chosen(trials: list[Trial]) -> Trial:
