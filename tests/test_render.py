@@ -471,38 +471,6 @@ def test_a_blur_scan_renders_the_radiance_once(monkeypatch, subpixels, images):
     assert len(calls) == images + 2 and reflection.requires_grad
 
 
-def test_renders_without_gradients_keep_their_radiance_up_to_a_budget(monkeypatch):
-    """The radiance of the last renders without gradients is kept for their parameter values, up to
-    RADIANCE_KEPT_BYTES (the least recently used dropped first, the last one always kept): scoring
-    several starting points again at another blur renders none of them again, with the same numbers."""
-    import backend.model.render as render_module
-    sets = [FabricParams(pattern="twill0", tiles=(120.0, 120.0), roughness=(r, r)) for r in (0.3, 0.5, 0.7)]
-    renderer = Renderer(DEFAULT_RIG, 64, 4)
-    calls = []
-    radiance = Renderer.radiance
-    monkeypatch.setattr(Renderer, "radiance", lambda self, *args, **kwargs: calls.append(1)
-                        or radiance(self, *args, **kwargs))
-    with torch.no_grad():
-        first = [renderer.blurred(params, camera_blur_px=0.5) for params in sets]
-        again = [renderer.blurred(params, camera_blur_px=1.5) for params in sets]
-        assert len(calls) == 3
-        fresh = [Renderer(DEFAULT_RIG, 64, 4).blurred(params, camera_blur_px=1.5) for params in sets]
-        assert all(torch.equal(a[0], f[0]) and torch.equal(a[1], f[1]) for a, f in zip(again, fresh))
-        assert not torch.equal(first[0][0], again[0][0])
-        one_pair = 2 * 64 * 64 * 3 * 4           # bytes of one render's two radiance images
-        monkeypatch.setattr(render_module, "RADIANCE_KEPT_BYTES", 2 * one_pair)
-        renderer.blurred(sets[0].replace(roughness=(0.9, 0.9)), camera_blur_px=0.5)  # drops the oldest two
-        calls.clear()
-        for params in reversed(sets):
-            renderer.blurred(params, camera_blur_px=0.5)
-        assert len(calls) == 2                      # the last set was kept, the first two rendered again
-        monkeypatch.setattr(render_module, "RADIANCE_KEPT_BYTES", 0)
-        renderer.blurred(sets[1], camera_blur_px=0.5)
-        calls.clear()
-        renderer.blurred(sets[1], camera_blur_px=2.0)
-        assert not calls                            # the last render stays, whatever the budget
-
-
 @pytest.mark.parametrize("size, sigma", [(64, 0.0), (64, 0.3), (96, 0.9), (32, 4.0)])
 def test_the_sub_pixel_blur_is_its_step_by_step_reference_with_its_gradients(size, sigma):
     """The blur and the 2 x 2 means in one strided kernel equal the whole sub-pixel image blurred and

@@ -126,9 +126,6 @@ EAGER_BLOCK_SAMPLES = 1 << 17
 # Samples per block whose gradient is not taken (a render without gradients, the rows outside a
 # gradient share): with no backward pass keeping its tensors, fewer and larger operations are faster.
 FORWARD_BLOCK_SAMPLES = 1 << 19
-# Bytes of radiance images a Renderer keeps from renders without gradients, to blur again or score at
-# another blur without rendering (_radiance_once): the search's starting points at 256 px (1.6 MB each).
-RADIANCE_KEPT_BYTES = 64 << 20
 
 
 def full_precision_convolutions() -> None:
@@ -162,8 +159,7 @@ class Renderer:
         self._bands: dict = {}  # rows -> (lattice, TileBands) of the last lattice rendered
         self._geometry_slots = geometry_cache if self._keep else 0
         self._lookups: dict = {}
-        # parameter values -> {fine: radiance} of the last renders without gradients (RADIANCE_KEPT_BYTES at most)
-        self._kept_radiance: OrderedDict = OrderedDict()
+        self._last_radiance: tuple | None = None  # (parameter values, radiance) of the last render without gradients
         self.vignette = self.camera.pixel_falloff(rig.vignette_sigma_px) if options.vignette else None
         # samples per side of a sub-pixel the camera blur acts on; 0: it acts on the pixel means
         self.subpixel = subpixel_size(spp) if subpixel_blur is not False else 0
@@ -206,7 +202,7 @@ class Renderer:
         pixels, subpixels = self._glow_shapes if on else (None, None)
         self.glow = None if pixels is None else pixels * strength
         self._glow_fine = None if subpixels is None else subpixels * strength
-        self._kept_radiance.clear()
+        self._last_radiance = None
 
     def set_warp(self, warp: SpacingWarp | None) -> None:
         """Renders from now on show ``warp``: the camera samples and the geometry are made again (the
@@ -215,7 +211,7 @@ class Renderer:
         self._chunks.clear()
         self._geometry.clear()
         self._bands.clear()
-        self._kept_radiance.clear()
+        self._last_radiance = None
 
     @contextlib.contextmanager
     def gradient_share(self, share: "GradientShare | None"):
@@ -442,31 +438,18 @@ class Renderer:
 
     def _radiance_once(self, fabric: ParamTensors, progress=None, fine: bool = False
                        ) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`radiance`; without gradients, the results of the last renders (RADIANCE_KEPT_BYTES of
-        them at most) are reused for the same parameter values: the fit's camera-blur scans
-        (:func:`backend.fit.search.best_blur`, the discrete search's blur step) render one parameter
-        set at up to seven blurs, and the blur comes after the radiance; the search ranks its starting
-        points again at the blur it chose (:func:`backend.fit.search.reranked`)."""
+        """:meth:`radiance`; without gradients, the last result is reused for the same parameter values:
+        the fit's camera-blur scans (:func:`backend.fit.search.best_blur`, the discrete search's blur
+        step) render one parameter set at up to seven blurs, and the blur comes after the radiance."""
         if not self._keep or (torch.is_grad_enabled() and any(v.requires_grad for v in fabric.values.values())):
             return self.radiance(fabric, progress, fine)
         key = (fabric.pattern, fabric.weave, tuple((name, tuple(values)) for name, values in fabric.host().items()))
-        kept = self._kept_radiance.setdefault(key, {})
-        self._kept_radiance.move_to_end(key)
+        if self._last_radiance is None or self._last_radiance[0] != key:
+            self._last_radiance = (key, {})
+        kept = self._last_radiance[1]
         if fine not in kept:  # a blur scan asks for both: none (the pixel means) and some (the sub-pixels)
             kept[fine] = self.radiance(fabric, progress, fine)
-            self._forget_radiance()
         return kept[fine]
-
-    def _forget_radiance(self) -> None:
-        """Drops the least recently used kept radiance until they hold RADIANCE_KEPT_BYTES at most (the
-        last one stays, whatever its size)."""
-        def size(images: dict) -> int:
-            return sum(t.numel() * t.element_size() for pair in images.values() for t in pair)
-
-        total = sum(size(images) for images in self._kept_radiance.values())
-        while len(self._kept_radiance) > 1 and total > RADIANCE_KEPT_BYTES:
-            _, images = self._kept_radiance.popitem(last=False)
-            total -= size(images)
 
     def display(self, reflection: torch.Tensor, transmission: torch.Tensor,
                 light: PhotoLight | None = None) -> RenderedPair:
