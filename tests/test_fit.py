@@ -836,7 +836,8 @@ def test_one_weave_on_nearby_lattices_gets_one_trial_the_better_starts():
     assert trial_plan(shortlist[::2], [0.6, 0.6], restarted=False) == [(True, None), (False, NEARBY)]
 
     def trial(candidate, selection, nearby=False):
-        return Trial(fit_search.Start(0.0, 0, candidate, None), None, {}, selection, 0.6, nearby)
+        return Trial(fit_search.Start(0.0, 0, candidate, None), None, {"skipped": NEARBY} if nearby else {},
+                     selection, 0.6)
 
     first, other = trial(shortlist[0], 2.0), trial(shortlist[1], 2.1)
     assert chosen([first, other, trial(shortlist[2], 1.0, nearby=True)]) is first

@@ -83,7 +83,11 @@ class Trial:
     summary: dict           # what params.json's fit.candidates records for it
     selection: float        # trial loss + spectrum mismatch: the lowest eligible one wins
     coverage: float         # the share of the photos' peak strength its lattice makes (lattice.peak_coverage)
-    nearby: bool = False    # its weave's trial on a nearby lattice stands for it (NEARBY): it cannot win
+
+    @property
+    def nearby(self) -> bool:
+        """Whether its weave's trial on a nearby lattice stands for it (NEARBY): it cannot win."""
+        return self.summary.get("skipped") == NEARBY
 
 
 def working_size(candidates: list[Candidate], photo_size: int, rig: CaptureRig) -> int:
@@ -331,7 +335,7 @@ def trial(start: Start, run: Run, coverage: float, similarity: float | None, pro
                "peak_coverage": coverage, "selection": selection, "probability": probability}
     if skipped is not None:
         summary["skipped"] = skipped
-    return Trial(start, run, summary, selection, coverage, nearby=skipped == NEARBY)
+    return Trial(start, run, summary, selection, coverage)
 
 
 def _face_twins(candidates: list[Candidate], tolerance: float = LATTICE_MATCH) -> bool:
