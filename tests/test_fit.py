@@ -28,7 +28,9 @@ from backend.fit.pipeline import _objective, fit
 from backend.fit.search import (
     BLUR_ALLOWANCE_PX,
     BLUR_SCAN,
+    CLOSE_SELECTION,
     COVERAGE_MARGIN,
+    FACE_TWINS,
     NEAR_LATTICE,
     NEARBY,
     BlurRange,
@@ -36,6 +38,8 @@ from backend.fit.search import (
     blur_range,
     blur_scan,
     chosen,
+    contenders,
+    duelled,
     family_lattices,
     rated_candidates,
     samples_per_pixel,
@@ -868,6 +872,39 @@ def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on
     satin1 = {"pattern": "satin1", "tiles": [23.5, 48.1], "lattice_score": 1.0}
     assert untried_rival([satin1], satin).pattern == "satin1"
     assert untried_rival(ruled_out, search.Candidate("custom", lattice_, 1.0)) is None
+
+
+def test_trials_that_end_close_to_the_winner_go_to_the_duel_beside_it():
+    """contenders: the eligible trials that took steps and ended within CLOSE_SELECTION of the winner's
+    selection, lowest first; not one whose lattice makes far fewer of the photos' peaks, one a nearby
+    trial of its weave stands for, or one that took no steps."""
+    from types import SimpleNamespace
+
+    from backend.fit.search import Start
+
+    def trial(pattern, selection, coverage=0.9, skipped=None):
+        run = SimpleNamespace(history=[] if skipped else [(0, selection)])
+        return Trial(Start(0.0, 0, search.Candidate(pattern, (60.0, 60.0), 1.0), None), run,
+                     {} if skipped is None else {"skipped": skipped}, selection, coverage)
+
+    winner = trial("twill1", 5.5)
+    plain, twill0 = trial("plain", 5.5 + 0.7 * CLOSE_SELECTION), trial("twill0", 5.5 + 0.3 * CLOSE_SELECTION)
+    far = trial("satin0", 5.5 + 1.5 * CLOSE_SELECTION)
+    assert contenders([plain, winner, far, twill0], winner) == [twill0, plain]
+    assert contenders([winner, far], winner) == []
+    assert contenders([winner, trial("plain", 5.51, coverage=0.9 - COVERAGE_MARGIN - 0.01)], winner) == []
+    assert contenders([winner, trial("plain", 5.51, skipped=NEARBY)], winner) == []
+    assert contenders([winner, trial("twill0m", 5.51, skipped=FACE_TWINS)], winner) == []
+
+
+def test_the_duel_keeps_the_winner_unless_another_ends_lower_by_the_margin():
+    """duelled: the run that goes on, given each run's best loss (the winner's first)."""
+    assert duelled([3.0], 0.2) == 0
+    assert duelled([3.0, 2.9, 2.85], 0.2) == 0          # lower, but within the margin
+    assert duelled([3.0, 2.7, 2.75], 0.2) == 1          # the lowest of those past it
+    assert duelled([3.0, 2.75, 2.7], 0.2) == 2
+    assert duelled([3.0, 3.1, 2.5], 0.2) == 2
+    assert duelled([3.0, 2.5, 2.5], 0.2) == 1           # a tie: the first
 
 
 def test_the_loss_spectrum_is_the_metric(twill_pair):

@@ -303,10 +303,7 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
         runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_range.floor)]
     for (_, summary), run in zip(finalists, runs):
         summary["fine_trial_loss"] = run.best_loss
-    if len(runs) == 1:
-        return runs[0], steps
-    held, twin = runs
-    return (twin if twin.best_loss < held.best_loss - settings.duel_margin else held), steps
+    return runs[search.duelled([run.best_loss for run in runs], settings.duel_margin)], steps
 
 
 def _finalists(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], coarse: Objective,
@@ -322,6 +319,7 @@ def _finalists(winner: search.Trial, trials: list[search.Trial], ruled_out: list
         [start] = _starting_points([untried], coarse, blur, initial_for, lambda *_: check_stop())
         finalists.append((start.params, next(c for c in ruled_out if c["pattern"] == untried.pattern
                                              and tuple(c["tiles"]) == untried.tiles)))
+    finalists += [(t.start.params, t.summary) for t in search.contenders(trials, winner) if t is not rival]
     return finalists
 
 
