@@ -550,6 +550,22 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert len(trial_steps) == 4 and not any(c.get("skipped") for c in both.candidates)
     winner_start = next(p for p in trial_steps[::2] if p.startswith(both.params.pattern + "_"))
     assert steps[fine[0]] == winner_start
+    # every trial close to the winner's (CLOSE_SELECTION wider than any gap): the other one runs beside the
+    # winner (and its twin, where it has one) at the working size, from its start
+    seen.clear()
+    steps.clear()
+    with monkeypatch.context() as close:
+        close.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
+        close.setattr(pipeline.search, "CLOSE_SELECTION", 1e9)
+        contested = fit(*twill_pair, settings=settings, pattern_probabilities=rated)
+    tried = {c["pattern"] for c in contested.candidates if "selection" in c and not c.get("skipped")}
+    at_working_size = {c["pattern"] for c in contested.candidates if "fine_trial_loss" in c}
+    assert len(tried) == 2 and tried <= at_working_size
+    fine = [k for k, call in enumerate(seen) if call[0] == 64]
+    finalists = len(at_working_size)   # of two steps each, then the last step
+    assert [seen[k][2] for k in fine].count(True) == finalists * 2 + 1
+    trial_steps = [p for p in steps[:fine[0]] if p is not None]
+    assert set(trial_steps[::2]) <= {steps[fine[0] + 2 * k] for k in range(finalists)}  # from the trials' starts
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
