@@ -28,9 +28,7 @@ from backend.fit.pipeline import _objective, fit
 from backend.fit.search import (
     BLUR_ALLOWANCE_PX,
     BLUR_SCAN,
-    CLOSE_SELECTION,
     COVERAGE_MARGIN,
-    FACE_TWINS,
     NEAR_LATTICE,
     NEARBY,
     BlurRange,
@@ -38,7 +36,6 @@ from backend.fit.search import (
     blur_range,
     blur_scan,
     chosen,
-    contenders,
     duelled,
     family_lattices,
     rated_candidates,
@@ -550,22 +547,6 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert len(trial_steps) == 4 and not any(c.get("skipped") for c in both.candidates)
     winner_start = next(p for p in trial_steps[::2] if p.startswith(both.params.pattern + "_"))
     assert steps[fine[0]] == winner_start
-    # every trial close to the winner's (CLOSE_SELECTION wider than any gap): the other one runs beside the
-    # winner (and its twin, where it has one) at the working size, from its start
-    seen.clear()
-    steps.clear()
-    with monkeypatch.context() as close:
-        close.setattr(pipeline.search, "COVERAGE_MARGIN", 1.0)
-        close.setattr(pipeline.search, "CLOSE_SELECTION", 1e9)
-        contested = fit(*twill_pair, settings=settings, pattern_probabilities=rated)
-    tried = {c["pattern"] for c in contested.candidates if "selection" in c and not c.get("skipped")}
-    at_working_size = {c["pattern"] for c in contested.candidates if "fine_trial_loss" in c}
-    assert len(tried) == 2 and tried <= at_working_size
-    fine = [k for k, call in enumerate(seen) if call[0] == 64]
-    finalists = len(at_working_size)   # of two steps each, then the last step
-    assert [seen[k][2] for k in fine].count(True) == finalists * 2 + 1
-    trial_steps = [p for p in steps[:fine[0]] if p is not None]
-    assert set(trial_steps[::2]) <= {steps[fine[0] + 2 * k] for k in range(finalists)}  # from the trials' starts
     # nothing to refine at the base size or below: one size throughout, no duel
     seen.clear()
     result = fit(*twill_pair, settings=FitSettings(**{**settings.__dict__, "size": 32}),
@@ -888,29 +869,6 @@ def test_the_duel_at_the_working_size_is_between_the_winner_and_its_face_twin_on
     satin1 = {"pattern": "satin1", "tiles": [23.5, 48.1], "lattice_score": 1.0}
     assert untried_rival([satin1], satin).pattern == "satin1"
     assert untried_rival(ruled_out, search.Candidate("custom", lattice_, 1.0)) is None
-
-
-def test_trials_that_end_close_to_the_winner_go_to_the_duel_beside_it():
-    """contenders: the eligible trials that took steps and ended within CLOSE_SELECTION of the winner's
-    selection, lowest first; not one whose lattice makes far fewer of the photos' peaks, one a nearby
-    trial of its weave stands for, or one that took no steps."""
-    from types import SimpleNamespace
-
-    from backend.fit.search import Start
-
-    def trial(pattern, selection, coverage=0.9, skipped=None):
-        run = SimpleNamespace(history=[] if skipped else [(0, selection)])
-        return Trial(Start(0.0, 0, search.Candidate(pattern, (60.0, 60.0), 1.0), None), run,
-                     {} if skipped is None else {"skipped": skipped}, selection, coverage)
-
-    winner = trial("twill1", 5.5)
-    plain, twill0 = trial("plain", 5.5 + 0.7 * CLOSE_SELECTION), trial("twill0", 5.5 + 0.3 * CLOSE_SELECTION)
-    far = trial("satin0", 5.5 + 1.5 * CLOSE_SELECTION)
-    assert contenders([plain, winner, far, twill0], winner) == [twill0, plain]
-    assert contenders([winner, far], winner) == []
-    assert contenders([winner, trial("plain", 5.51, coverage=0.9 - COVERAGE_MARGIN - 0.01)], winner) == []
-    assert contenders([winner, trial("plain", 5.51, skipped=NEARBY)], winner) == []
-    assert contenders([winner, trial("twill0m", 5.51, skipped=FACE_TWINS)], winner) == []
 
 
 def test_the_duel_keeps_the_winner_unless_another_ends_lower_by_the_margin():

@@ -35,7 +35,7 @@ from backend.core.fit_options import (
 from backend.core.priors import FIT_PATTERNS, MULTIPLE_ROUGHNESS_RATIO
 from backend.core.protocol import EXIT_INPUT, Reporter, decode
 from backend.core.rig import DEFAULT_RIG, CaptureRig
-from backend.fit.search import BASE_ITERATIONS, BASE_SIZE, BLUR_ALLOWANCE_PX, CLOSE_SELECTION, FINE_ITERATIONS
+from backend.fit.search import BASE_ITERATIONS, BASE_SIZE, BLUR_ALLOWANCE_PX, FINE_ITERATIONS
 from backend.fit.settings import FitSettings
 from backend.init.network import INIT_CHOICES
 from backend.model.camera import CameraSamples
@@ -290,7 +290,6 @@ def test_the_help_quotes_the_codes_figures():
     size = OPTIONS["size"]
     assert f"first {defaults.duel_iterations} steps" in size.details
     assert f"lower by more than {defaults.duel_margin:.0%}." in size.details
-    assert f"within {CLOSE_SELECTION:g} of its selection" in size.details
     assert f"{DEFAULT_RIG.film_size}" in size.help and "default: 256," in size.help
     assert f"under {AUTO_SUBPIXEL_BELOW_PX:g} render pixels" in OPTIONS["blur_on"].help
     allowance = {1.0: "1 pixel", 0.5: "half a pixel", 2.0: "2 pixels"}[BLUR_ALLOWANCE_PX]

@@ -275,13 +275,12 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     The winner starts again from its start at the working size, as a lone candidate does: the trial
     steps at the base size chose the pattern, but where a yarn gets about a pixel there the loss
     reads an aliased weave, and going on from them can end worse. For the same reason the choice
-    between a weave and its face twin on one lattice, and between weaves whose trials ended close
-    (:func:`search.contenders`), is made there (:func:`_finalists`): each runs beside the winner for
-    ``duel_iterations`` steps, and the lowest goes on instead only where its loss is then lower by
-    more than the part ``duel_margin`` of the winner's (:func:`search.duelled`; while both adapt to
-    the photos the lead can swing). The steps are the first of the optimisation's ``iterations``, so
-    a winner that holds its place ends as it would have alone. Each finalist's summary records its
-    loss there (``fine_trial_loss``).
+    between a weave and its face twin on one lattice is made there (:func:`_finalists`): the twin
+    runs beside the winner for ``duel_iterations`` steps, and goes on instead only where its loss is
+    then lower by more than the part ``duel_margin`` of the winner's (:func:`search.duelled`; while
+    both adapt to the photos the lead can swing). The steps are the first of the optimisation's
+    ``iterations``, so a winner that holds its place ends as it would have alone. Each finalist's
+    summary records its loss there (``fine_trial_loss``).
 
     Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
     photos' reading (``blur_range.floor``), the winner first also runs from its start at the reading
@@ -309,9 +308,9 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
 
 def _finalists(winner: search.Trial, trials: list[search.Trial], ruled_out: list[dict], coarse: Objective,
                blur: float, initial_for, check_stop) -> list[tuple[FabricParams, dict]]:
-    """(starting parameters, summary) of the winner, of its face twin on its lattice where there is
-    one: a trial's (:func:`search.rival`), or else one the network ruled out, from its own start
-    (:func:`search.untried_rival`), and of the trials that ended close to it (:func:`search.contenders`)."""
+    """(starting parameters, summary) of the winner and of its face twin on its lattice where there
+    is one: a trial's (:func:`search.rival`), or else one the network ruled out, from its own start
+    (:func:`search.untried_rival`)."""
     finalists = [(winner.start.params, winner.summary)]
     rival = search.rival(trials, winner)
     if rival is not None:
@@ -320,7 +319,6 @@ def _finalists(winner: search.Trial, trials: list[search.Trial], ruled_out: list
         [start] = _starting_points([untried], coarse, blur, initial_for, lambda *_: check_stop())
         finalists.append((start.params, next(c for c in ruled_out if c["pattern"] == untried.pattern
                                              and tuple(c["tiles"]) == untried.tiles)))
-    finalists += [(t.start.params, t.summary) for t in search.contenders(trials, winner) if t is not rival]
     return finalists
 
 

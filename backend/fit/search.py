@@ -61,10 +61,6 @@ LATTICE_MATCH = 0.01  # two candidates' tiles within 1 % on both axes are one la
 # and its face twin this close none (trial_plan): the trial steps never move the lattice, and at this
 # distance the starting loss ranks the lattices as the trials do
 NEAR_LATTICE = 0.03
-# a trial whose selection ends at most this far above the winner's goes to the duel at the working size beside it
-# where the winner restarts there (contenders): at BASE_SIZE a dense weave's yarns get a pixel or so, and the
-# trials of weaves alike there end this close
-CLOSE_SELECTION = 0.1
 
 # Why a shortlisted start gets no trial steps (its summary's "skipped"; trial_plan)
 FEW_PEAKS = "its lattice makes far less of the photos' peaks than the best start's"
@@ -377,21 +373,6 @@ def rival(trials: list[Trial], winner: Trial) -> Trial | None:
     a dense weave: there the trials cannot tell them apart, and the working size decides between the
     two (the fit's coarse to fine)."""
     return next((t for t in _eligible(trials) if _face_twins([winner.start.candidate, t.start.candidate])), None)
-
-
-def contenders(trials: list[Trial], winner: Trial) -> list[Trial]:
-    """The eligible trials, other than the winner, that took steps and whose selection ends within
-    CLOSE_SELECTION of the winner's, lowest selection first: where the winner restarts at the working
-    size (a dense weave), each runs beside it there and can take its place
-    (:func:`backend.fit.pipeline._finalist`).
-
-    Why: at BASE_SIZE a dense weave's yarns get a pixel or so, so what tells weaves of one lattice
-    apart (which yarn floats where) is a detail the trials hardly see; their selections end within a
-    few hundredths, in whichever order their starts put them, as a weave's and its face twin's do
-    (:func:`rival`)."""
-    close = [t for t in _eligible(trials) if t is not winner and not t.nearby and t.run.history
-             and t.selection <= winner.selection + CLOSE_SELECTION]
-    return sorted(close, key=lambda t: (t.selection, trials.index(t)))
 
 
 def duelled(losses: list[float], margin: float) -> int:
