@@ -555,11 +555,11 @@ def test_a_working_size_above_the_base_searches_coarse_and_optimises_fine(twill_
     assert not any("fine_trial_loss" in c for c in result.candidates)
 
 
-def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well_above_it(twill_pair, monkeypatch):
-    """Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
-    photos' reading, the winner also runs from its start at the reading for ``duel_iterations``
-    steps, before its face twin; the lower loss goes on (no margin), and the winner's summary says
-    which blurs duelled with which losses. Here the photos read 0.5 px and the scan says 1.5."""
+def test_the_winner_starts_at_the_working_sizes_blur_even_well_above_the_photos_reading(twill_pair, monkeypatch):
+    """The winner and its face twin run from the camera blur the loss chose at the working size, also
+    where it lies well above the photos' reading: no run starts at the reading (the benchmark's
+    results: such a run beside the winner never ended lower). Here the photos read 0.5 px and the
+    scan says 1.5."""
     import backend.fit.pipeline as pipeline
     monkeypatch.setattr(pipeline.search, "BASE_SIZE", 32)
     monkeypatch.setattr(pipeline.search, "photo_blur_px", lambda *_: 0.5)
@@ -577,27 +577,14 @@ def test_the_winner_also_starts_at_the_photos_blur_where_the_loss_chose_one_well
                            spp=2, search_every=0, compile=False, sample_rotation=0.0, estimate_variation=False)
     result = fit(*twill_pair, settings=settings,
                  pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
-    [winner] = [c for c in result.candidates if "blur_duel" in c]
-    duel = winner["blur_duel"]
-    assert (duel["blur_px"], duel["floor_px"]) == (1.5, 0.5)
     fine = [blur for size, blur in stepped if size == 64]
-    # two steps from the scan's blur, two from the reading's, two of the twin's (from the scan's), then
-    # the last step where the duel's choice left it (Adam moves the blur at most its learning rate a step)
-    assert len(fine) == 7 and (fine[0], fine[2], fine[4]) == (1.5, 0.5, 1.5)
+    # two steps of the winner and two of its twin, each from the scan's blur, then the winner's last step
+    # (Adam moves the blur at most its learning rate a step)
+    assert len(fine) == 5 and (fine[0], fine[2]) == (1.5, 1.5)
     lr = settings.lr * (MAX_CAMERA_BLUR_PX - 0.5)
-    assert all(abs(fine[k + 1] - fine[k]) <= 1.01 * lr for k in (0, 2, 4))
-    from_reading = duel["floor_loss"] < duel["loss"]
-    assert abs(fine[6] - (fine[3] if from_reading else fine[1])) <= 1.01 * lr
-    assert result.params.pattern == winner["pattern"]  # the margin keeps the twin out
-    assert winner["fine_trial_loss"] == min(duel["loss"], duel["floor_loss"])
-    # a scan within BLUR_DUEL_PX of the reading: no blur duel
-    stepped.clear()
-    monkeypatch.setattr(pipeline.search, "best_blur", lambda *_, **__: 0.5 + pipeline.BLUR_DUEL_PX)
-    near = fit(*twill_pair, settings=settings,
-               pattern_probabilities=lambda cands: [float(c.pattern == "twill1") for c in cands])
-    assert not any("blur_duel" in c for c in near.candidates)
-    assert len([s for s in stepped if s[0] == 64]) == 5
-
+    assert all(abs(fine[b] - fine[a]) <= 1.01 * lr for a, b in ((0, 1), (2, 3), (1, 4)))
+    assert result.camera_blur_range == (0.5, MAX_CAMERA_BLUR_PX)
+    assert not any("blur_duel" in c for c in result.candidates)
 
 def test_default_iterations_follow_the_working_size():
     from backend.fit.search import iterations_for

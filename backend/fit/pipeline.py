@@ -70,10 +70,6 @@ from .optimise import LR_MILESTONES, Run
 from .settings import OPTIMISED, FitCancelled, FitResult, FitSettings, Progress
 from .variation_estimate import READINGS, VariationEstimate, estimate_variation, with_scaled_variation
 
-# The camera blur (px) above the photos' reading where the winner also runs from the reading (:func:`_finalist`).
-BLUR_DUEL_PX = 0.25
-
-
 # The settling steps' learning rates as a part of the base rates (Run.start_over_from): the schedule's
 # last, small steps that move the means back, where a run that stopped early would still take steps
 # that search anew (and worsen the loss).
@@ -282,9 +278,9 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     ``iterations``, so a winner that holds its place ends as it would have alone. Each finalist's
     summary records its loss there (``fine_trial_loss``).
 
-    Where the camera blur the loss chose at the working size lies more than BLUR_DUEL_PX above the
-    photos' reading (``blur_range.floor``), the winner first also runs from its start at the reading
-    for those steps, and the lower loss keeps its place (:func:`_blur_duel`)."""
+    The winner starts at the camera blur the loss chooses at the working size (:func:`_fine_run`),
+    not also from the photos' reading: a run from the reading beside it ended lower in none of the
+    fits measured (the benchmark's results)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     # the schedule of a run at the base size (its trial steps and the optimiser's), though this one has
     # no trial steps: it ends at a quarter of the base rate, not an eighth (an eighth measured no
@@ -292,15 +288,9 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     total = settings.iterations + settings.trial_iterations
     runs = [_fine_run(params, fine, settings, total, blur, blur_range) for params, _ in finalists]
     steps = min(settings.duel_iterations, settings.iterations)
-    duelling_blur = blur_range is not None and runs[0].camera_blur_px > blur_range.floor + BLUR_DUEL_PX
-    if steps == 0 or (len(runs) == 1 and not duelling_blur):
+    if steps == 0 or len(runs) == 1:
         return runs[0], 0
-    scanned_blur = runs[0].camera_blur_px  # where the winner starts: its run moves the blur from there
-    if duelling_blur:  # the winner also from the photos' blur: the scan's choice can be a valley
-        runs.insert(1, Run(finalists[0][0], fine, settings, total, blur_range.floor, blur_range))
     _duel_steps(runs, steps, check_stop, progress)
-    if duelling_blur:
-        runs[:2] = [_blur_duel(runs[0], runs[1], finalists[0][1], scanned_blur, blur_range.floor)]
     for (_, summary), run in zip(finalists, runs):
         summary["fine_trial_loss"] = run.best_loss
     return runs[search.duelled([run.best_loss for run in runs], settings.duel_margin)], steps
@@ -340,14 +330,6 @@ def _duel_steps(runs: list[Run], steps: int, check_stop, progress: Progress) -> 
             run.step()
             check_stop(run)
             progress("search", k * steps + done + 1, len(runs) * steps, run.best_loss, None)
-
-
-def _blur_duel(scanned: Run, floored: Run, summary: dict, scanned_blur: float, floor: float) -> Run:
-    """Of the winner's runs from the scan's blur and from the photos' reading (``floor``), the one
-    with the lower best loss; the winner's ``summary`` records both (``blur_duel``)."""
-    summary["blur_duel"] = {"blur_px": scanned_blur, "loss": scanned.best_loss,
-                            "floor_px": floor, "floor_loss": floored.best_loss}
-    return floored if floored.best_loss < scanned.best_loss else scanned
 
 
 def _coarse(settings: FitSettings) -> FitSettings:

@@ -242,9 +242,8 @@ def blur_range(settings: FitSettings, reflection: np.ndarray, transmission: np.n
 
     The fit starts from the loss's choice at the best starting parameters (:func:`best_blur`), and
     the runs move it from there, by gradient and by the discrete searches' parabolic steps
-    (:class:`backend.fit.optimise.Run`); where the start is far from the photos that choice can be
-    a valley the fit stays in, hence a duel from the floor at the working size
-    (:func:`backend.fit.pipeline._finalist`).
+    (:class:`backend.fit.optimise.Run`), at the working size from the loss's choice there
+    (:func:`backend.fit.pipeline._fine_run`).
 
     Why a ceiling: a pixel loss falls wherever a softer render hides what the model cannot match
     (a yarn texture, speckle, a random yarn pattern), so without one a fit can blur a sharp photo's
