@@ -289,7 +289,7 @@ def test_the_help_quotes_the_codes_figures():
     assert f"{steps} steps' gradients add up to the whole one" in iterations.details
     size = OPTIONS["size"]
     assert f"first {defaults.duel_iterations} steps" in size.details
-    assert f"lower by more than {defaults.duel_margin:.0%}." in size.details
+    assert f"lower by more than {defaults.duel_margin:g}" in size.details
     assert f"{DEFAULT_RIG.film_size}" in size.help and "default: 256," in size.help
     assert f"under {AUTO_SUBPIXEL_BELOW_PX:g} render pixels" in OPTIONS["blur_on"].help
     allowance = {1.0: "1 pixel", 0.5: "half a pixel", 2.0: "2 pixels"}[BLUR_ALLOWANCE_PX]

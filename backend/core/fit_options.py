@@ -189,7 +189,7 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
                       "from the chosen weave's starting point, its first 10 steps beside the weave's face twin on the "
                       "same lattice (every crossing turned over: `twill0` and `twill1m`, `twill1` and `twill0m`, "
                       "`satin0` and `satin1`, ...), which 256 px cannot tell from it: the twin goes on instead only "
-                      "where its loss is then lower by more than 5%."),
+                      "where its loss is then lower by more than 0.2."),
     FitOption("rig", TEXT, None, metavar="RIG.json", batch=True, default_text="the paper's rig",
               help="capture rig JSON (default: the paper's rig)"),
     FitOption("strict", FLAG, False, batch=True, help="refuse (not just warn) photos that look swapped"),

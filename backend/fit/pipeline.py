@@ -273,8 +273,8 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     reads an aliased weave, and going on from them can end worse. For the same reason the choice
     between a weave and its face twin on one lattice is made there (:func:`_finalists`): the twin
     runs beside the winner for ``duel_iterations`` steps, and goes on instead only where its loss is
-    then lower by more than the part ``duel_margin`` of the winner's (:func:`search.duelled`; while
-    both adapt to the photos the lead can swing). The steps are the first of the optimisation's
+    then lower by more than ``duel_margin`` (:func:`search.duelled`; while both adapt to the photos
+    the lead can swing; the margin is twice the swing seen). The steps are the first of the optimisation's
     ``iterations``, so a winner that holds its place ends as it would have alone. Each finalist's
     summary records its loss there (``fine_trial_loss``).
 

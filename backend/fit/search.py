@@ -376,13 +376,9 @@ def rival(trials: list[Trial], winner: Trial) -> Trial | None:
 
 def duelled(losses: list[float], margin: float) -> int:
     """Which run of a duel goes on, given each one's best loss after the duel's steps (the winner's
-    first): the lowest, where it is lower than the winner's by more than the part ``margin`` of it,
-    else the winner.
-
-    Why a part: the lead swings while the runs adapt to the photos by a part of the loss (on real
-    photos, whose losses are higher, by more), not by a fixed amount."""
+    first): the lowest, where it is lower than the winner's by more than ``margin``, else the winner."""
     lowest = min(range(len(losses)), key=lambda k: (losses[k], k))
-    return lowest if losses[lowest] < losses[0] * (1.0 - margin) else 0
+    return lowest if losses[lowest] < losses[0] - margin else 0
 
 
 def untried_rival(ruled_out: list[dict], winner: Candidate) -> Candidate | None:

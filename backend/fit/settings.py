@@ -39,7 +39,7 @@ class FitSettings:
     trials: int = 5                  # candidates given a short fit in the search stage
     trial_iterations: int = 20
     duel_iterations: int = 10        # steps at the working size of the winner and of its face twin (a dense weave)
-    duel_margin: float = 0.05        # another finalist goes on only where its loss is this part lower after them
+    duel_margin: float = 0.2         # the face twin goes on only where its loss is this much lower after them
     spectrum_weight: float = 1.0     # weight of the spectrum mismatch when choosing between trials
     min_pattern_probability: float = 0.02  # candidates the network rules out get no trial fit
     first_search: int = 25           # the iteration after which the first discrete search runs (each search
