@@ -280,7 +280,7 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
 
     The winner starts at the camera blur the loss chooses at the working size (:func:`_fine_run`),
     not also from the photos' reading: a run from the reading beside it ended lower in one fit of
-    27 measured, whose photo metrics it left the same within the fits' noise (the benchmark's
+    26 measured, whose photo metrics it left the same within the fits' noise (the benchmark's
     results)."""
     finalists = _finalists(winner, trials, ruled_out, coarse, blur, initial_for, check_stop)
     # the schedule of a run at the base size (its trial steps and the optimiser's), though this one has
