@@ -274,9 +274,9 @@ def _finalist(winner: search.Trial, trials: list[search.Trial], ruled_out: list[
     between a weave and its face twin on one lattice is made there (:func:`_finalists`): the twin
     runs beside the winner for ``duel_iterations`` steps, and goes on instead only where its loss is
     then lower by more than ``duel_margin`` (:func:`search.duelled`; while both adapt to the photos
-    the lead can swing; the margin is twice the swing seen). The steps are the first of the optimisation's
-    ``iterations``, so a winner that holds its place ends as it would have alone. Each finalist's
-    summary records its loss there (``fine_trial_loss``).
+    the lead can swing; the margin is twice the swing seen). The steps are the first of the
+    optimisation's ``iterations``, so a winner that holds its place ends as it would have alone.
+    Each finalist's summary records its loss there (``fine_trial_loss``).
 
     The winner starts at the camera blur the loss chooses at the working size (:func:`_fine_run`),
     not also from the photos' reading: a run from the reading beside it ended lower in one fit of
