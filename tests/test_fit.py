@@ -174,7 +174,7 @@ class ScriptedRun:
 
 def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     from backend.fit.pipeline import _optimise
-    settings = FitSettings(iterations=100, first_search=50, search_every=50, patience=20)
+    settings = FitSettings(iterations=100, first_search=50, search_every=50, patience=20, plateau_gain=0.0)
     reports = []
 
     def optimise(run, settings=settings):
@@ -200,9 +200,12 @@ def test_the_optimisation_ends_once_the_best_loss_stops_moving():
     assert optimise(improving) == 100 and [r[1] for r in reports] == list(range(1, 101))
     assert set(improving.periods) == {FitSettings().gradient_period}  # its steps take gradient shares
     # patience 0, or no search where one is due: every step runs
-    assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0)) == 100
-    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20)) == 21
-    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, first_search=50, patience=20)) == 21
+    assert optimise(ScriptedRun([5.0] * 100), FitSettings(iterations=100, first_search=50, patience=0,
+                                                          plateau_gain=0.0)) == 100
+    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, search_every=0, patience=20,
+                                                         plateau_gain=0.0)) == 21
+    assert optimise(ScriptedRun([5.0] * 30), FitSettings(iterations=30, first_search=50, patience=20,
+                                                         plateau_gain=0.0)) == 21
 
 
 def test_a_stall_above_the_last_rate_goes_on_at_the_last_rate_instead_of_ending_the_run():
@@ -210,7 +213,7 @@ def test_a_stall_above_the_last_rate_goes_on_at_the_last_rate_instead_of_ending_
     the run goes on from its best at the last rate and its patience counts afresh; it ends by
     patience only at the last rate, and says its patience is 0 (no end by patience) until then."""
     from backend.fit.pipeline import _optimise
-    settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=20)
+    settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=20, plateau_gain=0.0)
     reports = []
 
     def optimise(run):
@@ -230,6 +233,63 @@ def test_a_stall_above_the_last_rate_goes_on_at_the_last_rate_instead_of_ending_
     # a run that improves to its end never drops its rate
     improving = ScriptedRun([10.0 - 0.01 * i for i in range(100)], last_rate_from=85)
     assert optimise(improving) == 100 and improving.drops == []
+
+
+def test_after_its_last_discrete_search_the_optimisation_ends_once_its_best_loss_gains_next_to_nothing():
+    """Once no discrete search is left and a window of steps has passed since the last, the run ends
+    where its best loss gained less than plateau_gain of itself over that window; before the last
+    search, or where the best still gains, it goes on (a plain stall still ends by patience)."""
+    from backend.fit.pipeline import _optimise, plateaued
+    settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=20, plateau_window=10,
+                           plateau_gain=1e-3)
+
+    def optimise(run, settings=settings):
+        return _optimise(run, settings, lambda run: None, lambda *report, **optimiser: None)
+
+    # steady gains to step 80, then 1e-4 of the loss a window: it ends 10 steps after the last gain that counted
+    creeping = [10.0 - 0.1 * min(i, 79) - 1e-4 * max(i - 79, 0) for i in range(100)]
+    assert optimise(ScriptedRun(creeping)) == 90
+    # the same creep from step 60 on: no end before the last search (75) and its window
+    early = [10.0 - 0.1 * min(i, 59) - 1e-4 * max(i - 59, 0) for i in range(100)]
+    assert optimise(ScriptedRun(early)) == 85
+    # gains of 2e-3 of the loss a window go on to the end
+    steady = [10.0 * (1 - 2e-4) ** i for i in range(100)]
+    assert optimise(ScriptedRun(steady)) == 100
+    # a plateau gain of 0 never ends a run this way
+    assert optimise(ScriptedRun(creeping), dataclasses.replace(settings, plateau_gain=0.0)) == 100
+    # the rule alone: the window is counted in steps after the last search, from the best after each step
+    best_after = {k: 5.0 for k in range(1, 101)}
+    assert not plateaued(settings, 84, best_after) and plateaued(settings, 85, best_after)
+    later = dataclasses.replace(settings, iterations=120, max_searches=4)  # its last search after step 100
+    best_after.update({k: 5.0 for k in range(101, 121)})
+    assert not plateaued(later, 109, best_after) and plateaued(later, 110, best_after)
+    best_after[85] = 5.0 * (1 - 2e-3)
+    assert not plateaued(settings, 85, best_after)
+
+
+def test_only_the_first_discrete_search_tries_the_joint_coarse_gap_steps(twill_pair):
+    """The first search moves both yarns' gap scales together by each of COARSE_GAP_STEPS before its
+    parabolic steps; later ones start from fitted gaps and take the parabolic steps alone, so they
+    render fewer states."""
+    from backend.core.params import SPECS
+    from backend.fit.optimise import COARSE_GAP_STEPS
+    settings = FitSettings(size=32, spp=4, compile=False)
+    run = Run(TWILL.replace(tiles=tuple(t / 16 for t in TWILL.tiles)), _objective(*twill_pair, DEFAULT_RIG, settings),
+              settings, total=10, camera_blur_px=0.8)
+    gaps = []
+    loss = run._loss
+    run._loss = lambda fabric: gaps.append(tuple(fabric.host(("gap_scale",))["gap_scale"])) or loss(fabric)
+    spec = SPECS["gap_scale"]
+
+    def joint_steps(start):  # the evaluated states with both yarns moved by one of the coarse steps
+        moved = {o: tuple(min(spec.hi, max(spec.lo, g + o)) for g in start) for o in COARSE_GAP_STEPS}
+        return [o for state in gaps[1:] for o, joint in moved.items() if state == pytest.approx(joint, abs=1e-6)]
+
+    for round_index in (0, 1, 2):
+        gaps.clear()
+        run.discrete_search(round_index)
+        assert joint_steps(gaps[0]) == (list(COARSE_GAP_STEPS) if round_index == 0 else [])
+        assert len(gaps) > 1 + (len(COARSE_GAP_STEPS) if round_index == 0 else 0)  # then the parabolic steps
 
 
 def test_discrete_searches_come_after_the_first_search_then_every_search_every():

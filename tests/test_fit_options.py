@@ -284,6 +284,9 @@ def test_the_help_quotes_the_codes_figures():
     assert f"not moved for {defaults.patience} steps" in iterations.help
     searches = [defaults.first_search + k * defaults.search_every for k in range(defaults.max_searches)]
     assert f"after {searches[0]}, {searches[1]} and {searches[2]} iterations" in iterations.details
+    window, gain = defaults.plateau_window, f"{100 * defaults.plateau_gain:g} %"
+    assert (f"From {window} steps after the last, it ends once its best loss has gained less than {gain} over the "
+            f"last {window} steps") in iterations.details
     share, steps = {2: ("a half", "two"), 3: ("a third", "three"), 4: ("a quarter", "four")}[defaults.gradient_period]
     assert f"through {share} of the film's rows" in iterations.details
     assert f"{steps} steps' gradients add up to the whole one" in iterations.details

@@ -174,6 +174,8 @@ FIT_OPTIONS: tuple[FitOption, ...] = (
                    "size); it ends sooner once its best loss has not moved for 20 steps at its last learning rate",
               details="Discrete steps on the gap scale, twist and camera blur come after 25, 50 and 75 iterations; "
                       "where one falls inside the run, the optimisation does not end before it has had its turn. "
+                      "From 10 steps after the last, it ends once its best loss has gained less than 0.05 % over the "
+                      "last 10 steps. "
                       "A stall at a higher learning rate goes on from the best parameters at the last rate. Each of "
                       "its steps takes its gradient through a quarter of the film's rows, another quarter at each "
                       "step, while its loss is every pixel's: a step costs about 0.6 of one through every row, and "

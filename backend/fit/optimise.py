@@ -6,10 +6,10 @@
   once to the last of those rates where the run stalls above it (:meth:`Run.lower_rate`); every parameter is
   clamped into its range after each step; where the camera blur is estimated, Adam moves it too
   (:class:`Run`).
-- :meth:`Run.discrete_search` (:func:`backend.fit.pipeline.search_due`): a joint coarse step on gap scale,
-  then a parabolic step (:func:`parabolic_step`) per yarn on gap scale and twist, and on the camera
-  blur when it is estimated; spans halve each round. Deterministic: a better use of evaluations
-  than the paper's random +/- steps.
+- :meth:`Run.discrete_search` (:func:`backend.fit.pipeline.search_due`): in the first, a joint coarse
+  step on gap scale, then in each a parabolic step (:func:`parabolic_step`) per yarn on gap scale
+  and twist, and on the camera blur when it is estimated; spans halve each round. Deterministic:
+  a better use of evaluations than the paper's random +/- steps.
 - :meth:`Run.scan_glow` (at the first discrete search, where the fit reads the glow): the back
   light's glow through the gaps at each strength of :data:`GLOW_SCAN`, the one whose transmission's
   colour term is lowest kept.
@@ -38,6 +38,10 @@ if TYPE_CHECKING:
     from .search import BlurRange
 
 LR_MILESTONES = (0.5, 0.7, 0.85)  # fractions of the run where the learning rates halve
+# The joint steps of both yarns' gap scales that the first discrete search tries before its parabolic
+# steps: a start's gap scale can lie further off than they reach. Later searches start from fitted
+# gaps, where these wide steps seldom won (the benchmark's results) and each costs a render.
+COARSE_GAP_STEPS = (-0.1, -0.05, 0.05, 0.1)
 # The strengths of the back light's glow through the gaps (the rig's glow_strength; the spec's rig: 8)
 # that Run.scan_glow tries: a real lamp seen through the yarns' gaps is as bright as its diffuser
 # and the camera's focus make it, none where the fabric closes them.
@@ -290,20 +294,12 @@ class Run:
         return True
 
     def discrete_search(self, round_index: int) -> None:
-        """A joint coarse step in gap scale, then parabolic steps on gap scale and twist per yarn
-        (and on the camera blur when it is estimated), with spans halving each round."""
+        """In the first round a joint coarse step in gap scale (:data:`COARSE_GAP_STEPS`), then in
+        every round parabolic steps on gap scale and twist per yarn (and on the camera blur when it is
+        estimated), with spans halving each round."""
         current = self._loss(self.fabric)
-        gap = self.fabric.values["gap_scale"]
-        spec = SPECS["gap_scale"]
-        best_gap = None
-        for offset in (-0.1, -0.05, 0.05, 0.1):
-            candidate = (gap.detach() + offset).clamp(spec.lo, spec.hi)
-            value = self._loss(self.fabric.with_values(gap_scale=candidate))
-            if value < current:
-                current, best_gap = value, candidate
-        if best_gap is not None:
-            with torch.no_grad():
-                gap.copy_(best_gap)
+        if round_index == 0:
+            current = self._coarse_gap_step(current)
         spans = {"gap_scale": 0.04 / 2 ** round_index, "twist_deg": 4.0 / 2 ** round_index}
         for name, span in spans.items():
             spec = SPECS[name]
@@ -325,6 +321,22 @@ class Run:
             current = self._blur_step(current, 0.4 / 2 ** round_index)
         if current < self.best_loss:
             self._keep_best(current)
+
+    def _coarse_gap_step(self, current: float) -> float:
+        """The joint step of both yarns' gap scales by each of :data:`COARSE_GAP_STEPS` (clamped),
+        the lowest loss kept where it is below ``current`` (the loss now); returns the loss kept."""
+        gap = self.fabric.values["gap_scale"]
+        spec = SPECS["gap_scale"]
+        best_gap = None
+        for offset in COARSE_GAP_STEPS:
+            candidate = (gap.detach() + offset).clamp(spec.lo, spec.hi)
+            value = self._loss(self.fabric.with_values(gap_scale=candidate))
+            if value < current:
+                current, best_gap = value, candidate
+        if best_gap is not None:
+            with torch.no_grad():
+                gap.copy_(best_gap)
+        return current
 
     def _blur_step(self, current: float, span: float) -> float:
         """The parabolic step of the discrete parameters, on the camera blur."""

@@ -17,7 +17,8 @@ taking the values the one before returned.
                after the back light's glow through the gaps is read where asked (``settings.estimate_glow``:
                :meth:`backend.fit.optimise.Run.scan_glow`); where the best loss stops moving
                (:func:`converged`) it ends early, at the schedule's last learning rate, or else
-               goes on from its best at that rate
+               goes on from its best at that rate; after the last discrete search it ends once its
+               best loss gains next to nothing (:func:`plateaued`)
     variation  the yarn variation the photos show, read from the texture power the regular weave
                leaves unexplained (:mod:`backend.fit.variation_estimate`); where it is kept, the run
                goes on from it for ``settings.settle_steps`` steps, and once more from a part of it
@@ -351,7 +352,8 @@ def _coarse(settings: FitSettings) -> FitSettings:
 
 def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, done: int = 0) -> int:
     """The winner's run goes on until it has had ``settings.iterations`` steps at the working size, or
-    fewer where it has converged (:func:`converged`); returns the steps it had there in all.
+    fewer where it has converged (:func:`converged`) or settled after its last discrete search
+    (:func:`plateaued`); returns the steps it had there in all.
 
     ``done``: the steps it has had at the working size already (the duel's, :func:`_finalist`): it
     goes on from them as one run, so a winner that holds its place fits as it would have alone. With
@@ -366,6 +368,7 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
     loop_started = time.perf_counter()
     search_round = 0
     best, improved_at = run.best_loss, 0
+    best_after: dict[int, float] = {}  # the best loss after each step here
     if done:  # where the best loss last moved in the steps it has had (each step keeps the loss before it)
         best = math.inf
         for step, (_, value) in enumerate(run.history, start=1):
@@ -384,15 +387,20 @@ def _optimise(run: Run, settings: FitSettings, check_stop, progress: Progress, d
             search_round += 1
         if run.best_loss < best:
             best, improved_at = run.best_loss, done
-        if converged(settings, done, improved_at, search_round):
-            run.end_warp_trial()
-            if not run.at_last_rate:   # a stall above the last rate: from the best, at the last rate
+        best_after[done] = run.best_loss
+        ended = plateaued(settings, done, best_after)
+        if not ended and converged(settings, done, improved_at, search_round):
+            if run.at_last_rate:
+                ended = True
+            else:   # a stall above the last rate: from the best, at the last rate
+                run.end_warp_trial()
                 run.lower_rate()
                 improved_at = done
-            else:
-                progress("optimise", settings.iterations, settings.iterations, value, 0.0,
-                         since_best=done - improved_at, patience=settings.patience)
-                return done
+        if ended:
+            run.end_warp_trial()
+            progress("optimise", settings.iterations, settings.iterations, value, 0.0,
+                     since_best=done - improved_at, patience=settings.patience)
+            return done
         eta = (time.perf_counter() - loop_started) / done * (settings.iterations - done)
         # patience 0 while a stall would lower the rate, not end the run (the progress bar reads it)
         progress("optimise", done, settings.iterations, value, eta, since_best=done - improved_at,
@@ -478,6 +486,26 @@ def search_due(settings: FitSettings, done: int) -> bool:
     after = done - settings.first_search
     return (bool(settings.search_every) and 0 <= after and done < settings.iterations
             and after % settings.search_every == 0 and after // settings.search_every < settings.max_searches)
+
+
+def last_search(settings: FitSettings) -> int:
+    """The step after which the run's last discrete search comes (:func:`search_due`; 0: none)."""
+    return max((done for done in range(1, settings.iterations) if search_due(settings, done)), default=0)
+
+
+def plateaued(settings: FitSettings, done: int, best_after: dict[int, float]) -> bool:
+    """Whether the optimisation has settled after ``done`` steps (``best_after[k]``: its best loss after
+    step k): no discrete search is left, the last was ``settings.plateau_window`` steps ago or more,
+    and over the last window its best loss gained less than ``settings.plateau_gain`` of itself.
+
+    Why: after the last search the run only refines, at a quarter of the base rate and less, and its
+    gains fall to a few hundredths of a percent a window, a fraction of the step-to-step scatter of
+    the loss the gradient shares leave; those steps cost as much as any other (the benchmark's results)."""
+    window = settings.plateau_window
+    if not settings.plateau_gain or window <= 0 or done - last_search(settings) < window:
+        return False
+    before, now = best_after.get(done - window), best_after[done]
+    return before is not None and before - now < settings.plateau_gain * abs(now)
 
 
 def converged(settings: FitSettings, done: int, improved_at: int, searches: int) -> bool:

@@ -50,6 +50,10 @@ class FitSettings:
     patience: int = 20               # the optimisation ends after this many steps without a new best loss, once
                                      # a discrete search has had its turn, at the schedule's last learning rate
                                      # (above it, it goes on from its best at that rate; 0: it runs every iteration)
+    plateau_window: int = 10         # once no discrete search is left and plateau_window steps have passed since
+    plateau_gain: float = 5e-4       # the last, the optimisation ends where its best loss gained less than
+                                     # plateau_gain of itself over the last plateau_window steps (0: never;
+                                     # backend.fit.pipeline.plateaued)
     gradient_period: int = 4         # the optimisation's steps take their gradients through every gradient_period-th
                                      # block of film rows, a block further on each step (backend.model.render.
                                      # GradientShare; 1: all); the short runs whose ends are compared take all
