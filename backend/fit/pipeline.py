@@ -498,9 +498,9 @@ def plateaued(settings: FitSettings, done: int, best_after: dict[int, float]) ->
     step k): no discrete search is left, the last was ``settings.plateau_window`` steps ago or more,
     and over the last window its best loss gained less than ``settings.plateau_gain`` of itself.
 
-    Why: after the last search the run only refines, at a quarter of the base rate and less, and its
-    gains fall to a few hundredths of a percent a window, a fraction of the step-to-step scatter of
-    the loss the gradient shares leave; those steps cost as much as any other (the benchmark's results)."""
+    Why: after the last search the run only refines at a quarter of the base rate, and a window's
+    gain falls below the loss's own mean change from one step to the next (the gradient shares'
+    scatter); those steps cost as much as any other (the benchmark's results)."""
     window = settings.plateau_window
     if not settings.plateau_gain or window <= 0 or done - last_search(settings) < window:
         return False
