@@ -238,7 +238,7 @@ def test_a_stall_above_the_last_rate_goes_on_at_the_last_rate_instead_of_ending_
 def test_after_its_last_discrete_search_the_optimisation_ends_once_its_best_loss_gains_next_to_nothing():
     """Once no discrete search is left and a window of steps has passed since the last, the run ends
     where its best loss gained less than plateau_gain of itself over that window; before the last
-    search, or where the best still gains, it goes on (a plain stall still ends by patience)."""
+    search's window, or where the best still gains, it goes on."""
     from backend.fit.pipeline import _optimise, plateaued
     settings = FitSettings(iterations=100, first_search=25, search_every=25, patience=20, plateau_window=10,
                            plateau_gain=1e-3)
