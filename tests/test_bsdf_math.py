@@ -184,6 +184,24 @@ def test_phi_has_the_derivative_of_its_formula_down_to_zero():
         assert torch.allclose(got, want, rtol=1e-9)
 
 
+def test_phi_in_float32_is_the_formula_rounded_beyond_its_fast_range():
+    """phi's float32 argument is kept within [PHI_FLOOR_FLOAT32, EXPM1_SATURATION] for the CPU's fast
+    expm1: below and above, phi must take the float32 values of the formula with expm1 on the whole
+    argument, to the last bit, within an ulp of the exact ones, and its slope the formula's."""
+    y64 = torch.tensor([0.0, 1e-38, 1e-30, 1e-20, 1e-16, 1e-13, 1e-12, 1e-9, 6e-8, 0.05, 0.5, 17.0, 39.0, 40.0,
+                        41.0, 56.0, 90.0, 1e3, 1e6, 3e38], dtype=DT)
+    y = y64.float().requires_grad_(True)
+    phi = one_minus_exp_over(y)
+    phi.sum().backward()
+    whole = y.detach().clamp_min(1e-38)
+    assert torch.equal(phi.detach(), torch.expm1(-whole) / -whole)
+    exact = torch.tensor([1.0 if v == 0 else -math.expm1(-v) / v for v in y64.tolist()], dtype=DT)
+    assert torch.allclose(phi.detach().double(), exact, rtol=1.2e-7, atol=0)
+    slope = torch.tensor([-0.5 + v / 3 if v < 1e-4 else (math.exp(-v) - -math.expm1(-v) / v) / v
+                          for v in y64.tolist()], dtype=DT)
+    assert torch.allclose(y.grad.double(), slope, rtol=1e-5, atol=1e-12)
+
+
 def test_projected_forms_equal_the_fiber_frame_forms():
     gen = torch.Generator().manual_seed(13)
     n = 3000

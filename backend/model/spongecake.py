@@ -22,6 +22,13 @@ import torch
 from . import asggx, sggx
 from .frames import dot, normalize
 
+# The vectorised float32 expm1 of the CPU takes a slow path, several times slower, for arguments of
+# magnitude below about 3e-15 and above about 56: phi's argument is kept within [PHI_FLOOR_FLOAT32,
+# EXPM1_SATURATION] there, where phi and expm1 take the same float32 values as at the bounds (phi(y) is
+# 1 below y = 6e-8, expm1(-y) is -1 from y = 17, to the last bit).
+PHI_FLOOR_FLOAT32 = 1e-12
+EXPM1_SATURATION = 40.0
+
 
 class _OneMinusExpOver(torch.autograd.Function):
     """phi with a hand-written derivative: one expm1 and no branch in the forward pass (phi(0) = 1 =
@@ -31,8 +38,8 @@ class _OneMinusExpOver(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, y):
-        positive = y.clamp_min(1e-30)
-        exp_m1 = torch.expm1(-positive)
+        positive = y.clamp_min(PHI_FLOOR_FLOAT32 if y.dtype == torch.float32 else 1e-30)
+        exp_m1 = torch.expm1(-positive.clamp_max(EXPM1_SATURATION))
         phi = exp_m1 / -positive
         ctx.save_for_backward(positive, exp_m1, phi)
         return phi
