@@ -429,6 +429,27 @@ def test_camera_blur_keeps_the_mean_and_softens_the_yarn_lattice():
     assert torch.equal(gaussian_blur(sharp.reflection, 0.0), sharp.reflection)
 
 
+@pytest.mark.parametrize("half", [1, 2, 3, 4])
+def test_quarter_means_are_the_means_of_each_quarter_of_the_strata_and_carry_their_gradient(half):
+    """render.quarter_means: each quarter's mean of a pixel's k x k strata (k = 2 half), as torch's
+    mean over the quarter's rows and columns gives it, to the float's rounding, and the same gradient
+    (1 / half^2 to each of its samples)."""
+    gen = torch.Generator().manual_seed(11 + half)
+    strata = (torch.rand(3, 5, 7, 2, half, 2, half, generator=gen) * 10.0 ** (4 * torch.rand(3, 1, 1, 1, 1, 1, 1,
+                                                                                          generator=gen) - 2))
+    strata.requires_grad_(True)
+    got = render_module.quarter_means(strata)
+    assert got.shape == (3, 5, 7, 2, 2)
+    literal = torch.stack([torch.stack([strata[..., qy, :, qx, :].reshape(3, 5, 7, -1).double().mean(-1)
+                                        for qx in range(2)], -1) for qy in range(2)], -2)
+    assert torch.allclose(got.double(), literal, rtol=1e-6, atol=0)
+    assert torch.allclose(got, strata.mean((-3, -1)), rtol=1e-6, atol=0)
+    weights = torch.rand(got.shape, generator=gen)
+    (grad,) = torch.autograd.grad((got * weights).sum(), strata)
+    (expected,) = torch.autograd.grad((strata.mean((-3, -1)) * weights).sum(), strata)
+    assert torch.allclose(grad, expected, rtol=1e-6, atol=0)
+
+
 def test_auto_subpixel_blur_takes_the_subpixels_only_under_the_alias_free_width():
     """subpixel_blur=None: a blur narrower than AUTO_SUBPIXEL_BELOW_PX render pixels acts on the
     sub-pixels (as subpixel_blur=True), a wider one on the pixel means (as False)."""
