@@ -27,6 +27,13 @@ spacing alone moves the fitted map off the identity: the two photos weigh differ
 fabric (the reflection its lit top, the transmission its glowing centre), by a cycle or two where
 a moved phone shifts the peaks by many. A magnification past MAX_MAGNIFICATION is left alone (the
 framing check refuses such a pair, or has called its ratio one of the lattice's own harmonics).
+
+Where the framing check's scale finds no clear map (the two photos' strongest peaks can be different
+harmonics of the lattice, as a satin's or a plain weave's reflection and transmission show: the
+check then reads a ratio such as 0.69), the map is sought again from every start on a log grid over
+[1 / MAX_MAGNIFICATION, MAX_MAGNIFICATION] (:data:`START_SCAN_STEP`), and of the clear maps found with
+at least SCANNED_MIN_MATCHES peaks the one whose matched peaks are the strongest in all (the sum over
+its matches of the weaker peakness of the two) is kept.
 """
 from __future__ import annotations
 
@@ -47,6 +54,8 @@ MAX_RESIDUAL = 0.75         # cycles (RMS): matched peaks must agree with one li
 MIN_SHIFT = 3.0             # cycles (RMS): smaller moves are the fabric's own uneven spacing
 SHIFT_OVER_RESIDUAL = 2.0   # the move must stand clear of the map's own misfit
 MAX_MAGNIFICATION = 1.2     # beyond: a framing the check refuses, or a harmonic of the lattice
+START_SCAN_STEP = 0.015     # log step of the scanned starts: half START_TOLERANCE (each move well within one's reach)
+SCANNED_MIN_MATCHES = 6     # a map only a scanned start finds: of many starts, 4-5 peaks can fit a wrong one by chance
 
 
 @dataclass(frozen=True)
@@ -112,28 +121,70 @@ def lattice_map(reflection: np.ndarray, transmission: np.ndarray, scale: float, 
     """(A, peaks matched, residual, shift): the linear map of the transmission photo's spectral peaks
     onto the reflection's (module docstring), starting from the magnification ``scale``; None when
     fewer than three peaks match. The two photos' peaks are read on up to ``workers`` threads."""
-    ref, trans = (np.array([(p.fx, p.fy) for p in peaks], dtype=float).reshape(-1, 2)
-                  for peaks in ordered_map(spectral_peaks, (reflection, transmission), workers))
+    found = _fitted_map(*_peaks(reflection, transmission, workers), scale)
+    return None if found is None else found[:4]
+
+
+def _peaks(reflection: np.ndarray, transmission: np.ndarray, workers: int) -> tuple[np.ndarray, ...]:
+    """(reflection peaks, their peakness, transmission peaks, theirs): (K, 2) cycles per image and (K,)."""
+    out = []
+    for peaks in ordered_map(spectral_peaks, (reflection, transmission), workers):
+        out += [np.array([(p.fx, p.fy) for p in peaks], dtype=float).reshape(-1, 2),
+                np.array([p.strength for p in peaks], dtype=float)]
+    return tuple(out)
+
+
+def _fitted_map(ref: np.ndarray, ref_strength: np.ndarray, trans: np.ndarray, trans_strength: np.ndarray,
+                scale: float) -> tuple[np.ndarray, int, float, float, float] | None:
+    """:func:`lattice_map` of the peaks, and the matched peaks' strength (the sum over the matches of
+    the weaker peakness of the two)."""
     if len(ref) < 3 or len(trans) < 3:
         return None
     matrix = scale * np.eye(2)
     for round_ in range(ROUNDS + 1):
         predicted = trans @ matrix.T
         tolerance = START_TOLERANCE * np.linalg.norm(ref, axis=1) if round_ == 0 else np.full(len(ref), MATCH_CYCLES)
-        q, p = _matched(ref, predicted, trans, tolerance)
+        q, p, strength = _matched(ref, predicted, trans, tolerance, ref_strength, trans_strength)
         if len(q) < 3:
             return None
         matrix = np.linalg.lstsq(q, p, rcond=None)[0].T
     residual = float(np.sqrt(np.mean(np.sum((q @ matrix.T - p) ** 2, axis=1))))
     shift = float(np.sqrt(np.mean(np.sum((q @ (matrix - np.eye(2)).T) ** 2, axis=1))))
-    return matrix, len(q), residual, shift
+    return matrix, len(q), residual, shift, strength
 
 
-def _matched(ref: np.ndarray, predicted: np.ndarray, trans: np.ndarray, tolerance: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """(transmission peaks, reflection peaks) matched: each reflection peak with the nearest
-    predicted transmission peak (either sign: a spectrum is symmetric) within its tolerance."""
-    q, p = [], []
+def _clear(found, min_matches: int = MIN_MATCHES) -> bool:
+    """Whether a :func:`_fitted_map` is clear evidence of a move (module docstring)."""
+    if found is None:
+        return False
+    matrix, matches, residual, shift = found[:4]
+    det = float(np.linalg.det(matrix))
+    return (matches >= min_matches and residual <= MAX_RESIDUAL and shift > MIN_SHIFT
+            and shift > SHIFT_OVER_RESIDUAL * residual and det > 0
+            and 1 / MAX_MAGNIFICATION ** 2 <= det <= MAX_MAGNIFICATION ** 2)
+
+
+def scanned_starts() -> np.ndarray:
+    """The starting magnifications of the scan (module docstring): a log grid over
+    [1 / MAX_MAGNIFICATION, MAX_MAGNIFICATION] at START_SCAN_STEP."""
+    span = math.log(MAX_MAGNIFICATION)
+    return np.exp(np.arange(-span, span + 1e-9, START_SCAN_STEP))
+
+
+def _scanned_map(peaks: tuple[np.ndarray, ...]):
+    """Of the clear maps (:func:`_clear`, SCANNED_MIN_MATCHES peaks) found from :func:`scanned_starts`,
+    the one with the strongest matched peaks; None where there is none."""
+    found = [_fitted_map(*peaks, float(start)) for start in scanned_starts()]
+    clear = [f for f in found if _clear(f, SCANNED_MIN_MATCHES)]
+    return max(clear, key=lambda f: f[4]) if clear else None
+
+
+def _matched(ref: np.ndarray, predicted: np.ndarray, trans: np.ndarray, tolerance: np.ndarray,
+             ref_strength: np.ndarray, trans_strength: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(transmission peaks, reflection peaks, their strength) matched: each reflection peak with the
+    nearest predicted transmission peak (either sign: a spectrum is symmetric) within its tolerance;
+    the strength is the sum over the matches of the weaker peakness of the two."""
+    q, p, strength = [], [], 0.0
     for k, peak in enumerate(ref):
         plus = np.linalg.norm(predicted - peak, axis=1)
         minus = np.linalg.norm(predicted + peak, axis=1)
@@ -142,7 +193,8 @@ def _matched(ref: np.ndarray, predicted: np.ndarray, trans: np.ndarray, toleranc
         if distance[best] <= tolerance[k]:
             q.append(trans[best] if plus[best] <= minus[best] else -trans[best])
             p.append(peak)
-    return np.asarray(q, dtype=float).reshape(-1, 2), np.asarray(p, dtype=float).reshape(-1, 2)
+            strength += min(float(ref_strength[k]), float(trans_strength[best]))
+    return np.asarray(q, dtype=float).reshape(-1, 2), np.asarray(p, dtype=float).reshape(-1, 2), strength
 
 
 def magnified(image: np.ndarray, matrix: np.ndarray, interpolation: int = cv2.INTER_LINEAR) -> np.ndarray:
@@ -159,19 +211,17 @@ def magnified(image: np.ndarray, matrix: np.ndarray, interpolation: int = cv2.IN
 def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | None, workers: int = 1
              ) -> tuple[np.ndarray, np.ndarray, Registration | None]:
     """The pair with one photo magnified onto the other's framing (module docstring), and what was
-    done (None, and the photos as they are, when the evidence is not clear)."""
-    if scale is None or not 1 / MAX_MAGNIFICATION <= scale <= MAX_MAGNIFICATION:
+    done (None, and the photos as they are, when the evidence is not clear). ``scale``: the framing
+    check's (None: the check did not compare the photos, and they are left as they are)."""
+    if scale is None:
         return reflection, transmission, None
-    found = lattice_map(reflection, transmission, scale, workers)
+    peaks = _peaks(reflection, transmission, workers)
+    found = _fitted_map(*peaks, scale) if 1 / MAX_MAGNIFICATION <= scale <= MAX_MAGNIFICATION else None
+    if not _clear(found):
+        found = _scanned_map(peaks)
     if found is None:
         return reflection, transmission, None
-    matrix, matches, residual, shift = found
-    det = float(np.linalg.det(matrix))
-    clear = (matches >= MIN_MATCHES and residual <= MAX_RESIDUAL and shift > MIN_SHIFT
-             and shift > SHIFT_OVER_RESIDUAL * residual and det > 0
-             and 1 / MAX_MAGNIFICATION ** 2 <= det <= MAX_MAGNIFICATION ** 2)
-    if not clear:
-        return reflection, transmission, None
+    matrix, matches, residual, shift = found[:4]
     done = Registration(tuple(tuple(float(x) for x in row) for row in matrix), matches, residual, shift)
     if done.moved == "reflection":
         return magnified(reflection, done.photo_map), transmission, done
