@@ -8,6 +8,7 @@ import pytest
 from backend.app.report import write_report
 from backend.core import priors
 from backend.core.rig import DEFAULT_RIG
+from backend.image import registration
 from backend.image.photos import load_pair
 from backend.image.png import write_png
 from backend.image.registration import Registration, magnified, register
@@ -64,6 +65,54 @@ def test_the_photo_showing_more_fabric_is_magnified_onto_the_others_framing(tmp_
     # (A is found to about 0.3 %, which still leaves the yarns a fraction of a pixel apart at the edges,
     # and moved back, the transmission photo has been resampled twice: 0.29 and 0.43 of the error before)
     assert np.abs(got - want).mean() < 0.5 * np.abs(before - want).mean()
+
+
+@pytest.mark.parametrize("check_scale", [0.69, 1.0])
+def test_a_move_the_framing_checks_scale_misses_is_found_from_a_scan_of_starts(pair, check_scale):
+    """The framing check can read the ratio of two different harmonics of the lattice (0.69: a satin's
+    or a plain weave's two photos show different ones), or none (1.0) for a small move: where its scale
+    gives no clear map, the scan of starting magnifications finds the move."""
+    reflection, transmission = pair
+    zoom, degrees = 1.04, -1.2
+    moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
+    _, _, done = register(reflection, moved, check_scale)
+    assert done is not None and done.moved == "reflection"
+    np.testing.assert_allclose(done.matrix, np.linalg.inv(turn(degrees) / zoom).T, atol=0.004)
+
+
+def test_a_pair_framed_alike_is_left_alone_whatever_scale_the_check_read(pair):
+    reflection, transmission = pair
+    for check_scale in (0.69, 0.9, 1.15, 1.5):
+        out_r, out_t, done = register(reflection, transmission, check_scale)
+        assert done is None and out_r is reflection and out_t is transmission
+
+
+def test_a_map_only_the_scan_finds_needs_more_peaks_than_one_from_the_checks_scale(pair, monkeypatch):
+    """SCANNED_MIN_MATCHES: of the scan's many starts, a map that a few peaks agree with can be chance;
+    from the framing check's own scale MIN_MATCHES do."""
+    reflection, transmission = pair
+    zoom = 1.05
+    matrix = zoom * np.eye(2)
+
+    def fitted(*args, matches):
+        return matrix, matches, 0.2, 6.0, float(matches)
+
+    for matches in (registration.MIN_MATCHES, registration.SCANNED_MIN_MATCHES - 1, registration.SCANNED_MIN_MATCHES):
+        monkeypatch.setattr(registration, "_fitted_map", lambda *a, m=matches: fitted(*a, matches=m))
+        from_check = register(reflection, transmission, zoom)[2]
+        from_scan = register(reflection, transmission, 0.69)[2]  # no start from a scale past MAX_MAGNIFICATION
+        assert from_check is not None and from_check.matches == matches
+        assert (from_scan is not None) == (matches >= registration.SCANNED_MIN_MATCHES)
+
+
+def test_the_scanned_starts_reach_every_magnification_the_registration_allows():
+    """Every magnification in [1 / MAX_MAGNIFICATION, MAX_MAGNIFICATION] lies within half a start step
+    (in log) of a scanned start: well inside START_TOLERANCE, the first matching's reach."""
+    starts = np.log(registration.scanned_starts())
+    span = math.log(registration.MAX_MAGNIFICATION)
+    assert starts[0] == pytest.approx(-span) and starts[-1] >= span - registration.START_SCAN_STEP / 2
+    assert np.diff(starts).max() <= registration.START_SCAN_STEP + 1e-12
+    assert registration.START_SCAN_STEP <= registration.START_TOLERANCE / 2
 
 
 def test_the_photos_are_loaded_alike_on_any_number_of_threads(tmp_path, pair):
