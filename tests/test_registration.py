@@ -105,6 +105,25 @@ def test_a_map_only_the_scan_finds_needs_more_peaks_than_one_from_the_checks_sca
         assert (from_scan is not None) == (matches >= registration.SCANNED_MIN_MATCHES)
 
 
+def test_shear_is_zero_for_a_turn_and_a_zoom_and_measures_what_is_left():
+    assert registration.shear(1.07 * turn(1.3)) == pytest.approx(0.0, abs=1e-12)
+    stretched = turn(0.5) @ np.diag([1.05, 1.02])  # 3 % more along x than along y
+    # its nearest similarity is the mean zoom; what is left is +-1.5 % on the two axes
+    assert registration.shear(stretched) == pytest.approx(math.hypot(0.015, 0.015) / 1.035, rel=1e-6)
+
+
+def test_a_map_only_the_scan_finds_must_be_a_turn_and_a_zoom(pair, monkeypatch):
+    """SCANNED_MAX_SHEAR: a phone moved between the shots turns and zooms the framing; a map that some
+    harmonics agree with by chance can shear it, and from the scan it is refused."""
+    reflection, transmission = pair
+    limit = registration.SCANNED_MAX_SHEAR
+    for shear_part, kept in ((0.5 * limit, True), (2.0 * limit, False)):
+        matrix = 1.05 * turn(1.0) @ np.diag([1 + shear_part / math.sqrt(2), 1 - shear_part / math.sqrt(2)])
+        monkeypatch.setattr(registration, "_fitted_map", lambda *a, m=matrix: (m, 9, 0.2, 6.0, 9.0))
+        assert (register(reflection, transmission, 0.69)[2] is not None) == kept
+        assert register(reflection, transmission, 1.05)[2] is not None  # from the check's scale: as before
+
+
 def test_the_scanned_starts_reach_every_magnification_the_registration_allows():
     """Every magnification in [1 / MAX_MAGNIFICATION, MAX_MAGNIFICATION] lies within half a start step
     (in log) of a scanned start: well inside START_TOLERANCE, the first matching's reach."""

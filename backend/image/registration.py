@@ -32,8 +32,10 @@ Where the framing check's scale finds no clear map (the two photos' strongest pe
 harmonics of the lattice, as a satin's or a plain weave's reflection and transmission show: the
 check then reads a ratio such as 0.69), the map is sought again from every start on a log grid over
 [1 / MAX_MAGNIFICATION, MAX_MAGNIFICATION] (:data:`START_SCAN_STEP`), and of the clear maps found with
-at least SCANNED_MIN_MATCHES peaks the one whose matched peaks are the strongest in all (the sum over
-its matches of the weaker peakness of the two) is kept.
+at least SCANNED_MIN_MATCHES peaks and no more shear than SCANNED_MAX_SHEAR (:func:`shear`: a phone
+moved between the shots turns and zooms the framing; a map that only some harmonics agree with by
+chance need not) the one whose matched peaks are the strongest in all (the sum over its matches of
+the weaker peakness of the two) is kept.
 """
 from __future__ import annotations
 
@@ -56,6 +58,7 @@ SHIFT_OVER_RESIDUAL = 2.0   # the move must stand clear of the map's own misfit
 MAX_MAGNIFICATION = 1.2     # beyond: a framing the check refuses, or a harmonic of the lattice
 START_SCAN_STEP = 0.015     # log step of the scanned starts: half START_TOLERANCE (each move well within one's reach)
 SCANNED_MIN_MATCHES = 6     # a map only a scanned start finds: of many starts, 4-5 peaks can fit a wrong one by chance
+SCANNED_MAX_SHEAR = 0.015   # and it must be a turn and a zoom (a phone's move) within this part: chance maps shear
 
 
 @dataclass(frozen=True)
@@ -171,11 +174,19 @@ def scanned_starts() -> np.ndarray:
     return np.exp(np.arange(-span, span + 1e-9, START_SCAN_STEP))
 
 
+def shear(matrix: np.ndarray) -> float:
+    """How far A is from a turn and a zoom: |A - S| / sqrt(det S), S = [[p, -q], [q, p]] the nearest
+    similarity (p, q the means of A's diagonal and of its antisymmetric part)."""
+    a = np.asarray(matrix, dtype=float)
+    p, q = 0.5 * (a[0, 0] + a[1, 1]), 0.5 * (a[1, 0] - a[0, 1])
+    return float(np.linalg.norm(a - np.array([[p, -q], [q, p]])) / math.hypot(p, q))
+
+
 def _scanned_map(peaks: tuple[np.ndarray, ...]):
-    """Of the clear maps (:func:`_clear`, SCANNED_MIN_MATCHES peaks) found from :func:`scanned_starts`,
-    the one with the strongest matched peaks; None where there is none."""
+    """Of the clear maps (:func:`_clear`, SCANNED_MIN_MATCHES peaks, SCANNED_MAX_SHEAR) found from
+    :func:`scanned_starts`, the one with the strongest matched peaks; None where there is none."""
     found = [_fitted_map(*peaks, float(start)) for start in scanned_starts()]
-    clear = [f for f in found if _clear(f, SCANNED_MIN_MATCHES)]
+    clear = [f for f in found if _clear(f, SCANNED_MIN_MATCHES) and shear(f[0]) <= SCANNED_MAX_SHEAR]
     return max(clear, key=lambda f: f[4]) if clear else None
 
 
