@@ -53,6 +53,7 @@ def test_the_photo_showing_more_fabric_is_magnified_onto_the_others_framing(tmp_
     photos, moved = loaded_moved(tmp_path, pair, zoom, degrees)
     info = photos.info["registration"]
     assert info is not None and info["moved"] == ("reflection" if zoom > 1 else "transmission")
+    assert info["start"] == "framing check"
     np.testing.assert_allclose(info["matrix"], np.linalg.inv(turn(degrees) / zoom).T, atol=0.004)
     assert info["magnification"] == pytest.approx(max(zoom, 1 / zoom), rel=0.004)
     assert any("framed differently" in w and f"magnified {info['magnification']:.3f}x" in w for w in photos.warnings)
@@ -76,7 +77,7 @@ def test_a_move_the_framing_checks_scale_misses_is_found_from_a_scan_of_starts(p
     zoom, degrees = 1.04, -1.2
     moved = np.clip(magnified(transmission, turn(degrees) / zoom), 0, 1)
     _, _, done = register(reflection, moved, check_scale)
-    assert done is not None and done.moved == "reflection"
+    assert done is not None and done.moved == "reflection" and done.to_dict()["start"] == "scan"
     np.testing.assert_allclose(done.matrix, np.linalg.inv(turn(degrees) / zoom).T, atol=0.004)
 
 

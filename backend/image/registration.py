@@ -70,6 +70,7 @@ class Registration:
     matches: int
     residual: float
     shift: float
+    scanned: bool = False  # found from the scan of starts, not from the framing check's scale
 
     @property
     def scale(self) -> float:
@@ -116,7 +117,8 @@ class Registration:
     def to_dict(self) -> dict:
         return {"matrix": [list(row) for row in self.matrix], "moved": self.moved, "matches": self.matches,
                 "residual_cycles": round(self.residual, 4), "shift_cycles": round(self.shift, 4),
-                "magnification": round(self.magnification, 5), "turn_deg": round(self.turn_deg, 4)}
+                "magnification": round(self.magnification, 5), "turn_deg": round(self.turn_deg, 4),
+                "start": "scan" if self.scanned else "framing check"}
 
 
 def lattice_map(reflection: np.ndarray, transmission: np.ndarray, scale: float, workers: int = 1
@@ -228,12 +230,13 @@ def register(reflection: np.ndarray, transmission: np.ndarray, scale: float | No
         return reflection, transmission, None
     peaks = _peaks(reflection, transmission, workers)
     found = _fitted_map(*peaks, scale) if 1 / MAX_MAGNIFICATION <= scale <= MAX_MAGNIFICATION else None
-    if not _clear(found):
+    scanned = not _clear(found)
+    if scanned:
         found = _scanned_map(peaks)
     if found is None:
         return reflection, transmission, None
     matrix, matches, residual, shift = found[:4]
-    done = Registration(tuple(tuple(float(x) for x in row) for row in matrix), matches, residual, shift)
+    done = Registration(tuple(tuple(float(x) for x in row) for row in matrix), matches, residual, shift, scanned)
     if done.moved == "reflection":
         return magnified(reflection, done.photo_map), transmission, done
     return reflection, magnified(transmission, done.photo_map), done
