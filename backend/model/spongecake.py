@@ -27,18 +27,20 @@ from .frames import dot, normalize
 # EXPM1_SATURATION] there, where phi and expm1 take the same float32 values as at the bounds (phi(y) is
 # 1 below y = 6e-8, expm1(-y) is -1 from y = 17, to the last bit).
 PHI_FLOOR_FLOAT32 = 1e-12
+PHI_FLOOR = 1e-30  # in float64, whose expm1 has no such slow path
 EXPM1_SATURATION = 40.0
 
 
 class _OneMinusExpOver(torch.autograd.Function):
     """phi with a hand-written derivative: one expm1 and no branch in the forward pass (phi(0) = 1 =
-    phi(1e-30) in any float precision, and -expm1(-y) / y is accurate to an ulp for every y > 0),
+    phi of the floor, PHI_FLOOR_FLOAT32 in float32 and PHI_FLOOR in float64, and -expm1(-y) / y is
+    accurate to an ulp for every y > 0),
     and phi'(y) = (exp(-y) - phi(y)) / y, or its series -1/2 + y/3 below 1e-4 where that difference
     cancels. Autograd of the formula would spend about three times the memory traffic."""
 
     @staticmethod
     def forward(ctx, y):
-        positive = y.clamp_min(PHI_FLOOR_FLOAT32 if y.dtype == torch.float32 else 1e-30)
+        positive = y.clamp_min(PHI_FLOOR_FLOAT32 if y.dtype == torch.float32 else PHI_FLOOR)
         exp_m1 = torch.expm1(-positive.clamp_max(EXPM1_SATURATION))
         phi = exp_m1 / -positive
         ctx.save_for_backward(positive, exp_m1, phi)
